@@ -1,0 +1,199 @@
+"""Dynamics of the 2RPU-2SPR manipulator in task space (DESIGN.md §2; the paper's eq. 9-24).
+
+    M(X) Xddot + C(X, Xdot) Xdot + G(X) = F + tau_d',      F = J^T tau_a
+
+Every term is a sum over the 9 bodies of :func:`pkmctl.kinematics.body_jacobians`:
+
+    M = sum  m J_v^T J_v + J_w^T (R I R^T) J_w
+    C = sum  m J_v^T dJ_v + J_w^T ((R I R^T) dJ_w + [omega]x (R I R^T) J_w)
+    G = sum  m g J_v[z]^T
+
+This C makes Mdot - 2C skew-symmetric. T and V are linear in the body parameters
+Theta_b = [m, I_xx, I_yy, I_zz], so with the columns r_k of R_b,
+R I R^T = sum_k I_k r_k r_k^T and the regressor Y (3, 36) follows body by body:
+Y Theta = M Xr_ddot + C Xr_dot + G.
+
+The kernels take a workspace :class:`Workspace`-like tuple of arrays so the control
+loop can call them without allocating.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .kinematics import N_BODIES, body_jacobians
+
+__all__ = [
+    "N_THETA",
+    "actuator_forces_kernel",
+    "dynamics_kernel",
+    "make_work",
+    "regressor_kernel",
+]
+
+N_THETA = 4 * N_BODIES
+
+
+@njit(cache=True)
+def make_work():
+    """Scratch arrays for one pose: (com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat)."""
+    return (
+        np.empty((N_BODIES, 3)),
+        np.empty((N_BODIES, 3, 3)),
+        np.empty((N_BODIES, 3, 3)),
+        np.empty((N_BODIES, 3, 3)),
+        np.empty((N_BODIES, 3, 3)),
+        np.empty((N_BODIES, 3, 3)),
+        np.empty((4, 3)),
+        np.empty(4),
+        np.empty((9, 3)),
+        np.empty((4, 3, 3)),
+    )
+
+
+@njit(cache=True)
+def _kinematics(geom, X, Xd, work):
+    com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat = work
+    body_jacobians(geom, X, Xd, com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat)
+
+
+@njit(cache=True)
+def _assemble(geom, theta, Xd, work, M, C, G):
+    """M, C, G from filled body kinematics (the sums of the module docstring)."""
+    Rb, Jv, Jw, dJv, dJw = work[1], work[2], work[3], work[4], work[5]
+    g = geom[10]
+    M[:, :] = 0.0
+    C[:, :] = 0.0
+    G[:] = 0.0
+    # scratch reused from the kinematics (free once it has run)
+    Iw, A, IJ = work[9][0], work[9][1], work[9][2]  # R I R^T, Iw dJw + [w]x Iw Jw, Iw Jw
+    w = work[8][0]
+    for b in range(N_BODIES):
+        m = theta[4 * b]
+        R = Rb[b]
+        for k in range(3):
+            for n in range(3):
+                Iw[k, n] = (
+                    theta[4 * b + 1] * R[k, 0] * R[n, 0]
+                    + theta[4 * b + 2] * R[k, 1] * R[n, 1]
+                    + theta[4 * b + 3] * R[k, 2] * R[n, 2]
+                )
+        for k in range(3):
+            w[k] = Jw[b, k, 0] * Xd[0] + Jw[b, k, 1] * Xd[1] + Jw[b, k, 2] * Xd[2]
+        for k in range(3):
+            for j in range(3):
+                IJ[k, j] = Iw[k, 0] * Jw[b, 0, j] + Iw[k, 1] * Jw[b, 1, j] + Iw[k, 2] * Jw[b, 2, j]
+        for k in range(3):
+            k1, k2 = (k + 1) % 3, (k + 2) % 3
+            for j in range(3):
+                A[k, j] = (
+                    Iw[k, 0] * dJw[b, 0, j]
+                    + Iw[k, 1] * dJw[b, 1, j]
+                    + Iw[k, 2] * dJw[b, 2, j]
+                    + w[k1] * IJ[k2, j]
+                    - w[k2] * IJ[k1, j]
+                )
+        for i in range(3):
+            for j in range(3):
+                mv = 0.0
+                cv = 0.0
+                mw = 0.0
+                cw = 0.0
+                for k in range(3):
+                    mv += Jv[b, k, i] * Jv[b, k, j]
+                    cv += Jv[b, k, i] * dJv[b, k, j]
+                    mw += Jw[b, k, i] * IJ[k, j]
+                    cw += Jw[b, k, i] * A[k, j]
+                M[i, j] += m * mv + mw
+                C[i, j] += m * cv + cw
+            G[i] += m * g * Jv[b, 2, i]
+
+
+@njit(cache=True)
+def dynamics_kernel(geom, theta, X, Xd, work, M, C, G):
+    """Fill M (3, 3), C (3, 3) and G (3,) at (X, Xd) (eq. 9-24)."""
+    _kinematics(geom, X, Xd, work)
+    _assemble(geom, theta, Xd, work, M, C, G)
+
+
+@njit(cache=True)
+def _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y):
+    Rb, Jv, Jw, dJv, dJw = work[1], work[2], work[3], work[4], work[5]
+    g = geom[10]
+    acc, wr, w, vec = work[8][0], work[8][1], work[8][2], work[8][3]
+    for b in range(N_BODIES):
+        # mass column: J_v^T (J_v Xr_dd + dJ_v Xr_d) + g J_v[z]^T
+        for k in range(3):
+            acc[k] = 0.0
+            for j in range(3):
+                acc[k] += Jv[b, k, j] * Xr_dd[j] + dJv[b, k, j] * Xr_d[j]
+        for i in range(3):
+            Y[i, 4 * b] = (
+                Jv[b, 0, i] * acc[0] + Jv[b, 1, i] * acc[1] + Jv[b, 2, i] * acc[2] + g * Jv[b, 2, i]
+            )
+        # inertia columns: J_w^T (r_k a_k + b_k omega x r_k)
+        for k in range(3):
+            acc[k] = 0.0
+            wr[k] = 0.0
+            w[k] = 0.0
+            for j in range(3):
+                acc[k] += Jw[b, k, j] * Xr_dd[j] + dJw[b, k, j] * Xr_d[j]
+                wr[k] += Jw[b, k, j] * Xr_d[j]
+                w[k] += Jw[b, k, j] * Xd[j]
+        R = Rb[b]
+        for n in range(3):
+            r0, r1, r2 = R[0, n], R[1, n], R[2, n]
+            a_n = r0 * acc[0] + r1 * acc[1] + r2 * acc[2]
+            b_n = r0 * wr[0] + r1 * wr[1] + r2 * wr[2]
+            vec[0] = r0 * a_n + b_n * (w[1] * r2 - w[2] * r1)
+            vec[1] = r1 * a_n + b_n * (w[2] * r0 - w[0] * r2)
+            vec[2] = r2 * a_n + b_n * (w[0] * r1 - w[1] * r0)
+            for i in range(3):
+                Y[i, 4 * b + 1 + n] = (
+                    Jw[b, 0, i] * vec[0] + Jw[b, 1, i] * vec[1] + Jw[b, 2, i] * vec[2]
+                )
+
+
+@njit(cache=True)
+def regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, work, Y):
+    """Fill the regressor Y (3, 36) with Y Theta = M Xr_dd + C(X, Xd) Xr_d + G (eq. 24)."""
+    _kinematics(geom, X, Xd, work)
+    _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y)
+
+
+@njit(cache=True)
+def actuator_forces_kernel(Jq, F, tau):
+    """Minimum-norm actuator forces tau (4,) with J^T tau = F: tau = J (J^T J)^-1 F (eq. 22)."""
+    A = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            A[i, j] = (
+                Jq[0, i] * Jq[0, j]
+                + Jq[1, i] * Jq[1, j]
+                + Jq[2, i] * Jq[2, j]
+                + (Jq[3, i] * Jq[3, j])
+            )
+    y = _solve3(A, F)
+    for i in range(4):
+        tau[i] = Jq[i, 0] * y[0] + Jq[i, 1] * y[1] + Jq[i, 2] * y[2]
+
+
+@njit(cache=True)
+def _solve3(A, b):
+    """Solve a 3x3 system by Cramer's rule (A is symmetric positive definite here)."""
+    c00 = A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]
+    c01 = A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2]
+    c02 = A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]
+    det = A[0, 0] * c00 + A[0, 1] * c01 + A[0, 2] * c02
+    c10 = A[0, 2] * A[2, 1] - A[0, 1] * A[2, 2]
+    c11 = A[0, 0] * A[2, 2] - A[0, 2] * A[2, 0]
+    c12 = A[0, 1] * A[2, 0] - A[0, 0] * A[2, 1]
+    c20 = A[0, 1] * A[1, 2] - A[0, 2] * A[1, 1]
+    c21 = A[0, 2] * A[1, 0] - A[0, 0] * A[1, 2]
+    c22 = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+    x = np.empty(3)
+    x[0] = (c00 * b[0] + c10 * b[1] + c20 * b[2]) / det
+    x[1] = (c01 * b[0] + c11 * b[1] + c21 * b[2]) / det
+    x[2] = (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det
+    return x

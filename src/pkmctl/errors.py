@@ -1,0 +1,43 @@
+"""Exceptions raised by pkmctl.
+
+Every error a user can provoke is a :class:`PkmctlError`; the ones caused by a bad
+value also derive from :class:`ValueError`, so ``except ValueError`` keeps working.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "ConvergenceError",
+    "InvalidPoseError",
+    "PkmctlError",
+    "SimulationDiverged",
+]
+
+
+class PkmctlError(Exception):
+    """Base class of every pkmctl error."""
+
+
+class InvalidPoseError(PkmctlError, ValueError):
+    """A pose X = [z, alpha, beta] outside the valid set (z <= 0, |angle| >= pi/2, singular J)."""
+
+
+class ConvergenceError(PkmctlError, RuntimeError):
+    """An iterative solver did not converge; ``residual`` holds its last residual."""
+
+    def __init__(self, message: str, *, residual: float) -> None:
+        super().__init__(message)
+        self.residual = residual
+
+
+class SimulationDiverged(PkmctlError, RuntimeError):
+    """A closed-loop run left the valid set or produced a non-finite state.
+
+    ``time`` and ``state`` name where it happened; ``partial`` holds the result computed so far.
+    """
+
+    def __init__(self, message: str, *, time: float, state, partial=None) -> None:
+        super().__init__(message)
+        self.time = time
+        self.state = state
+        self.partial = partial

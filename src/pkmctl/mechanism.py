@@ -1,0 +1,435 @@
+"""The mechanism: geometry and the 9 bodies of the 2RPU-2SPR manipulator (DESIGN.md §1).
+
+:class:`Mechanism` is frozen data plus methods that call the compiled kernels of
+:mod:`pkmctl.kinematics` and :mod:`pkmctl.dynamics`. Every method takes one pose
+``X`` of shape (3,) or a batch of shape (N, 3) and returns the matching shape:
+``(...)`` for one pose, ``(N, ...)`` for a batch.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from .dynamics import (
+    N_THETA,
+    actuator_forces_kernel,
+    dynamics_kernel,
+    make_work,
+    regressor_kernel,
+)
+from .errors import ConvergenceError, InvalidPoseError
+from .kinematics import GEOM_SIZE, N_BODIES, forward_kinematics_kernel, limb_kinematics
+
+__all__ = ["BODY_NAMES", "Body", "Mechanism", "PAPER_TABLE2"]
+
+BODY_NAMES = (
+    "platform",
+    "lower limb 1",
+    "lower limb 2",
+    "lower limb 3",
+    "lower limb 4",
+    "upper limb 1",
+    "upper limb 2",
+    "upper limb 3",
+    "upper limb 4",
+)
+
+#: The paper's Table 2 (SI units), with the centre-of-mass distances of DESIGN.md §1
+#: (l_1, l_2 place the limb centres at heights 0.22 m and 0.49 m at home, as Table 2 does).
+PAPER_TABLE2: dict[str, Any] = {
+    "r_a": 0.2,  # m, platform radius
+    "r_b": 0.339,  # m, base radius
+    "platform": {"mass": 12.75, "inertia": (0.077, 0.107, 0.183)},
+    "lower_limb": {"mass": 0.95, "inertia": (2.88e-2, 2.89e-2, 0.05e-2), "com": 0.2243},
+    "upper_limb": {"mass": 1.10, "inertia": (2.65e-2, 2.67e-2, 0.03e-2), "com": 0.2141},
+    "g": 9.807,  # m/s^2
+}
+
+#: Largest condition number of J accepted as a valid pose.
+MAX_CONDITION = 1e6
+#: Smallest singular value of J accepted (m per m or per rad): below it the platform can move
+#: while no limb length changes to first order (e.g. the platform flat in the base plane).
+MIN_SINGULAR_VALUE = 1e-6
+#: Shortest limb accepted as a valid pose (m): below it u_i is ill-defined.
+MIN_LIMB_LENGTH = 1e-3
+
+
+@dataclass(frozen=True)
+class Body:
+    """A rigid body: mass (kg) and principal inertia (I_xx, I_yy, I_zz) in its frame (kg m^2)."""
+
+    mass: float
+    inertia: tuple[float, float, float]
+
+    def as_theta(self) -> np.ndarray:
+        """Theta_b = [m, I_xx, I_yy, I_zz], shape (4,)."""
+        return np.array([self.mass, *self.inertia], dtype=float)
+
+
+def _check_theta(theta: np.ndarray, *, physical: bool) -> None:
+    if theta.shape != (N_THETA,):
+        raise ValueError(f"theta: expected shape ({N_THETA},), got {theta.shape}")
+    if not np.all(np.isfinite(theta)):
+        raise ValueError("theta: must be finite")
+    for b in range(N_BODIES):
+        m, ixx, iyy, izz = theta[4 * b : 4 * b + 4]
+        name = BODY_NAMES[b]
+        if m <= 0:
+            raise ValueError(f"theta[{4 * b}] ({name} mass) = {m}: must be > 0")
+        for k, ik in enumerate((ixx, iyy, izz)):
+            if ik <= 0:
+                raise ValueError(f"theta[{4 * b + 1 + k}] ({name} inertia) = {ik}: must be > 0")
+        if physical:
+            tol = 1e-12 * (ixx + iyy + izz)
+            if ixx + iyy < izz - tol or iyy + izz < ixx - tol or izz + ixx < iyy - tol:
+                raise ValueError(
+                    f"theta[{4 * b + 1}:{4 * b + 4}] ({name} inertia) = "
+                    f"({ixx}, {iyy}, {izz}): must satisfy the triangle inequality "
+                    "I_a + I_b >= I_c"
+                )
+
+
+@dataclass(frozen=True, eq=False)
+class Mechanism:
+    """The 2RPU-2SPR manipulator: geometry and inertial parameters (DESIGN.md §1).
+
+    Parameters
+    ----------
+    r_a, r_b : float
+        Platform and base radii (m), ``0 < r_a < r_b``.
+    l1, l2 : ndarray, shape (4,)
+        Distance of the lower-limb centre of mass from its base joint and of the
+        upper-limb centre of mass from its platform joint, per limb (m).
+    theta : ndarray, shape (36,)
+        Inertial parameters ``[Theta_0 ... Theta_8]``, ``Theta_b = [m, I_xx, I_yy, I_zz]``
+        in the body order of :data:`BODY_NAMES`.
+    g : float
+        Gravitational acceleration (m/s^2), along -z.
+
+    Use :meth:`paper` for the paper's machine and :meth:`from_bodies` to build another.
+    """
+
+    r_a: float
+    r_b: float
+    l1: np.ndarray
+    l2: np.ndarray
+    theta: np.ndarray
+    g: float = 9.807
+    _geom: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        l1 = np.array(self.l1, dtype=float).reshape(-1)
+        l2 = np.array(self.l2, dtype=float).reshape(-1)
+        theta = np.array(self.theta, dtype=float).reshape(-1)
+        for name, val in (("r_a", self.r_a), ("r_b", self.r_b), ("g", self.g)):
+            if not (isinstance(val, int | float) and math.isfinite(val)):
+                raise ValueError(f"{name} = {val!r}: must be a finite number")
+        if not 0 < self.r_a < self.r_b:
+            raise ValueError(f"r_a = {self.r_a}, r_b = {self.r_b}: need 0 < r_a < r_b")
+        if self.g < 0:
+            raise ValueError(f"g = {self.g}: must be >= 0")
+        for name, arr in (("l1", l1), ("l2", l2)):
+            if arr.shape != (4,) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
+                raise ValueError(f"{name} = {arr}: need 4 finite distances >= 0 (m)")
+        _check_theta(theta, physical=True)
+        for arr in (l1, l2, theta):
+            arr.setflags(write=False)
+        object.__setattr__(self, "l1", l1)
+        object.__setattr__(self, "l2", l2)
+        object.__setattr__(self, "theta", theta)
+        geom = np.concatenate([[self.r_a, self.r_b], l1, l2, [self.g]]).astype(float)
+        assert geom.shape == (GEOM_SIZE,)
+        geom.setflags(write=False)
+        object.__setattr__(self, "_geom", geom)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def paper(cls) -> Mechanism:
+        """The paper's manipulator (Table 2, DESIGN.md §1)."""
+        t = PAPER_TABLE2
+        return cls.from_bodies(
+            r_a=t["r_a"],
+            r_b=t["r_b"],
+            platform=Body(t["platform"]["mass"], t["platform"]["inertia"]),
+            lower_limb=Body(t["lower_limb"]["mass"], t["lower_limb"]["inertia"]),
+            upper_limb=Body(t["upper_limb"]["mass"], t["upper_limb"]["inertia"]),
+            l1=t["lower_limb"]["com"],
+            l2=t["upper_limb"]["com"],
+            g=t["g"],
+        )
+
+    @classmethod
+    def from_bodies(
+        cls,
+        *,
+        r_a: float,
+        r_b: float,
+        platform: Body,
+        lower_limb: Body | list[Body],
+        upper_limb: Body | list[Body],
+        l1: float | list[float],
+        l2: float | list[float],
+        g: float = 9.807,
+    ) -> Mechanism:
+        """Build a mechanism from its bodies; one limb Body or distance is used for all four."""
+        lower = [lower_limb] * 4 if isinstance(lower_limb, Body) else list(lower_limb)
+        upper = [upper_limb] * 4 if isinstance(upper_limb, Body) else list(upper_limb)
+        if len(lower) != 4 or len(upper) != 4:
+            raise ValueError("lower_limb, upper_limb: need one Body or a list of 4")
+        theta = np.concatenate([b.as_theta() for b in [platform, *lower, *upper]])
+        return cls(
+            r_a=float(r_a),
+            r_b=float(r_b),
+            l1=np.broadcast_to(np.asarray(l1, dtype=float), (4,)),
+            l2=np.broadcast_to(np.asarray(l2, dtype=float), (4,)),
+            theta=theta,
+            g=float(g),
+        )
+
+    def with_theta(self, theta: np.ndarray, *, physical: bool = True) -> Mechanism:
+        """The same geometry with other inertial parameters ``theta`` (36,).
+
+        ``physical=False`` skips the triangle-inequality check (positivity is always
+        checked), e.g. for an adaptive estimate.
+        """
+        theta = np.array(theta, dtype=float).reshape(-1)
+        _check_theta(theta, physical=physical)
+        new = object.__new__(Mechanism)
+        for name in ("r_a", "r_b", "l1", "l2", "g", "_geom"):
+            object.__setattr__(new, name, getattr(self, name))
+        theta.setflags(write=False)
+        object.__setattr__(new, "theta", theta)
+        return new
+
+    @property
+    def geometry(self) -> np.ndarray:
+        """The geometry vector of the compiled kernels, shape (11,), read-only."""
+        return self._geom
+
+    @property
+    def home(self) -> np.ndarray:
+        """Home pose [0.7, 0, 0] (DESIGN.md §1)."""
+        return np.array([0.7, 0.0, 0.0])
+
+    def __repr__(self) -> str:
+        return (
+            f"Mechanism(r_a={self.r_a}, r_b={self.r_b}, mass={self.total_mass:.3f} kg, "
+            f"l1={self.l1.tolist()}, l2={self.l2.tolist()})"
+        )
+
+    @property
+    def total_mass(self) -> float:
+        return float(self.theta[0::4].sum())
+
+    # ------------------------------------------------------------------ kinematics
+    def check_pose(self, X: np.ndarray) -> None:
+        """Raise :class:`InvalidPoseError` unless every pose of X (3,) or (N, 3) is valid."""
+        Xb, _ = _as_batch(X, "X")
+        _check_poses(self._geom, Xb)
+
+    def inverse_kinematics(self, X: np.ndarray) -> np.ndarray:
+        """Limb lengths q (4,) or (N, 4) of pose(s) X (eq. 4)."""
+        Xb, single = _as_batch(X, "X")
+        q, _ = _check_poses(self._geom, Xb)
+        return q[0] if single else q
+
+    def jacobian(self, X: np.ndarray) -> np.ndarray:
+        """Limb Jacobian J = dq/dX (4, 3) or (N, 4, 3), with qdot = J Xdot (eq. 8)."""
+        Xb, single = _as_batch(X, "X")
+        _, J = _check_poses(self._geom, Xb)
+        return J[0] if single else J
+
+    def condition_number(self, X: np.ndarray) -> np.ndarray | float:
+        """2-norm condition number of J (sigma_max / sigma_min), float or (N,)."""
+        Xb, single = _as_batch(X, "X")
+        _check_basic(Xb)
+        q, J = _limbs_batch(self._geom, Xb)
+        c = np.linalg.cond(J)
+        return float(c[0]) if single else c
+
+    def forward_kinematics(
+        self,
+        q: np.ndarray,
+        guess: np.ndarray | None = None,
+        *,
+        tol: float = 1e-12,
+        max_iter: int = 100,
+    ) -> np.ndarray:
+        """Pose X (3,) or (N, 3) whose limb lengths are q (4,) or (N, 4).
+
+        Levenberg-Marquardt over the four lengths from ``guess`` (home by default).
+        Raises :class:`pkmctl.errors.ConvergenceError` naming the residual when the
+        lengths are not reached to ``tol`` (m) within ``max_iter`` iterations.
+        """
+        qa = np.asarray(q, dtype=float)
+        single = qa.ndim == 1
+        qb = np.atleast_2d(qa)
+        if qb.ndim != 2 or qb.shape[1] != 4:
+            raise ValueError(f"q: expected shape (4,) or (N, 4), got {qa.shape}")
+        if not np.all(np.isfinite(qb)) or np.any(qb <= 0):
+            raise ValueError("q: limb lengths must be finite and > 0")
+        g = self.home if guess is None else np.asarray(guess, dtype=float)
+        gb = np.broadcast_to(np.atleast_2d(g), (qb.shape[0], 3))
+        _check_basic(gb)
+        out = np.empty((qb.shape[0], 3))
+        for n in range(qb.shape[0]):
+            X, res, it = forward_kinematics_kernel(
+                self._geom, qb[n].copy(), gb[n].copy(), tol, max_iter
+            )
+            if not res < tol:
+                raise ConvergenceError(
+                    f"forward kinematics did not converge for q = {qb[n].tolist()}: "
+                    f"residual {res:.3e} m after {it} iterations (tol {tol:g} m)",
+                    residual=float(res),
+                )
+            out[n] = X
+        _check_poses(self._geom, out)
+        return out[0] if single else out
+
+    # ------------------------------------------------------------------ dynamics
+    def mass_matrix(self, X: np.ndarray) -> np.ndarray:
+        """Mass matrix M(X), (3, 3) or (N, 3, 3)."""
+        Xb, single = _as_batch(X, "X")
+        _check_poses(self._geom, Xb)
+        M, _, _ = _dynamics_batch(self._geom, self.theta, Xb, np.zeros_like(Xb))
+        return M[0] if single else M
+
+    def coriolis_matrix(self, X: np.ndarray, Xdot: np.ndarray) -> np.ndarray:
+        """Coriolis/centrifugal matrix C(X, Xdot), (3, 3) or (N, 3, 3); Mdot - 2C is skew."""
+        Xb, single = _as_batch(X, "X")
+        Xdb = _like(Xdot, Xb, "Xdot")
+        _check_poses(self._geom, Xb)
+        _, C, _ = _dynamics_batch(self._geom, self.theta, Xb, Xdb)
+        return C[0] if single else C
+
+    def gravity(self, X: np.ndarray) -> np.ndarray:
+        """Gravity vector G(X) = dV/dX, (3,) or (N, 3)."""
+        Xb, single = _as_batch(X, "X")
+        _check_poses(self._geom, Xb)
+        _, _, G = _dynamics_batch(self._geom, self.theta, Xb, np.zeros_like(Xb))
+        return G[0] if single else G
+
+    def inverse_dynamics(self, X, Xdot, Xddot) -> np.ndarray:
+        """M Xddot + C Xdot + G, (3,) or (N, 3): the force F the plant needs (no disturbance)."""
+        Xb, single = _as_batch(X, "X")
+        Xdb, Xddb = _like(Xdot, Xb, "Xdot"), _like(Xddot, Xb, "Xddot")
+        _check_poses(self._geom, Xb)
+        M, C, G = _dynamics_batch(self._geom, self.theta, Xb, Xdb)
+        F = np.einsum("nij,nj->ni", M, Xddb) + np.einsum("nij,nj->ni", C, Xdb) + G
+        return F[0] if single else F
+
+    def regressor(self, X, Xdot, Xr_dot, Xr_ddot) -> np.ndarray:
+        """Regressor Y (3, 36) or (N, 3, 36): Y Theta = M Xr_ddot + C(X, Xdot) Xr_dot + G."""
+        Xb, single = _as_batch(X, "X")
+        args = [
+            _like(a, Xb, n) for a, n in ((Xdot, "Xdot"), (Xr_dot, "Xr_dot"), (Xr_ddot, "Xr_ddot"))
+        ]
+        _check_poses(self._geom, Xb)
+        Y = _regressor_batch(self._geom, Xb, *args)
+        return Y[0] if single else Y
+
+    def actuator_forces(self, X: np.ndarray, F: np.ndarray) -> np.ndarray:
+        """Minimum-norm actuator forces tau_a = J (J^T J)^-1 F, (4,) or (N, 4)."""
+        Xb, single = _as_batch(X, "X")
+        Fb = _like(F, Xb, "F")
+        _, J = _check_poses(self._geom, Xb)
+        tau = np.empty((Xb.shape[0], 4))
+        for n in range(Xb.shape[0]):
+            actuator_forces_kernel(J[n], Fb[n], tau[n])
+        return tau[0] if single else tau
+
+
+# ---------------------------------------------------------------------- helpers
+def _as_batch(X, name: str) -> tuple[np.ndarray, bool]:
+    a = np.asarray(X, dtype=float)
+    if a.ndim == 1 and a.shape == (3,):
+        return a.reshape(1, 3), True
+    if a.ndim == 2 and a.shape[1] == 3:
+        return np.ascontiguousarray(a), False
+    raise ValueError(f"{name}: expected shape (3,) or (N, 3), got {a.shape}")
+
+
+def _like(V, Xb: np.ndarray, name: str) -> np.ndarray:
+    a = np.asarray(V, dtype=float)
+    if a.shape == (3,):
+        a = np.broadcast_to(a, Xb.shape)
+    if a.shape != Xb.shape:
+        raise ValueError(f"{name}: expected shape {Xb.shape[1:] if len(Xb) == 1 else Xb.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name}: must be finite")
+    return np.ascontiguousarray(a)
+
+
+def _check_basic(Xb: np.ndarray) -> None:
+    if not np.all(np.isfinite(Xb)):
+        raise InvalidPoseError("X: pose must be finite")
+    bad = np.flatnonzero(Xb[:, 0] <= 0)
+    if bad.size:
+        raise InvalidPoseError(f"X[{bad[0]}]: z = {Xb[bad[0], 0]} m, the valid range is z > 0")
+    for k, name in ((1, "alpha"), (2, "beta")):
+        bad = np.flatnonzero(np.abs(Xb[:, k]) >= np.pi / 2)
+        if bad.size:
+            raise InvalidPoseError(
+                f"X[{bad[0]}]: {name} = {Xb[bad[0], k]} rad, the valid range is |{name}| < pi/2"
+            )
+
+
+def _check_poses(geom: np.ndarray, Xb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Validate a batch of poses; return their limb lengths (N, 4) and Jacobians (N, 4, 3)."""
+    _check_basic(Xb)
+    q, J = _limbs_batch(geom, Xb)
+    short = np.argwhere(q < MIN_LIMB_LENGTH)
+    if short.size:
+        n, i = short[0]
+        raise InvalidPoseError(
+            f"X[{n}] = {Xb[n].tolist()}: limb {i + 1} is degenerate "
+            f"(q = {q[n, i]:.3g} m, need >= {MIN_LIMB_LENGTH} m)"
+        )
+    sv = np.linalg.svd(J, compute_uv=False)
+    cond = sv[:, 0] / np.maximum(sv[:, -1], 1e-300)
+    bad = np.flatnonzero(~((cond < MAX_CONDITION) & (sv[:, -1] > MIN_SINGULAR_VALUE)))
+    if bad.size:
+        n = bad[0]
+        raise InvalidPoseError(
+            f"X[{n}] = {Xb[n].tolist()}: J is near-singular (condition number {cond[n]:.3g}, "
+            f"smallest singular value {sv[n, -1]:.3g}; need < {MAX_CONDITION:g} and "
+            f"> {MIN_SINGULAR_VALUE:g})"
+        )
+    return q, J
+
+
+@njit(cache=True)
+def _limbs_batch(geom, Xb):
+    n = Xb.shape[0]
+    q = np.empty((n, 4))
+    J = np.empty((n, 4, 3))
+    for k in range(n):
+        limb_kinematics(geom, Xb[k], J[k], q[k])
+    return q, J
+
+
+@njit(cache=True)
+def _dynamics_batch(geom, theta, Xb, Xdb):
+    n = Xb.shape[0]
+    M = np.empty((n, 3, 3))
+    C = np.empty((n, 3, 3))
+    G = np.empty((n, 3))
+    work = make_work()
+    for k in range(n):
+        dynamics_kernel(geom, theta, Xb[k], Xdb[k], work, M[k], C[k], G[k])
+    return M, C, G
+
+
+@njit(cache=True)
+def _regressor_batch(geom, Xb, Xdb, Xrdb, Xrddb):
+    n = Xb.shape[0]
+    Y = np.empty((n, 3, N_THETA))
+    work = make_work()
+    for k in range(n):
+        regressor_kernel(geom, Xb[k], Xdb[k], Xrdb[k], Xrddb[k], work, Y[k])
+    return Y

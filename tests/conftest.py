@@ -1,0 +1,16 @@
+import numpy as np
+import pytest
+
+import pkmctl
+
+
+@pytest.fixture(scope="session")
+def robot() -> pkmctl.Mechanism:
+    return pkmctl.Mechanism.paper()
+
+
+def random_poses(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Valid poses spanning the paper's workspace (z 0.55-0.85 m, |angles| <= 0.6 rad)."""
+    return np.column_stack(
+        [rng.uniform(0.55, 0.85, n), rng.uniform(-0.6, 0.6, n), rng.uniform(-0.6, 0.6, n)]
+    )
