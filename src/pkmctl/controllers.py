@@ -1,0 +1,363 @@
+"""SMC, FSMC and AFSMC (DESIGN.md §3; the paper's eq. 25, 26, 46 and 50-51 corrected).
+
+Notation: e = X_d - X, s = edot + lambda e (the sliding surface), Xr_dot = Xdot_d + lambda e,
+Xr_ddot = Xddot_d + lambda edot.
+
+- SMC   (eq. 25): F = M^ Xr_ddot + C^ Xr_dot + G^(X_d) + K s + Lambda sat(s / eps)
+- FSMC  (eq. 26): F = M^ Xr_ddot + C^ Xr_dot + G^(X_d) + K s + u_f
+- AFSMC (eq. 46): F = Y(X, Xdot, Xr_dot, Xr_ddot) Theta^ + K s + u_f,
+  dTheta^/dt = Gamma Y^T s, projected onto [theta_min, theta_max]
+
+with u_f,i = -K_u,i FLC(K_s,i s_i, K_sdot,i sdot_i). The minus makes the paper's rule
+table (positive s -> negative output) stabilising: s^T u_f >= 0.
+
+The controllers are discrete: :meth:`Controller.step` is one control period T_c.
+sdot is estimated by the backward difference of s over one period, low-pass
+filtered with time constant tau_f = ``filter_periods`` T_c (DESIGN.md §3). On the
+first step there is no previous s: the difference is taken as 0.
+
+One compiled kernel, :func:`control_step`, implements all three laws; the closed
+loop calls it directly, the classes here call it for users (and a hardware loop).
+
+Contract of a :class:`Controller` (like SciPy's ``OdeSolver``):
+
+1. It is built from a controller model (a :class:`~pkmctl.Mechanism`, never the
+   plant's), :class:`Gains` and the control period.
+2. ``step(X, Xdot, X_d, Xdot_d, Xddot_d)`` returns the task-space force F (3,) and
+   advances the controller's state by one period.
+3. Its whole state is :attr:`Controller.state` (a copy: previous s, filtered sdot,
+   Theta^, step count); :meth:`Controller.reset` restores the initial state.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import ClassVar
+
+import numpy as np
+from numba import njit
+
+from .dynamics import dynamics_kernel, make_work, regressor_kernel
+from .fuzzy import FLC, flc_eval
+from .mechanism import Mechanism
+
+__all__ = [
+    "AFSMC",
+    "CONTROLLERS",
+    "FSMC",
+    "SMC",
+    "Controller",
+    "ControllerState",
+    "Gains",
+    "control_step",
+    "make_controller",
+]
+
+KIND_SMC, KIND_FSMC, KIND_AFSMC = 0, 1, 2
+
+
+def _vec3(name: str, v) -> np.ndarray:
+    a = np.array(v, dtype=float).reshape(-1)
+    if a.shape == (1,):
+        a = np.repeat(a, 3)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} = {v!r}: need 3 finite numbers (the diagonal)")
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Gains:
+    """Controller gains; the diagonal matrices of Table 3 as (3,) arrays over [z, alpha, beta].
+
+    Attributes
+    ----------
+    lam : lambda, the sliding-surface slope (1/s), > 0.
+    K : linear gain on s (N s/m, N m s/rad), >= 0.
+    Lam : switching gain of the SMC (N, N m), >= 0.
+    eps : boundary-layer width of sat(s / eps), > 0.
+    Ks, Ksd : input scalings of the FLC for s and sdot, > 0.
+    Ku : output scaling of the FLC (N, N m), >= 0.
+    gamma : adaptation gain gamma of Gamma = gamma diag(Theta_0^2) (1/J), >= 0.
+    filter_periods : tau_f / T_c of the sdot low-pass filter, >= 1.
+    theta_bounds : (lo, hi) projection bounds of Theta^ as multiples of Theta_0,
+        0 < lo <= 1 <= hi.
+    """
+
+    lam: np.ndarray = field(default_factory=lambda: np.array([50.0, 20.0, 20.0]))
+    K: np.ndarray = field(default_factory=lambda: np.array([1000.0, 200.0, 200.0]))
+    Lam: np.ndarray = field(default_factory=lambda: np.array([150.0, 40.0, 40.0]))
+    eps: float = 0.01
+    Ks: np.ndarray = field(default_factory=lambda: np.array([10.0, 10.0, 10.0]))
+    Ksd: np.ndarray = field(default_factory=lambda: np.array([0.5, 0.5, 0.5]))
+    Ku: np.ndarray = field(default_factory=lambda: np.array([50.0, 30.0, 30.0]))
+    gamma: float = 2.0
+    filter_periods: float = 20.0
+    theta_bounds: tuple[float, float] = (0.1, 10.0)
+
+    def __post_init__(self) -> None:
+        for name, positive in (
+            ("lam", True),
+            ("K", False),
+            ("Lam", False),
+            ("Ks", True),
+            ("Ksd", True),
+            ("Ku", False),
+        ):
+            a = _vec3(name, getattr(self, name))
+            if np.any(a <= 0) if positive else np.any(a < 0):
+                raise ValueError(
+                    f"{name} = {a.tolist()}: every entry must be {'> 0' if positive else '>= 0'}"
+                )
+            object.__setattr__(self, name, a)
+        for name in ("eps", "gamma", "filter_periods"):
+            v = getattr(self, name)
+            if not isinstance(v, int | float) or not math.isfinite(v):
+                raise ValueError(f"{name} = {v!r}: must be a finite number")
+        if not self.eps > 0:
+            raise ValueError(f"eps = {self.eps}: must be > 0")
+        if self.gamma < 0:
+            raise ValueError(f"gamma = {self.gamma}: must be >= 0")
+        if self.filter_periods < 1:
+            raise ValueError(f"filter_periods = {self.filter_periods}: must be >= 1")
+        lo, hi = self.theta_bounds
+        if not 0 < lo <= 1 <= hi < math.inf:
+            raise ValueError(f"theta_bounds = {self.theta_bounds}: need 0 < lo <= 1 <= hi")
+        object.__setattr__(self, "theta_bounds", (float(lo), float(hi)))
+
+    @classmethod
+    def paper(cls) -> Gains:
+        """Table 3 of the paper, with our default gamma (the paper gives none)."""
+        return cls()
+
+    def as_dict(self) -> dict:
+        out = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            out[f.name] = (
+                v.tolist()
+                if isinstance(v, np.ndarray)
+                else (list(v) if isinstance(v, tuple) else v)
+            )
+        return out
+
+    def matrix(self) -> np.ndarray:
+        """(6, 3) array [lam, K, Lam, Ks, Ksd, Ku] for the compiled kernel."""
+        return np.array([self.lam, self.K, self.Lam, self.Ks, self.Ksd, self.Ku])
+
+
+@dataclass(frozen=True)
+class ControllerState:
+    """A snapshot of a controller's state.
+
+    s_prev : (3,) s at the previous step; sdot : (3,) filtered sdot estimate;
+    theta_hat : (36,) Theta^ (AFSMC) or None; steps : control periods taken.
+    """
+
+    s_prev: np.ndarray
+    sdot: np.ndarray
+    theta_hat: np.ndarray | None
+    steps: int
+
+
+@njit(cache=True)
+def control_step(
+    kind,
+    geom,
+    theta_model,
+    gains,
+    eps,
+    flc_tables,
+    Tc,
+    alpha_f,
+    X,
+    Xd,
+    Xdes,
+    Xddes,
+    Xdddes,
+    mem,
+    theta_hat,
+    gamma_vec,
+    th_min,
+    th_max,
+    work,
+    M,
+    C,
+    G,
+    Y,
+    F,
+):
+    """One control period of SMC (kind 0), FSMC (1) or AFSMC (2); fills F (3,).
+
+    ``mem`` (7,) holds [s_prev (3), sdot (3), started]; ``theta_hat`` (36,) is updated
+    in place by the AFSMC's projected adaptive law (explicit Euler over T_c).
+    ``gains`` (6, 3) = [lam, K, Lam, Ks, Ksd, Ku].
+    """
+    s = np.empty(3)
+    xr_d = np.empty(3)
+    xr_dd = np.empty(3)
+    for i in range(3):
+        lam = gains[0, i]
+        e = Xdes[i] - X[i]
+        ed = Xddes[i] - Xd[i]
+        s[i] = ed + lam * e
+        xr_d[i] = Xddes[i] + lam * e
+        xr_dd[i] = Xdddes[i] + lam * ed
+    # sdot: backward difference over one period, then first-order low-pass (DESIGN.md §3)
+    for i in range(3):
+        raw = (s[i] - mem[i]) / Tc if mem[6] > 0.0 else 0.0
+        mem[3 + i] += alpha_f * (raw - mem[3 + i])
+        mem[i] = s[i]
+    mem[6] = 1.0
+    if kind == 2:
+        regressor_kernel(geom, X, Xd, xr_d, xr_dd, work, Y)
+        for i in range(3):
+            acc = 0.0
+            for k in range(Y.shape[1]):
+                acc += Y[i, k] * theta_hat[k]
+            F[i] = acc
+    else:
+        dynamics_kernel(geom, theta_model, Xdes, Xddes, work, M, C, G)  # G^(X_d)
+        for i in range(3):
+            F[i] = G[i]
+        dynamics_kernel(geom, theta_model, X, Xd, work, M, C, G)
+        for i in range(3):
+            F[i] += (
+                M[i, 0] * xr_dd[0]
+                + M[i, 1] * xr_dd[1]
+                + M[i, 2] * xr_dd[2]
+                + C[i, 0] * xr_d[0]
+                + C[i, 1] * xr_d[1]
+                + C[i, 2] * xr_d[2]
+            )
+    for i in range(3):
+        F[i] += gains[1, i] * s[i]
+        if kind == 0:
+            F[i] += gains[2, i] * min(1.0, max(-1.0, s[i] / eps))
+        else:
+            F[i] -= gains[5, i] * flc_eval(flc_tables, gains[3, i] * s[i], gains[4, i] * mem[3 + i])
+    if kind == 2:
+        for k in range(theta_hat.shape[0]):
+            upd = Y[0, k] * s[0] + Y[1, k] * s[1] + Y[2, k] * s[2]
+            v = theta_hat[k] + Tc * gamma_vec[k] * upd
+            theta_hat[k] = min(th_max[k], max(th_min[k], v))
+
+
+class Controller:
+    """Base class: one small interface for SMC, FSMC and AFSMC (see the module docstring)."""
+
+    name: ClassVar[str] = ""
+    kind: ClassVar[int] = -1
+
+    def __init__(
+        self,
+        model: Mechanism,
+        gains: Gains | None = None,
+        *,
+        period: float,
+        flc: FLC | None = None,
+    ) -> None:
+        if not isinstance(model, Mechanism):
+            raise TypeError("model: expected a pkmctl.Mechanism (the controller's own model)")
+        if not (isinstance(period, int | float) and 0 < period < math.inf):
+            raise ValueError(f"period = {period!r}: must be > 0 (s)")
+        self.model = model
+        self.gains = Gains() if gains is None else gains
+        self.period = float(period)
+        self.flc = FLC() if flc is None else flc
+        self._tables = self.flc.compiled()
+        self._gm = self.gains.matrix()
+        self._alpha_f = 1.0 / self.gains.filter_periods
+        th0 = model.theta
+        lo, hi = self.gains.theta_bounds
+        self.theta_min = lo * th0
+        self.theta_max = hi * th0
+        # Gamma = gamma diag(Theta_0^2): every parameter adapts at the same relative rate
+        # for the same share of the force (DESIGN.md §4 asks for a per-parameter scaling).
+        self.gamma_vec = self.gains.gamma * th0**2
+        self._work = make_work()
+        self._M, self._C, self._G = np.empty((3, 3)), np.empty((3, 3)), np.empty(3)
+        self._Y = np.empty((3, th0.size))
+        self.reset()
+
+    def reset(self) -> None:
+        """Restore the initial state (no previous s, sdot = 0, Theta^ = the model's Theta)."""
+        self._mem = np.zeros(7)
+        self._theta_hat = np.array(self.model.theta, dtype=float)
+        self._steps = 0
+
+    @property
+    def state(self) -> ControllerState:
+        return ControllerState(
+            s_prev=self._mem[:3].copy(),
+            sdot=self._mem[3:6].copy(),
+            theta_hat=self._theta_hat.copy() if self.kind == KIND_AFSMC else None,
+            steps=self._steps,
+        )
+
+    def step(self, X, Xdot, X_d, Xdot_d, Xddot_d) -> np.ndarray:
+        """One control period: the task-space force F (3,) for the measured (X, Xdot)."""
+        args = [np.ascontiguousarray(a, dtype=float) for a in (X, Xdot, X_d, Xdot_d, Xddot_d)]
+        for a, n in zip(args, ("X", "Xdot", "X_d", "Xdot_d", "Xddot_d"), strict=True):
+            if a.shape != (3,):
+                raise ValueError(f"{n}: expected shape (3,), got {a.shape}")
+        F = np.empty(3)
+        control_step(
+            self.kind,
+            self.model.geometry,
+            self.model.theta,
+            self._gm,
+            self.gains.eps,
+            self._tables,
+            self.period,
+            self._alpha_f,
+            *args,
+            self._mem,
+            self._theta_hat,
+            self.gamma_vec,
+            self.theta_min,
+            self.theta_max,
+            self._work,
+            self._M,
+            self._C,
+            self._G,
+            self._Y,
+            F,
+        )
+        self._steps += 1
+        return F
+
+
+class SMC(Controller):
+    """Sliding mode control with a boundary layer (eq. 25)."""
+
+    name = "smc"
+    kind = KIND_SMC
+
+
+class FSMC(Controller):
+    """Fuzzy sliding mode control: the switching term replaced by the FLC (eq. 26)."""
+
+    name = "fsmc"
+    kind = KIND_FSMC
+
+
+class AFSMC(Controller):
+    """Adaptive fuzzy sliding mode control: regressor-based model with Theta^ adapted (eq. 46)."""
+
+    name = "afsmc"
+    kind = KIND_AFSMC
+
+
+#: Name -> class registry (like SciPy's ``METHODS``).
+CONTROLLERS: dict[str, type[Controller]] = {"smc": SMC, "fsmc": FSMC, "afsmc": AFSMC}
+
+
+def make_controller(name: str, model: Mechanism, gains: Gains | None = None, **kw) -> Controller:
+    """Build a controller by name ("smc", "fsmc", "afsmc")."""
+    try:
+        cls = CONTROLLERS[name.lower()]
+    except (KeyError, AttributeError):
+        raise ValueError(f"controller = {name!r}: must be one of {sorted(CONTROLLERS)}") from None
+    return cls(model, gains, **kw)

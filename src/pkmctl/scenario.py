@@ -1,0 +1,302 @@
+"""Scenario: every number of an experiment, validated, to and from TOML (DESIGN.md §4).
+
+A scenario names the true plant (mechanism), the controller's model (the plant's
+parameters scaled by ``controller_model.theta_scale``, 0.85 in the paper: 15 % low),
+the gains (Table 3 and our gamma), the trajectory, the initial state, the disturbance
+and the timing. Built-ins: ``"paper"`` (T_c = 50 us) and ``"paper-1khz"`` (T_c = 1 ms).
+
+Bad input raises :class:`ScenarioError` with a one-line message naming the field,
+the value and what is allowed.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import tomli_w
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from .controllers import Gains
+from .errors import InvalidPoseError, PkmctlError
+from .mechanism import PAPER_TABLE2, Mechanism
+from .trajectory import Sinusoid, paper_trajectory
+
+__all__ = ["BUILTINS", "Scenario", "ScenarioError"]
+
+#: A trajectory whose J has a condition number above this is "near a singularity".
+MAX_TRAJECTORY_CONDITION = 100.0
+
+
+class ScenarioError(PkmctlError, ValueError):
+    """An invalid scenario (one line: field, value, allowed range)."""
+
+
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Vec4 = Annotated[list[float], Field(min_length=4, max_length=4)]
+PosVec3 = Annotated[list[Annotated[float, Field(gt=0)]], Field(min_length=3, max_length=3)]
+NonNegVec3 = Annotated[list[Annotated[float, Field(ge=0)]], Field(min_length=3, max_length=3)]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+def _paper_theta() -> list[float]:
+    return Mechanism.paper().theta.tolist()
+
+
+class MechanismSpec(_Model):
+    """The true plant: geometry (m) and Theta (36) in the order of DESIGN.md §1."""
+
+    r_a: float = Field(PAPER_TABLE2["r_a"], gt=0, le=10)
+    r_b: float = Field(PAPER_TABLE2["r_b"], gt=0, le=10)
+    l1: Annotated[list[Annotated[float, Field(ge=0)]], Field(min_length=4, max_length=4)] = Field(
+        default_factory=lambda: [PAPER_TABLE2["lower_limb"]["com"]] * 4
+    )
+    l2: Annotated[list[Annotated[float, Field(ge=0)]], Field(min_length=4, max_length=4)] = Field(
+        default_factory=lambda: [PAPER_TABLE2["upper_limb"]["com"]] * 4
+    )
+    g: float = Field(PAPER_TABLE2["g"], ge=0, le=100)
+    theta: Annotated[list[Annotated[float, Field(gt=0)]], Field(min_length=36, max_length=36)] = (
+        Field(default_factory=_paper_theta)
+    )
+
+    def build(self) -> Mechanism:
+        return Mechanism(
+            r_a=self.r_a, r_b=self.r_b, l1=self.l1, l2=self.l2, theta=self.theta, g=self.g
+        )
+
+
+class ControllerModelSpec(_Model):
+    """The controllers' model: the plant's Theta times ``theta_scale`` (0.85: 15 % low)."""
+
+    theta_scale: float = Field(0.85, gt=0, le=10)
+
+
+class GainsSpec(_Model):
+    """Table 3 (diagonals over [z, alpha, beta]) plus the adaptation gain and sdot filter."""
+
+    lam: PosVec3 = [50.0, 20.0, 20.0]
+    K: NonNegVec3 = [1000.0, 200.0, 200.0]
+    Lam: NonNegVec3 = [150.0, 40.0, 40.0]
+    eps: float = Field(0.01, gt=0, le=1e3)
+    Ks: PosVec3 = [10.0, 10.0, 10.0]
+    Ksd: PosVec3 = [0.5, 0.5, 0.5]
+    Ku: NonNegVec3 = [50.0, 30.0, 30.0]
+    gamma: float = Field(Gains().gamma, ge=0, le=1e6)
+    filter_periods: float = Field(20.0, ge=1, le=1e6)
+    theta_bounds: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.1, 10.0]
+
+    @model_validator(mode="after")
+    def _bounds(self) -> GainsSpec:
+        lo, hi = self.theta_bounds
+        if not (0 < lo <= 1 <= hi < math.inf):
+            raise ValueError(f"theta_bounds = {self.theta_bounds}: need 0 < lo <= 1 <= hi")
+        return self
+
+    def build(self) -> Gains:
+        d = self.model_dump()
+        d["theta_bounds"] = tuple(d["theta_bounds"])
+        return Gains(**d)
+
+
+def _paper_traj(field_name: str) -> list[float]:
+    return list(getattr(paper_trajectory(), field_name))
+
+
+class TrajectorySpec(_Model):
+    """A sinusoid per coordinate: offset + amplitude sin(omega t + phase) (eq. 54 by default)."""
+
+    kind: Literal["sinusoid"] = "sinusoid"
+    offset: Vec3 = Field(default_factory=lambda: _paper_traj("offset"))
+    amplitude: Vec3 = Field(default_factory=lambda: _paper_traj("amplitude"))
+    omega: Vec3 = Field(default_factory=lambda: _paper_traj("omega"))
+    phase: Vec3 = Field(default_factory=lambda: _paper_traj("phase"))
+
+    def build(self) -> Sinusoid:
+        return Sinusoid(
+            *(tuple(getattr(self, k)) for k in ("offset", "amplitude", "omega", "phase"))
+        )
+
+
+class InitialSpec(_Model):
+    """Initial state of the plant (at rest at home in the paper)."""
+
+    X: Vec3 = [0.7, 0.0, 0.0]
+    Xdot: Vec3 = [0.0, 0.0, 0.0]
+
+
+class DisturbanceSpec(_Model):
+    """tau_d' = amplitude * U(-1, 1) per component, redrawn every ``hold`` s, seeded."""
+
+    amplitude: NonNegVec3 = [2.0, 2.0, 2.0]
+    hold: float = Field(1e-3, gt=0, le=1e3)
+    seed: int = Field(0, ge=0, le=2**63 - 1)
+
+
+class TimingSpec(_Model):
+    """Control period T_c, RK4 sub-steps per period, and duration (s)."""
+
+    control_period: float = Field(5e-5, ge=1e-6, le=0.1)
+    substeps: int = Field(1, ge=1, le=1000)
+    duration: float = Field(10.0, gt=0, le=3600)
+
+
+class ActuatorSpec(_Model):
+    """Actuator force limit (N) per limb; none (unbounded) in the paper."""
+
+    force_limit: float | None = Field(None, gt=0)
+
+
+class Scenario(_Model):
+    """Every number of one experiment (DESIGN.md §4). Build with :meth:`builtin` or TOML."""
+
+    name: str = Field("custom", min_length=1, max_length=100)
+    description: str = ""
+    mechanism: MechanismSpec = MechanismSpec()
+    controller_model: ControllerModelSpec = ControllerModelSpec()
+    gains: GainsSpec = GainsSpec()
+    trajectory: TrajectorySpec = TrajectorySpec()
+    initial: InitialSpec = InitialSpec()
+    disturbance: DisturbanceSpec = DisturbanceSpec()
+    timing: TimingSpec = TimingSpec()
+    actuators: ActuatorSpec = ActuatorSpec()
+
+    @model_validator(mode="after")
+    def _physics(self) -> Scenario:
+        try:
+            plant = self.mechanism.build()
+        except ValueError as exc:
+            raise ValueError(f"mechanism: {exc}") from None
+        try:
+            plant.with_theta(self.controller_model.theta_scale * plant.theta)
+        except ValueError as exc:
+            raise ValueError(f"controller_model: {exc}") from None
+        try:
+            plant.check_pose(np.array(self.initial.X))
+        except InvalidPoseError as exc:
+            raise ValueError(f"initial.X = {self.initial.X}: not a valid pose ({exc})") from None
+        t = self.timing
+        if t.duration < t.control_period:
+            raise ValueError(
+                f"timing.duration = {t.duration}: must be >= control_period ({t.control_period})"
+            )
+        # The whole desired trajectory must stay in the workspace, away from singularities.
+        ts = np.linspace(0.0, t.duration, int(min(20001, max(2, t.duration / 1e-3))))
+        Xd, _, _ = self.trajectory.build().evaluate(ts)
+        try:
+            plant.check_pose(Xd)
+        except InvalidPoseError as exc:
+            raise ValueError(f"trajectory: leaves the valid workspace ({exc})") from None
+        cond = plant.condition_number(Xd)
+        worst = int(np.argmax(cond))
+        if cond[worst] > MAX_TRAJECTORY_CONDITION:
+            raise ValueError(
+                f"trajectory: comes near a singularity at t = {ts[worst]:.4g} s "
+                f"(condition number of J {cond[worst]:.3g}, "
+                f"allowed <= {MAX_TRAJECTORY_CONDITION:g})"
+            )
+        return self
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def builtin(cls, name: str) -> Scenario:
+        """A built-in scenario: ``"paper"`` or ``"paper-1khz"``."""
+        try:
+            data = BUILTINS[name]
+        except KeyError:
+            raise ScenarioError(
+                f"scenario = {name!r}: unknown built-in (choose from {', '.join(BUILTINS)})"
+            ) from None
+        return cls.from_dict(data)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Scenario:
+        try:
+            return cls.model_validate(data)
+        except ValidationError as exc:
+            raise ScenarioError(_one_line(exc)) from None
+
+    @classmethod
+    def from_toml(cls, source: str | Path) -> Scenario:
+        """Read a scenario from a TOML file path (or TOML text if it contains a newline)."""
+        if isinstance(source, Path) or "\n" not in str(source):
+            path = Path(source)
+            try:
+                text = path.read_text(encoding="utf-8")
+            except OSError as exc:
+                raise ScenarioError(f"scenario file {str(path)!r}: {exc.strerror}") from None
+        else:
+            text = str(source)
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ScenarioError(f"scenario TOML: {exc}") from None
+        return cls.from_dict(data)
+
+    def to_toml(self) -> str:
+        """The scenario as TOML; :meth:`from_toml` reads it back to an equal scenario."""
+        data = self.model_dump(exclude_none=True)
+        return tomli_w.dumps(data)
+
+    def replace(self, **changes: Any) -> Scenario:
+        """A copy with top-level sections or dotted fields changed, validated again.
+
+        ``scenario.replace(**{"timing.duration": 2.0, "disturbance.seed": 7})``
+        """
+        data = self.model_dump()
+        for key, value in changes.items():
+            *path, last = key.split(".")
+            node = data
+            for p in path:
+                node = node[p]
+            if last not in node:
+                raise ScenarioError(f"{key}: unknown field")
+            node[last] = value
+        return Scenario.from_dict(data)
+
+    # ------------------------------------------------------------------ derived objects
+    def plant(self) -> Mechanism:
+        """The true mechanism."""
+        return self.mechanism.build()
+
+    def controller_mechanism(self) -> Mechanism:
+        """The controllers' model: same geometry, Theta^ = theta_scale * Theta."""
+        p = self.plant()
+        return p.with_theta(self.controller_model.theta_scale * p.theta)
+
+    def controller_gains(self) -> Gains:
+        return self.gains.build()
+
+
+def _one_line(exc: ValidationError) -> str:
+    err = exc.errors()[0]
+    loc = ".".join(str(p) for p in err["loc"]) or "scenario"
+    msg = err["msg"].removeprefix("Value error, ")
+    if err["type"] in ("value_error", "assertion_error"):
+        return f"{loc}: {msg}" if loc != "scenario" else msg
+    value = err.get("input")
+    shown = repr(value)
+    if len(shown) > 60:
+        shown = shown[:57] + "..."
+    more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
+    return f"{loc} = {shown}: {msg}{more}"
+
+
+#: Built-in scenarios as data (DESIGN.md §4).
+BUILTINS: dict[str, dict[str, Any]] = {
+    "paper": {
+        "name": "paper",
+        "description": "The paper's experiment (eq. 54, Table 3, 15 % model error, 2 N "
+        "disturbance), sampled at 20 kHz: the discrete equivalent of its continuous design.",
+    },
+    "paper-1khz": {
+        "name": "paper-1khz",
+        "description": "The paper's experiment with the same gains on a 1 kHz servo loop.",
+        "timing": {"control_period": 1e-3, "substeps": 20, "duration": 10.0},
+    },
+}

@@ -1,0 +1,319 @@
+"""The closed loop: sampling, zero-order hold, RK4, disturbances -> :class:`Result` (DESIGN.md §4).
+
+Every control period T_c the controller reads the plant state (X_k, Xdot_k) and the
+desired trajectory, and returns F_k; the actuator forces tau_a = J (J^T J)^-1 F_k
+(computed with the controller model's geometry at X_k) are held over the period, so
+the plant sees J(X(t))^T tau_a + tau_d'. The plant (the true model) is integrated by
+fixed-step RK4 with ``substeps`` steps per period. The disturbance tau_d' is redrawn
+every ``disturbance.hold`` seconds from ``numpy.random.default_rng(seed)`` and held.
+
+The whole loop is one compiled function, :func:`_run_kernel`; the controller step is
+:func:`pkmctl.controllers.control_step`, the same code a user's hardware loop calls.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from .controllers import CONTROLLERS, control_step, make_controller
+from .dynamics import actuator_forces_kernel, dynamics_kernel, make_work
+from .errors import SimulationDiverged
+from .mechanism import Mechanism
+from .metrics import RMSE_KEYS
+from .scenario import Scenario, ScenarioError
+
+__all__ = ["RMSE_KEYS", "Result", "desired_forces", "simulate"]
+
+
+_STATUS = {1: "the state became non-finite", 2: "the pose left the valid set"}
+
+
+@dataclass(frozen=True, eq=False)
+class Result:
+    """One closed-loop run, sampled at every control period (N samples).
+
+    Carries its scenario and controller name. Arrays: ``t`` (N,); ``X``, ``Xdot``,
+    ``X_desired``, ``F`` (N, 3) (F: task-space force applied by the actuators);
+    ``q``, ``q_desired``, ``tau``, ``tau_desired`` (N, 4); ``disturbance`` (N, 3) the
+    tau_d' acting over each period; ``theta_hat`` (N, 36) for AFSMC, else None.
+    ``success`` is False only for a partial result kept in a
+    :class:`~pkmctl.SimulationDiverged`; ``message`` says why.
+    """
+
+    scenario: Scenario
+    controller: str
+    t: np.ndarray
+    X: np.ndarray
+    Xdot: np.ndarray
+    X_desired: np.ndarray
+    Xdot_desired: np.ndarray
+    q: np.ndarray
+    q_desired: np.ndarray
+    F: np.ndarray
+    tau: np.ndarray
+    tau_desired: np.ndarray
+    disturbance: np.ndarray
+    theta_hat: np.ndarray | None = None
+    success: bool = True
+    message: str = "ok"
+    info: dict = field(default_factory=dict)
+
+    def rmse(self) -> dict[str, float]:
+        """RMSE over all control samples (eq. 55-57): z in mm, angles in degrees, q in m."""
+        from .metrics import rmse
+
+        return rmse(self)
+
+    def __repr__(self) -> str:
+        return (
+            f"Result(controller={self.controller!r}, scenario={self.scenario.name!r}, "
+            f"N={self.t.size}, success={self.success})"
+        )
+
+
+@njit(cache=True)
+def _plant_accel(geom, theta, X, Xd, tau, dist, work, M, C, G, out):
+    """Xddot = M^-1 (J^T tau + tau_d' - C Xdot - G) for the true plant."""
+    dynamics_kernel(geom, theta, X, Xd, work, M, C, G)
+    Jq = work[6]
+    rhs = np.empty(3)
+    for i in range(3):
+        rhs[i] = (
+            Jq[0, i] * tau[0]
+            + Jq[1, i] * tau[1]
+            + Jq[2, i] * tau[2]
+            + Jq[3, i] * tau[3]
+            + dist[i]
+            - C[i, 0] * Xd[0]
+            - C[i, 1] * Xd[1]
+            - C[i, 2] * Xd[2]
+            - G[i]
+        )
+    sol = np.linalg.solve(M, rhs)
+    for i in range(3):
+        out[i] = sol[i]
+
+
+@njit(cache=True)
+def _valid(X, Xd):
+    for i in range(3):
+        if not (math.isfinite(X[i]) and math.isfinite(Xd[i])):
+            return 1
+    if X[0] <= 0.0 or abs(X[1]) >= 0.5 * math.pi or abs(X[2]) >= 0.5 * math.pi:
+        return 2
+    return 0
+
+
+@njit(cache=True)
+def _run_kernel(
+    kind,
+    plant_geom,
+    plant_theta,
+    model_geom,
+    model_theta,
+    gains,
+    eps,
+    flc_tables,
+    Tc,
+    alpha_f,
+    substeps,
+    force_limit,
+    X0,
+    Xd0,
+    Xdes,
+    Xddes,
+    Xdddes,
+    dist_values,
+    dist_index,
+    gamma_vec,
+    th_min,
+    th_max,
+    log_X,
+    log_Xd,
+    log_F,
+    log_tau,
+    log_q,
+    log_dist,
+    log_theta,
+):
+    """Run the loop for len(Xdes) control periods.
+
+    Returns (status, k, X, Xdot): status 0 when all periods ran, else the code of
+    :data:`_STATUS` with k the first period whose state (X, Xdot) is invalid.
+    """
+    n = Xdes.shape[0]
+    X = X0.copy()
+    Xd = Xd0.copy()
+    mem = np.zeros(7)
+    theta_hat = model_theta.copy()
+    work = make_work()
+    pwork = make_work()
+    M, C, G = np.empty((3, 3)), np.empty((3, 3)), np.empty(3)
+    Y = np.empty((3, model_theta.shape[0]))
+    F = np.empty(3)
+    tau = np.empty(4)
+    h = Tc / substeps
+    k1x, k1v, k2x, k2v = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    k3x, k3v, k4x, k4v = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    Xs, Vs = np.empty(3), np.empty(3)
+    log_theta_on = log_theta.shape[0] == n
+    for k in range(n):
+        status = _valid(X, Xd)
+        if status != 0:
+            return status, k, X, Xd
+        if log_theta_on:
+            log_theta[k, :] = theta_hat  # the estimate used for F_k
+        control_step(
+            kind, model_geom, model_theta, gains, eps, flc_tables, Tc, alpha_f,
+            X, Xd, Xdes[k], Xddes[k], Xdddes[k], mem, theta_hat, gamma_vec, th_min, th_max,
+            work, M, C, G, Y, F,
+        )  # fmt: skip
+        actuator_forces_kernel(work[6], F, tau)  # J of the model at X_k (kinematics ran last)
+        if force_limit > 0.0:
+            for i in range(4):
+                tau[i] = min(force_limit, max(-force_limit, tau[i]))
+        dist = dist_values[dist_index[k]]
+        for i in range(3):
+            log_X[k, i] = X[i]
+            log_Xd[k, i] = Xd[i]
+            log_dist[k, i] = dist[i]
+        for i in range(4):
+            log_tau[k, i] = tau[i]
+        for _ in range(substeps):
+            _plant_accel(plant_geom, plant_theta, X, Xd, tau, dist, pwork, M, C, G, k1v)
+            if _ == 0:
+                for i in range(4):
+                    log_q[k, i] = pwork[7][i]
+                Jq = pwork[6]
+                for i in range(3):
+                    log_F[k, i] = (
+                        Jq[0, i] * tau[0]
+                        + Jq[1, i] * tau[1]
+                        + Jq[2, i] * tau[2]
+                        + (Jq[3, i] * tau[3])
+                    )
+            for i in range(3):
+                k1x[i] = Xd[i]
+                Xs[i] = X[i] + 0.5 * h * k1x[i]
+                Vs[i] = Xd[i] + 0.5 * h * k1v[i]
+            _plant_accel(plant_geom, plant_theta, Xs, Vs, tau, dist, pwork, M, C, G, k2v)
+            for i in range(3):
+                k2x[i] = Vs[i]
+                Xs[i] = X[i] + 0.5 * h * k2x[i]
+                Vs[i] = Xd[i] + 0.5 * h * k2v[i]
+            _plant_accel(plant_geom, plant_theta, Xs, Vs, tau, dist, pwork, M, C, G, k3v)
+            for i in range(3):
+                k3x[i] = Vs[i]
+                Xs[i] = X[i] + h * k3x[i]
+                Vs[i] = Xd[i] + h * k3v[i]
+            _plant_accel(plant_geom, plant_theta, Xs, Vs, tau, dist, pwork, M, C, G, k4v)
+            for i in range(3):
+                k4x[i] = Vs[i]
+                X[i] += h / 6.0 * (k1x[i] + 2.0 * k2x[i] + 2.0 * k3x[i] + k4x[i])
+                Xd[i] += h / 6.0 * (k1v[i] + 2.0 * k2v[i] + 2.0 * k3v[i] + k4v[i])
+            if _valid(X, Xd) != 0:
+                break
+    return 0, n, X, Xd
+
+
+def desired_forces(plant: Mechanism, Xd, Xdd, Xddd) -> np.ndarray:
+    """tau_a,d = J (J^T J)^-1 [M Xddot_d + C Xdot_d + G](X_d) from the true model (N, 4)."""
+    return plant.actuator_forces(Xd, plant.inverse_dynamics(Xd, Xdd, Xddd))
+
+
+def _disturbance(scenario: Scenario, n: int, Tc: float):
+    d = scenario.disturbance
+    t_end = n * Tc
+    n_hold = int(math.floor(t_end / d.hold + 1e-9)) + 1
+    rng = np.random.default_rng(d.seed)
+    values = np.asarray(d.amplitude) * rng.uniform(-1.0, 1.0, size=(n_hold, 3))
+    # period k starts at k Tc; the value held then is number floor(k Tc / hold)
+    index = np.floor(np.arange(n) * Tc / d.hold + 1e-9).astype(np.int64)
+    return values, index
+
+
+def simulate(
+    scenario: Scenario | str,
+    controller: str = "afsmc",
+    *,
+    duration: float | None = None,
+    seed: int | None = None,
+) -> Result:
+    """Run one closed-loop experiment; ``duration`` and ``seed`` override the scenario's.
+
+    Raises :class:`~pkmctl.SimulationDiverged` (with the partial result) if the
+    state becomes non-finite or the pose leaves the valid set.
+    """
+    if isinstance(scenario, str):
+        scenario = Scenario.builtin(scenario)
+    if controller not in CONTROLLERS:
+        raise ValueError(f"controller = {controller!r}: must be one of {sorted(CONTROLLERS)}")
+    changes = {}
+    if duration is not None:
+        changes["timing.duration"] = float(duration)
+    if seed is not None:
+        changes["disturbance.seed"] = int(seed)
+    if changes:
+        scenario = scenario.replace(**changes)
+    plant = scenario.plant()
+    model = scenario.controller_mechanism()
+    ctrl = make_controller(
+        controller, model, scenario.controller_gains(), period=scenario.timing.control_period
+    )
+    Tc = scenario.timing.control_period
+    n = int(round(scenario.timing.duration / Tc))
+    if n < 1:
+        raise ScenarioError("timing.duration: shorter than one control period")
+    t = np.arange(n) * Tc
+    traj = scenario.trajectory.build()
+    Xdes, Xddes, Xdddes = traj.evaluate(t)
+    dvals, didx = _disturbance(scenario, n, Tc)
+    log_X, log_Xd, log_F = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    log_tau, log_q, log_dist = np.empty((n, 4)), np.empty((n, 4)), np.empty((n, 3))
+    afsmc = ctrl.kind == 2
+    log_theta = np.empty((n, 36) if afsmc else (0, 36))
+    limit = scenario.actuators.force_limit
+    status, last, X_end, Xd_end = _run_kernel(
+        ctrl.kind, plant.geometry, plant.theta, model.geometry, model.theta,
+        ctrl.gains.matrix(), ctrl.gains.eps, ctrl._tables, Tc, 1.0 / ctrl.gains.filter_periods,
+        scenario.timing.substeps, -1.0 if limit is None else float(limit),
+        np.asarray(scenario.initial.X, float), np.asarray(scenario.initial.Xdot, float),
+        Xdes, Xddes, Xdddes, dvals, didx, ctrl.gamma_vec, ctrl.theta_min, ctrl.theta_max,
+        log_X, log_Xd, log_F, log_tau, log_q, log_dist, log_theta,
+    )  # fmt: skip
+    m = last if status else n
+    q_des = plant.inverse_kinematics(Xdes[:m]) if m else np.empty((0, 4))
+    tau_des = desired_forces(plant, Xdes[:m], Xddes[:m], Xdddes[:m]) if m else np.empty((0, 4))
+    result = Result(
+        scenario=scenario,
+        controller=controller,
+        t=t[:m],
+        X=log_X[:m],
+        Xdot=log_Xd[:m],
+        X_desired=Xdes[:m],
+        Xdot_desired=Xddes[:m],
+        q=log_q[:m],
+        q_desired=q_des,
+        F=log_F[:m],
+        tau=log_tau[:m],
+        tau_desired=tau_des,
+        disturbance=log_dist[:m],
+        theta_hat=log_theta[:m] if afsmc else None,
+        success=status == 0,
+        message="ok" if status == 0 else _STATUS[status],
+    )
+    if status:
+        tk = last * Tc
+        raise SimulationDiverged(
+            f"simulation diverged at t = {tk:.6g} s ({controller}): {_STATUS[status]}, "
+            f"X = {np.array2string(X_end, precision=4)}, Xdot = "
+            f"{np.array2string(Xd_end, precision=4)}",
+            time=tk,
+            state=np.concatenate([X_end, Xd_end]),
+            partial=result,
+        )
+    return result

@@ -1,0 +1,52 @@
+"""Reference trajectories X_d(t) with their first two derivatives.
+
+The paper's trajectory (eq. 54) is a sinusoid per coordinate:
+alpha = pi/6 sin 2t, beta = pi/6 cos 2t, z = 0.7 + 0.02 sin 2t.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["TRAJECTORIES", "Sinusoid", "paper_trajectory"]
+
+
+@dataclass(frozen=True)
+class Sinusoid:
+    """X_d,i(t) = offset_i + amplitude_i sin(omega_i t + phase_i), per coordinate [z, alpha, beta].
+
+    Units: offset and amplitude in m / rad, omega in rad/s, phase in rad.
+    """
+
+    offset: tuple[float, float, float]
+    amplitude: tuple[float, float, float]
+    omega: tuple[float, float, float]
+    phase: tuple[float, float, float]
+
+    def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """X_d, Xdot_d, Xddot_d at times t (N,), each of shape (N, 3)."""
+        t = np.asarray(t, dtype=float).reshape(-1, 1)
+        c, a, w, p = (
+            np.asarray(v, dtype=float)
+            for v in (self.offset, self.amplitude, self.omega, self.phase)
+        )
+        arg = w * t + p
+        sn, cs = np.sin(arg), np.cos(arg)
+        return c + a * sn, a * w * cs, -a * w * w * sn
+
+
+def paper_trajectory() -> Sinusoid:
+    """The paper's eq. 54."""
+    return Sinusoid(
+        offset=(0.7, 0.0, 0.0),
+        amplitude=(0.02, math.pi / 6, math.pi / 6),
+        omega=(2.0, 2.0, 2.0),
+        phase=(0.0, 0.0, math.pi / 2),
+    )
+
+
+#: Name -> class registry of trajectory kinds (the ``kind`` key of a scenario's trajectory).
+TRAJECTORIES: dict[str, type] = {"sinusoid": Sinusoid}
