@@ -50,11 +50,15 @@ __all__ = [
     "Controller",
     "ControllerState",
     "Gains",
+    "adapt",
     "control_step",
     "make_controller",
+    "sliding_surface",
 ]
 
 KIND_SMC, KIND_FSMC, KIND_AFSMC = 0, 1, 2
+#: Size of a controller's compiled memory: s_prev, sdot, started flag, then scratch.
+MEM_SIZE = 16
 
 
 def _vec3(name: str, v) -> np.ndarray:
@@ -92,7 +96,7 @@ class Gains:
     Ks: np.ndarray = field(default_factory=lambda: np.array([10.0, 10.0, 10.0]))
     Ksd: np.ndarray = field(default_factory=lambda: np.array([0.5, 0.5, 0.5]))
     Ku: np.ndarray = field(default_factory=lambda: np.array([50.0, 30.0, 30.0]))
-    gamma: float = 2.0
+    gamma: float = 0.5
     filter_periods: float = 20.0
     theta_bounds: tuple[float, float] = (0.1, 10.0)
 
@@ -161,7 +165,32 @@ class ControllerState:
     steps: int
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
+def sliding_surface(lam, X, Xd, Xdes, Xddes, Xdddes, s, xr_d, xr_dd):
+    """Fill s = edot + lam e, Xr_dot = Xdot_d + lam e, Xr_ddot = Xddot_d + lam edot (3,)."""
+    for i in range(3):
+        e = Xdes[i] - X[i]
+        ed = Xddes[i] - Xd[i]
+        s[i] = ed + lam[i] * e
+        xr_d[i] = Xddes[i] + lam[i] * e
+        xr_dd[i] = Xdddes[i] + lam[i] * ed
+
+
+@njit(cache=True, nogil=True)
+def adapt(theta_hat, Y, s, Tc, gamma_vec, th_min, th_max):
+    """One period of dTheta^/dt = Gamma Y^T s (explicit Euler), projected onto the bounds.
+
+    The paper's eq. 50-51 have the sign and the derivative wrong (DESIGN.md §3).
+    """
+    for k in range(theta_hat.shape[0]):
+        upd = 0.0
+        for i in range(Y.shape[0]):
+            upd += Y[i, k] * s[i]
+        v = theta_hat[k] + Tc * gamma_vec[k] * upd
+        theta_hat[k] = min(th_max[k], max(th_min[k], v))
+
+
+@njit(cache=True, nogil=True)
 def control_step(
     kind,
     geom,
@@ -190,20 +219,12 @@ def control_step(
 ):
     """One control period of SMC (kind 0), FSMC (1) or AFSMC (2); fills F (3,).
 
-    ``mem`` (7,) holds [s_prev (3), sdot (3), started]; ``theta_hat`` (36,) is updated
-    in place by the AFSMC's projected adaptive law (explicit Euler over T_c).
+    ``mem`` (16,) holds [s_prev (3), sdot (3), started, then scratch]; ``theta_hat``
+    (36,) is updated in place by the AFSMC's projected adaptive law (explicit Euler).
     ``gains`` (6, 3) = [lam, K, Lam, Ks, Ksd, Ku].
     """
-    s = np.empty(3)
-    xr_d = np.empty(3)
-    xr_dd = np.empty(3)
-    for i in range(3):
-        lam = gains[0, i]
-        e = Xdes[i] - X[i]
-        ed = Xddes[i] - Xd[i]
-        s[i] = ed + lam * e
-        xr_d[i] = Xddes[i] + lam * e
-        xr_dd[i] = Xdddes[i] + lam * ed
+    s, xr_d, xr_dd = mem[7:10], mem[10:13], mem[13:16]
+    sliding_surface(gains[0], X, Xd, Xdes, Xddes, Xdddes, s, xr_d, xr_dd)
     # sdot: backward difference over one period, then first-order low-pass (DESIGN.md §3)
     for i in range(3):
         raw = (s[i] - mem[i]) / Tc if mem[6] > 0.0 else 0.0
@@ -238,10 +259,7 @@ def control_step(
         else:
             F[i] -= gains[5, i] * flc_eval(flc_tables, gains[3, i] * s[i], gains[4, i] * mem[3 + i])
     if kind == 2:
-        for k in range(theta_hat.shape[0]):
-            upd = Y[0, k] * s[0] + Y[1, k] * s[1] + Y[2, k] * s[2]
-            v = theta_hat[k] + Tc * gamma_vec[k] * upd
-            theta_hat[k] = min(th_max[k], max(th_min[k], v))
+        adapt(theta_hat, Y, s, Tc, gamma_vec, th_min, th_max)
 
 
 class Controller:
@@ -283,7 +301,7 @@ class Controller:
 
     def reset(self) -> None:
         """Restore the initial state (no previous s, sdot = 0, Theta^ = the model's Theta)."""
-        self._mem = np.zeros(7)
+        self._mem = np.zeros(MEM_SIZE)
         self._theta_hat = np.array(self.model.theta, dtype=float)
         self._steps = 0
 

@@ -30,12 +30,13 @@ __all__ = [
     "dynamics_kernel",
     "make_work",
     "regressor_kernel",
+    "solve_spd3",
 ]
 
 N_THETA = 4 * N_BODIES
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def make_work():
     """Scratch arrays for one pose: (com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat)."""
     return (
@@ -52,13 +53,13 @@ def make_work():
     )
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _kinematics(geom, X, Xd, work):
     com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat = work
     body_jacobians(geom, X, Xd, com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _assemble(geom, theta, Xd, work, M, C, G):
     """M, C, G from filled body kinematics (the sums of the module docstring)."""
     Rb, Jv, Jw, dJv, dJw = work[1], work[2], work[3], work[4], work[5]
@@ -110,14 +111,14 @@ def _assemble(geom, theta, Xd, work, M, C, G):
             G[i] += m * g * Jv[b, 2, i]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def dynamics_kernel(geom, theta, X, Xd, work, M, C, G):
     """Fill M (3, 3), C (3, 3) and G (3,) at (X, Xd) (eq. 9-24)."""
     _kinematics(geom, X, Xd, work)
     _assemble(geom, theta, Xd, work, M, C, G)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y):
     Rb, Jv, Jw, dJv, dJw = work[1], work[2], work[3], work[4], work[5]
     g = geom[10]
@@ -155,45 +156,50 @@ def _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y):
                 )
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, work, Y):
     """Fill the regressor Y (3, 36) with Y Theta = M Xr_dd + C(X, Xd) Xr_d + G (eq. 24)."""
     _kinematics(geom, X, Xd, work)
     _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def actuator_forces_kernel(Jq, F, tau):
     """Minimum-norm actuator forces tau (4,) with J^T tau = F: tau = J (J^T J)^-1 F (eq. 22)."""
-    A = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            A[i, j] = (
-                Jq[0, i] * Jq[0, j]
-                + Jq[1, i] * Jq[1, j]
-                + Jq[2, i] * Jq[2, j]
-                + (Jq[3, i] * Jq[3, j])
-            )
-    y = _solve3(A, F)
+    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+    for r in range(4):
+        a00 += Jq[r, 0] * Jq[r, 0]
+        a01 += Jq[r, 0] * Jq[r, 1]
+        a02 += Jq[r, 0] * Jq[r, 2]
+        a11 += Jq[r, 1] * Jq[r, 1]
+        a12 += Jq[r, 1] * Jq[r, 2]
+        a22 += Jq[r, 2] * Jq[r, 2]
+    y0, y1, y2 = _cholesky_solve3(a00, a01, a02, a11, a12, a22, F[0], F[1], F[2])
     for i in range(4):
-        tau[i] = Jq[i, 0] * y[0] + Jq[i, 1] * y[1] + Jq[i, 2] * y[2]
+        tau[i] = Jq[i, 0] * y0 + Jq[i, 1] * y1 + Jq[i, 2] * y2
 
 
-@njit(cache=True)
-def _solve3(A, b):
-    """Solve a 3x3 system by Cramer's rule (A is symmetric positive definite here)."""
-    c00 = A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]
-    c01 = A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2]
-    c02 = A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]
-    det = A[0, 0] * c00 + A[0, 1] * c01 + A[0, 2] * c02
-    c10 = A[0, 2] * A[2, 1] - A[0, 1] * A[2, 2]
-    c11 = A[0, 0] * A[2, 2] - A[0, 2] * A[2, 0]
-    c12 = A[0, 1] * A[2, 0] - A[0, 0] * A[2, 1]
-    c20 = A[0, 1] * A[1, 2] - A[0, 2] * A[1, 1]
-    c21 = A[0, 2] * A[1, 0] - A[0, 0] * A[1, 2]
-    c22 = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
-    x = np.empty(3)
-    x[0] = (c00 * b[0] + c10 * b[1] + c20 * b[2]) / det
-    x[1] = (c01 * b[0] + c11 * b[1] + c21 * b[2]) / det
-    x[2] = (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det
-    return x
+@njit(cache=True, nogil=True)
+def _cholesky_solve3(a00, a01, a02, a11, a12, a22, b0, b1, b2):
+    """x with A x = b for a symmetric positive definite 3x3 A given by its upper triangle."""
+    l00 = np.sqrt(a00)
+    l10 = a01 / l00
+    l20 = a02 / l00
+    l11 = np.sqrt(a11 - l10 * l10)
+    l21 = (a12 - l20 * l10) / l11
+    l22 = np.sqrt(a22 - l20 * l20 - l21 * l21)
+    y0 = b0 / l00
+    y1 = (b1 - l10 * y0) / l11
+    y2 = (b2 - l20 * y0 - l21 * y1) / l22
+    x2 = y2 / l22
+    x1 = (y1 - l21 * x2) / l11
+    x0 = (y0 - l10 * x1 - l20 * x2) / l00
+    return x0, x1, x2
+
+
+@njit(cache=True, nogil=True)
+def solve_spd3(A, b):
+    """Solve A x = b in place (b <- x) for a symmetric positive definite 3x3 A."""
+    b[0], b[1], b[2] = _cholesky_solve3(
+        A[0, 0], A[0, 1], A[0, 2], A[1, 1], A[1, 2], A[2, 2], b[0], b[1], b[2]
+    )

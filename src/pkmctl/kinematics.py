@@ -46,14 +46,14 @@ N_BODIES = 9
 GEOM_SIZE = 11
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cross(a, b, out):
     out[0] = a[1] * b[2] - a[2] * b[1]
     out[1] = a[2] * b[0] - a[0] * b[2]
     out[2] = a[0] * b[1] - a[1] * b[0]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _platform(X, Xd, p, R, Jv, Jw, dJv, dJw):
     """Platform centre, frame and Jacobians (eq. 1-3), with their time derivatives."""
     z, a, b = X[0], X[1], X[2]
@@ -81,7 +81,7 @@ def _platform(X, Xd, p, R, Jv, Jw, dJv, dJw):
     dJw[1, 2], dJw[2, 2] = -sa * ad, ca * ad
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def body_jacobians(geom, X, Xd, com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat):
     """Fill the kinematics of all 9 bodies and of the 4 limbs at (X, Xd).
 
@@ -199,7 +199,7 @@ def body_jacobians(geom, X, Xd, com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat):
         dJw[up] = dJw[lo]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def limb_kinematics(geom, X, Jq, q):
     """Limb lengths ``q`` (4,) and Jacobian ``Jq`` (4, 3) at pose X (eq. 4-8)."""
     com = np.empty((N_BODIES, 3))
@@ -223,7 +223,7 @@ def limb_kinematics(geom, X, Jq, q):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def forward_kinematics_kernel(geom, q_target, guess, tol, max_iter):
     """Levenberg-Marquardt on the four limb lengths, from ``guess``.
 

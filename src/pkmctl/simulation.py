@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from .controllers import CONTROLLERS, control_step, make_controller
-from .dynamics import actuator_forces_kernel, dynamics_kernel, make_work
+from .controllers import CONTROLLERS, MEM_SIZE, control_step, make_controller
+from .dynamics import actuator_forces_kernel, dynamics_kernel, make_work, solve_spd3
 from .errors import SimulationDiverged
 from .mechanism import Mechanism
 from .metrics import RMSE_KEYS
@@ -75,14 +75,13 @@ class Result:
         )
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _plant_accel(geom, theta, X, Xd, tau, dist, work, M, C, G, out):
-    """Xddot = M^-1 (J^T tau + tau_d' - C Xdot - G) for the true plant."""
+    """Xddot = M^-1 (J^T tau + tau_d' - C Xdot - G) for the true plant (eq. 24)."""
     dynamics_kernel(geom, theta, X, Xd, work, M, C, G)
     Jq = work[6]
-    rhs = np.empty(3)
     for i in range(3):
-        rhs[i] = (
+        out[i] = (
             Jq[0, i] * tau[0]
             + Jq[1, i] * tau[1]
             + Jq[2, i] * tau[2]
@@ -93,12 +92,10 @@ def _plant_accel(geom, theta, X, Xd, tau, dist, work, M, C, G, out):
             - C[i, 2] * Xd[2]
             - G[i]
         )
-    sol = np.linalg.solve(M, rhs)
-    for i in range(3):
-        out[i] = sol[i]
+    solve_spd3(M, out)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _valid(X, Xd):
     for i in range(3):
         if not (math.isfinite(X[i]) and math.isfinite(Xd[i])):
@@ -108,7 +105,7 @@ def _valid(X, Xd):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _run_kernel(
     kind,
     plant_geom,
@@ -148,7 +145,7 @@ def _run_kernel(
     n = Xdes.shape[0]
     X = X0.copy()
     Xd = Xd0.copy()
-    mem = np.zeros(7)
+    mem = np.zeros(MEM_SIZE)
     theta_hat = model_theta.copy()
     work = make_work()
     pwork = make_work()

@@ -1,0 +1,116 @@
+"""Results to and from disk in open formats: a CSV time series plus a JSON metadata file.
+
+``save_result(result, directory)`` writes ``<stem>.csv`` (one row per control period:
+t, X, Xdot, X_desired, Xdot_desired, q, q_desired, F, tau, tau_desired, disturbance and,
+for AFSMC, theta_hat) and ``<stem>.json`` (the scenario as TOML text, the controller,
+the metrics and the column names). ``load_result`` reads them back into a
+:class:`~pkmctl.simulation.Result`. Every file is written to a temporary name in the
+same folder and renamed, so an interrupted run leaves no half-written file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from . import metrics
+from .scenario import Scenario
+from .simulation import Result
+
+__all__ = ["atomic_write", "load_result", "save_result"]
+
+FORMAT_VERSION = 1
+# (field, width, column names)
+_FIELDS = (
+    ("X", 3, ("z", "alpha", "beta")),
+    ("Xdot", 3, ("zdot", "alphadot", "betadot")),
+    ("X_desired", 3, ("z_d", "alpha_d", "beta_d")),
+    ("Xdot_desired", 3, ("zdot_d", "alphadot_d", "betadot_d")),
+    ("q", 4, ("q1", "q2", "q3", "q4")),
+    ("q_desired", 4, ("q1_d", "q2_d", "q3_d", "q4_d")),
+    ("F", 3, ("F_z", "F_alpha", "F_beta")),
+    ("tau", 4, ("tau1", "tau2", "tau3", "tau4")),
+    ("tau_desired", 4, ("tau1_d", "tau2_d", "tau3_d", "tau4_d")),
+    ("disturbance", 3, ("d_z", "d_alpha", "d_beta")),
+)
+
+
+@contextmanager
+def atomic_write(path: Path, mode: str = "w"):
+    """Open a temporary file beside ``path``; rename it onto ``path`` only on success."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, mode, encoding=None if "b" in mode else "utf-8") as fh:
+            yield fh
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _columns(result: Result) -> tuple[list[str], np.ndarray]:
+    names = ["t"]
+    blocks = [result.t.reshape(-1, 1)]
+    for name, _, cols in _FIELDS:
+        names += list(cols)
+        blocks.append(getattr(result, name))
+    if result.theta_hat is not None:
+        names += [f"theta_hat{k}" for k in range(result.theta_hat.shape[1])]
+        blocks.append(result.theta_hat)
+    return names, np.hstack(blocks)
+
+
+def save_result(result: Result, directory: Path, stem: str | None = None) -> tuple[Path, Path]:
+    """Write ``<stem>.csv`` and ``<stem>.json`` into ``directory``; return both paths."""
+    directory = Path(directory)
+    stem = stem or result.controller
+    names, data = _columns(result)
+    csv_path, json_path = directory / f"{stem}.csv", directory / f"{stem}.json"
+    with atomic_write(csv_path) as fh:
+        # repr precision: the file reads back to the same doubles
+        np.savetxt(fh, data, delimiter=",", header=",".join(names), comments="", fmt="%.17g")
+    meta = {
+        "format_version": FORMAT_VERSION,
+        "controller": result.controller,
+        "success": result.success,
+        "message": result.message,
+        "samples": int(result.t.size),
+        "columns": names,
+        "metrics": metrics.summary(result) if result.t.size > 1 else None,
+        "scenario_toml": result.scenario.to_toml(),
+    }
+    with atomic_write(json_path) as fh:
+        json.dump(meta, fh, indent=2)
+    return csv_path, json_path
+
+
+def load_result(json_path: Path) -> Result:
+    """Read a result written by :func:`save_result` (give the ``.json`` path)."""
+    json_path = Path(json_path)
+    meta = json.loads(json_path.read_text(encoding="utf-8"))
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise ValueError(f"{json_path}: unsupported format_version {meta.get('format_version')}")
+    data = np.loadtxt(json_path.with_suffix(".csv"), delimiter=",", skiprows=1, ndmin=2)
+    names = meta["columns"]
+    if data.shape[1] != len(names):
+        raise ValueError(f"{json_path.with_suffix('.csv')}: expected {len(names)} columns")
+    fields, col = {"t": data[:, 0]}, 1
+    for name, width, _ in _FIELDS:
+        fields[name] = data[:, col : col + width]
+        col += width
+    theta = data[:, col:] if col < data.shape[1] else None
+    return Result(
+        scenario=Scenario.from_toml(meta["scenario_toml"]),
+        controller=meta["controller"],
+        theta_hat=theta,
+        success=meta["success"],
+        message=meta["message"],
+        **fields,
+    )

@@ -1,0 +1,236 @@
+"""Controllers: the laws of DESIGN.md §3 checked against the model's own terms and theory."""
+
+import numpy as np
+import pytest
+from conftest import random_poses
+
+import pkmctl
+from pkmctl.controllers import AFSMC, CONTROLLERS, FSMC, SMC, Gains, adapt, make_controller
+from pkmctl.fuzzy import FLC
+
+TC = 5e-5
+
+
+def _desired(rng):
+    Xd = random_poses(rng, 1)[0]
+    return Xd, rng.normal(size=3), rng.normal(size=3) * 3
+
+
+@pytest.mark.parametrize("name", ["smc", "fsmc", "afsmc"])
+def test_zero_error_gives_inverse_dynamics(robot, name):
+    # exact model, X = X_d, Xdot = Xdot_d, first step (sdot estimate 0): F = M Xdd + C Xd + G
+    rng = np.random.default_rng(20)
+    for _ in range(5):
+        Xd, Xdd, Xddd = _desired(rng)
+        ctrl = make_controller(name, robot, period=TC)
+        F = ctrl.step(Xd, Xdd, Xd, Xdd, Xddd)
+        expected = robot.mass_matrix(Xd) @ Xddd + robot.coriolis_matrix(Xd, Xdd) @ Xdd
+        expected += robot.gravity(Xd)
+        np.testing.assert_allclose(F, expected, rtol=1e-12, atol=1e-10)
+
+
+def _model_terms(model, X, Xdot, Xd, Xdd, Xddd, lam, gravity_at):
+    e, ed = Xd - X, Xdd - Xdot
+    s = ed + lam * e
+    Xr, Xrr = Xdd + lam * e, Xddd + lam * ed
+    base = model.mass_matrix(X) @ Xrr + model.coriolis_matrix(X, Xdot) @ Xr
+    return s, base + model.gravity(gravity_at)
+
+
+def test_smc_law_and_switching_sign(robot):
+    rng = np.random.default_rng(21)
+    g = Gains()
+    model = robot.with_theta(0.85 * robot.theta)
+    for _ in range(50):
+        Xd, Xdd, Xddd = _desired(rng)
+        X = Xd + rng.normal(size=3) * [0.002, 0.02, 0.02]
+        Xdot = Xdd + rng.normal(size=3) * 0.5
+        F = SMC(model, g, period=TC).step(X, Xdot, Xd, Xdd, Xddd)
+        s, terms = _model_terms(model, X, Xdot, Xd, Xdd, Xddd, g.lam, gravity_at=Xd)
+        switching = F - terms - g.K * s
+        np.testing.assert_allclose(switching, g.Lam * np.clip(s / g.eps, -1, 1), atol=1e-9)
+        assert s @ switching >= 0
+
+
+def test_fsmc_switching_term_opposes_s(robot):
+    # u_f = -Ku FLC(Ks s, Ksd sdot). With sdot = 0 (first step) or sdot of the same sign as s,
+    # the rule table maps s to the opposite sign, so s_i u_f,i >= 0 component by component.
+    rng = np.random.default_rng(22)
+    g = Gains()
+    flc = FLC()
+    for _ in range(200):
+        Xd, Xdd, Xddd = _desired(rng)
+        X = Xd + rng.normal(size=3) * [0.005, 0.05, 0.05]
+        Xdot = Xdd + rng.normal(size=3)
+        F = FSMC(robot, g, period=TC).step(X, Xdot, Xd, Xdd, Xddd)
+        s, terms = _model_terms(robot, X, Xdot, Xd, Xdd, Xddd, g.lam, gravity_at=Xd)
+        uf = F - terms - g.K * s
+        np.testing.assert_allclose(uf, -g.Ku * flc(g.Ks * s, np.zeros(3)), atol=1e-9)
+        assert np.all(s * uf >= -1e-12)
+        assert s @ uf >= 0
+    s = rng.normal(size=(500, 3))
+    sdot = np.abs(rng.normal(size=(500, 3)) * 20) * np.sign(s)
+    uf = -g.Ku * flc(g.Ks * s, g.Ksd * sdot)
+    assert np.all(s * uf >= -1e-12)
+
+
+def test_sdot_filter_and_state_reset(robot):
+    g = Gains()
+    ctrl = FSMC(robot, g, period=TC)
+    Xd = np.array([0.7, 0.1, 0.1])
+    z = np.zeros(3)
+    ctrl.step(Xd - [0, 0, 0.01], z, Xd, z, z)
+    st = ctrl.state
+    np.testing.assert_allclose(st.s_prev, [0, 0, 20 * 0.01])
+    np.testing.assert_array_equal(st.sdot, 0)  # no previous s: the difference is 0
+    ctrl.step(Xd - [0, 0, 0.02], z, Xd, z, z)
+    raw = (20 * 0.02 - 20 * 0.01) / TC
+    np.testing.assert_allclose(ctrl.state.sdot, [0, 0, raw / g.filter_periods])
+    assert ctrl.state.steps == 2 and ctrl.state.theta_hat is None
+    ctrl.reset()
+    assert ctrl.state.steps == 0 and not ctrl.state.s_prev.any() and not ctrl.state.sdot.any()
+
+
+def test_afsmc_gamma_zero_is_fixed_parameter_law(robot):
+    # Gamma = 0: Theta^ never moves and F = Y Theta_0 + K s + u_f, with the same sdot filter.
+    rng = np.random.default_rng(23)
+    g = Gains(gamma=0.0)
+    model = robot.with_theta(0.85 * robot.theta)
+    ctrl = AFSMC(model, g, period=TC)
+    flc = FLC()
+    s_prev, sdot = None, np.zeros(3)
+    Xd, Xdd, Xddd = _desired(rng)
+    for _ in range(30):
+        X = Xd + rng.normal(size=3) * [0.002, 0.02, 0.02]
+        Xdot = Xdd + rng.normal(size=3) * 0.3
+        F = ctrl.step(X, Xdot, Xd, Xdd, Xddd)
+        e, ed = Xd - X, Xdd - Xdot
+        s = ed + g.lam * e
+        raw = np.zeros(3) if s_prev is None else (s - s_prev) / TC
+        sdot = sdot + (raw - sdot) / g.filter_periods
+        s_prev = s
+        Y = model.regressor(X, Xdot, Xdd + g.lam * e, Xddd + g.lam * ed)
+        expected = Y @ model.theta + g.K * s - g.Ku * flc(g.Ks * s, g.Ksd * sdot)
+        np.testing.assert_allclose(F, expected, rtol=1e-11, atol=1e-9)
+        np.testing.assert_array_equal(ctrl.state.theta_hat, model.theta)
+
+
+def test_afsmc_adapts_in_the_direction_of_y_transpose_s(robot):
+    model = robot.with_theta(0.85 * robot.theta)
+    ctrl = AFSMC(model, Gains(gamma=1.0), period=TC)
+    X = np.array([0.7, 0.1, -0.1])
+    Xd = X + [0.001, 0.0, 0.0]  # below the target in z: s_z > 0, mass estimates grow
+    z = np.zeros(3)
+    ctrl.step(X, z, Xd, z, z)
+    d = ctrl.state.theta_hat - model.theta
+    assert d[0] > 0  # platform mass
+    Y = model.regressor(X, z, 50 * (Xd - X), z)
+    s = 50 * (Xd - X)
+    expected = TC * ctrl.gamma_vec * (Y.T @ s)
+    # d is a difference of numbers of size theta: it carries a rounding error ~eps * theta
+    rounding = 4 * np.finfo(float).eps * model.theta
+    assert np.all(np.abs(d - expected) <= 1e-12 * np.abs(expected) + rounding)
+
+
+def test_projection_keeps_bounds_under_adversarial_inputs():
+    rng = np.random.default_rng(24)
+    th0 = pkmctl.Mechanism.paper().theta
+    lo, hi = 0.1 * th0, 10 * th0
+    th = th0.copy()
+    gamma = 1e6 * th0**2
+    for _ in range(2000):
+        Y = rng.normal(size=(3, 36)) * 10 ** rng.uniform(-3, 6)
+        s = rng.normal(size=3) * 10 ** rng.uniform(-3, 6)
+        adapt(th, Y, s, 1e-3, gamma, lo, hi)
+        assert np.all(th >= lo) and np.all(th <= hi)
+    assert np.any(th == lo) and np.any(th == hi)  # the adversary did reach both bounds
+
+
+def test_registry_and_errors(robot):
+    assert set(CONTROLLERS) == {"smc", "fsmc", "afsmc"}
+    assert isinstance(make_controller("AFSMC", robot, period=1e-3), AFSMC)
+    with pytest.raises(ValueError, match="controller = 'pid'"):
+        make_controller("pid", robot, period=1e-3)
+    with pytest.raises(ValueError, match="period"):
+        SMC(robot, period=0.0)
+    with pytest.raises(ValueError, match="lam"):
+        Gains(lam=[1.0, -1.0, 1.0])
+    with pytest.raises(ValueError, match="theta_bounds"):
+        Gains(theta_bounds=(2.0, 3.0))
+    with pytest.raises(ValueError, match=r"X: expected shape \(3,\)"):
+        SMC(robot, period=1e-3).step(np.zeros(2), *[np.zeros(3)] * 4)
+
+
+def _one_dof_run(Ku, dt, t_end=0.5):
+    """1-DOF reduction m xdd = F with Y = [xr_dd] and constant m, under the library's law.
+
+    F = Y m^ + K s + u_f, dm^/dt = Gamma Y s (the library's adapt() and FLC);
+    V = m s^2 / 2 + (m - m^)^2 / (2 Gamma) has Vdot = -K s^2 - s u_f in continuous time.
+    Returns V (N,) and s u_f (N,) at each step.
+    """
+    m, m_hat0, K, lam, Ks, Ksd, gamma = 2.0, 1.2, 20.0, 5.0, 10.0, 0.5, 4.0
+    flc = FLC()
+    x, v = 0.1, 0.0
+    th, lo, hi = np.array([m_hat0]), np.array([0.1]), np.array([10.0])
+    Y = np.zeros((1, 1))
+    V, su = [], []
+    s_prev = None
+    for k in range(int(round(t_end / dt))):
+        t = k * dt
+        xd, vd, ad = 0.05 * np.sin(t), 0.05 * np.cos(t), -0.05 * np.sin(t)
+        e, ed = xd - x, vd - v
+        s = ed + lam * e
+        V.append(0.5 * m * s * s + 0.5 * (m - th[0]) ** 2 / gamma)
+        sdot = 0.0 if s_prev is None else (s - s_prev) / dt
+        s_prev = s
+        Y[0, 0] = ad + lam * ed
+        uf = -Ku * float(flc(Ks * s, Ksd * sdot))
+        su.append(s * uf)
+        F = Y[0, 0] * th[0] + K * s + uf
+        adapt(th, Y, np.array([s]), dt, np.array([gamma]), lo, hi)
+        a = F / m
+        x, v = x + dt * v + 0.5 * dt * dt * a, v + dt * a
+    return np.array(V), np.array(su)
+
+
+def test_lyapunov_nonincreasing_one_dof_adaptive_law():
+    # Ku = 0: Vdot = -K s^2 <= 0. The discrete V may rise only by the O(dt^2) error of the
+    # integration: halving dt must cut the largest rise about four times.
+    V1, _ = _one_dof_run(0.0, 2e-5)
+    V2, _ = _one_dof_run(0.0, 1e-5)
+    r1, r2 = np.diff(V1).max(), np.diff(V2).max()
+    assert r2 <= 1e-9 * V2[0]
+    assert r1 / r2 > 3.0, (r1, r2)
+    assert V2[-1] < 0.5 * V2[0]
+
+
+def test_lyapunov_with_fuzzy_term_one_dof():
+    # With the FLC, Vdot = -K s^2 - s u_f: V does not rise wherever s u_f >= 0 (the FLC
+    # pushes towards the surface). It may rise only where s and sdot have opposite signs
+    # and the rule table eases the push (s u_f < 0), which is the table's design, not a bug.
+    dt = 1e-5
+    V, su = _one_dof_run(3.0, dt)
+    rises = np.diff(V)
+    pushing = su[:-1] >= 0
+    assert rises[pushing].max() <= 1e-9 * V[0]
+    assert V[-1] < 0.5 * V[0]
+
+
+def _alternation(result, t_from=1.0):
+    """Fraction of periods where F_beta's increment flips sign: 1.0 is a Nyquist limit cycle."""
+    F = result.F[result.t >= t_from, 2]
+    d = np.diff(F)
+    return float(np.mean(d[1:] * d[:-1] < 0)), float(np.std(d))
+
+
+@pytest.mark.parametrize("controller", ["fsmc", "afsmc"])
+def test_sdot_filter_prevents_nyquist_limit_cycle(controller):
+    # DESIGN.md §3: an unfiltered backward difference of s feeds the FLC a gain of ~8 M_bb
+    # through a one-sample delay, and F_beta flips sign every period. The default filter
+    # (tau_f = 20 T_c) removes it.
+    sc = pkmctl.Scenario.builtin("paper").replace(**{"timing.duration": 1.5})
+    alt, std = _alternation(pkmctl.simulate(sc, controller=controller))
+    raw = sc.replace(**{"gains.filter_periods": 1.0})  # tau_f = T_c: y_k = x_k, no filter
+    alt_raw, std_raw = _alternation(pkmctl.simulate(raw, controller=controller))
+    assert alt < 0.3 and std < 2.0, (alt, std)
+    assert alt_raw > 0.9 and std_raw > 10 * std, (alt_raw, std_raw)

@@ -1,0 +1,85 @@
+"""Scenario: built-ins, exact TOML round trip, one-line errors for bad input."""
+
+import math
+
+import pytest
+
+import pkmctl
+from pkmctl.scenario import BUILTINS, Scenario, ScenarioError
+
+
+def test_builtins_hold_the_paper_numbers():
+    sc = Scenario.builtin("paper")
+    assert sc.timing.control_period == 5e-5 and sc.timing.duration == 10.0
+    assert sc.gains.lam == [50.0, 20.0, 20.0] and sc.gains.K == [1000.0, 200.0, 200.0]
+    assert sc.gains.Lam == [150.0, 40.0, 40.0] and sc.gains.eps == 0.01
+    assert sc.gains.Ku == [50.0, 30.0, 30.0] and sc.gains.Ksd == [0.5, 0.5, 0.5]
+    assert sc.controller_model.theta_scale == 0.85
+    assert sc.trajectory.amplitude == [0.02, math.pi / 6, math.pi / 6]
+    assert sc.disturbance.amplitude == [2.0, 2.0, 2.0] and sc.disturbance.hold == 1e-3
+    assert Scenario.builtin("paper-1khz").timing.control_period == 1e-3
+    model = sc.controller_mechanism()
+    assert (model.theta == 0.85 * sc.plant().theta).all()
+
+
+@pytest.mark.parametrize("name", list(BUILTINS))
+def test_toml_round_trip_exact(name):
+    sc = Scenario.builtin(name)
+    text = sc.to_toml()
+    back = Scenario.from_toml(text)
+    assert back == sc
+    assert back.to_toml() == text
+
+
+def test_toml_file_round_trip(tmp_path):
+    sc = Scenario.builtin("paper").replace(**{"disturbance.seed": 42, "timing.duration": 1.5})
+    path = tmp_path / "s.toml"
+    path.write_text(sc.to_toml())
+    assert Scenario.from_toml(path) == sc
+
+
+BAD = [
+    ({"timing": {"control_period": -1.0}}, "timing.control_period = -1.0: Input should be greater"),
+    ({"timing": {"control_period": "fast"}}, "timing.control_period = 'fast'"),
+    ({"timing": {"substeps": 0}}, "timing.substeps = 0"),
+    ({"timing": {"duration": 0.0}}, "timing.duration = 0.0"),
+    ({"timing": {"typo": 1}}, "timing.typo = 1: Extra inputs are not permitted"),
+    ({"speed": 3}, "speed = 3: Extra inputs are not permitted"),
+    ({"gains": {"lam": [50.0, 20.0]}}, "gains.lam"),
+    ({"gains": {"K": [1000.0, -1.0, 200.0]}}, "gains.K.1 = -1.0"),
+    ({"gains": {"eps": 0.0}}, "gains.eps = 0.0"),
+    ({"gains": {"theta_bounds": [2.0, 3.0]}}, "theta_bounds"),
+    ({"disturbance": {"seed": -1}}, "disturbance.seed = -1"),
+    ({"disturbance": {"hold": 0.0}}, "disturbance.hold = 0.0"),
+    ({"mechanism": {"r_a": 0.5}}, "need 0 < r_a < r_b"),
+    ({"mechanism": {"theta": [1.0] * 35}}, "mechanism.theta"),
+    ({"controller_model": {"theta_scale": 0.0}}, "controller_model.theta_scale = 0.0"),
+    ({"initial": {"X": [-0.1, 0.0, 0.0]}}, "initial.X"),
+    ({"trajectory": {"offset": [0.7, 1.7, 0.0]}}, "trajectory: leaves the valid workspace"),
+    ({"trajectory": {"offset": [0.7, 1.3, 0.0], "amplitude": [0.0, 0.0, 0.0]}}, "singularity"),
+    ({"trajectory": {"kind": "spline"}}, "trajectory.kind = 'spline'"),
+    ({"actuators": {"force_limit": -5.0}}, "actuators.force_limit = -5.0"),
+]
+
+
+@pytest.mark.parametrize(("data", "match"), BAD)
+def test_bad_input_gives_one_line_error(data, match):
+    with pytest.raises(ScenarioError) as info:
+        Scenario.from_dict(data)
+    msg = str(info.value)
+    assert "\n" not in msg
+    assert match in msg, msg
+
+
+def test_bad_toml_and_unknown_builtin(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[timing\ncontrol_period = 1")
+    with pytest.raises(ScenarioError, match="scenario TOML"):
+        Scenario.from_toml(bad)
+    with pytest.raises(ScenarioError, match="No such file"):
+        Scenario.from_toml(tmp_path / "missing.toml")
+    with pytest.raises(ScenarioError, match="unknown built-in"):
+        Scenario.builtin("nope")
+    with pytest.raises(ScenarioError, match="unknown field"):
+        Scenario.builtin("paper").replace(**{"timing.nope": 1})
+    assert isinstance(ScenarioError("x"), pkmctl.PkmctlError)

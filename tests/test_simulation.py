@@ -1,0 +1,122 @@
+"""The closed loop: determinism, convergence in the sub-step, physics of the logged run, errors."""
+
+import os
+
+import numpy as np
+import pytest
+
+import pkmctl
+from pkmctl import metrics
+from pkmctl.results_io import load_result, save_result
+
+FULL = os.environ.get("PKMCTL_FULL") == "1"
+SHORT = 0.3
+
+
+@pytest.fixture(scope="module")
+def paper():
+    return pkmctl.Scenario.builtin("paper")
+
+
+@pytest.mark.parametrize("controller", ["smc", "fsmc", "afsmc"])
+def test_result_shapes_and_content(paper, controller):
+    r = pkmctl.simulate(paper, controller=controller, duration=SHORT)
+    n = int(round(SHORT / 5e-5))
+    assert r.t.shape == (n,) and r.success
+    for name in ("X", "Xdot", "X_desired", "F"):
+        assert getattr(r, name).shape == (n, 3), name
+    for name in ("q", "q_desired", "tau", "tau_desired"):
+        assert getattr(r, name).shape == (n, 4), name
+    assert (r.theta_hat is not None) == (controller == "afsmc")
+    if r.theta_hat is not None:
+        assert r.theta_hat.shape == (n, 36)
+        np.testing.assert_array_equal(r.theta_hat[0], paper.controller_mechanism().theta)
+    assert r.controller == controller and r.scenario.timing.duration == SHORT
+    np.testing.assert_array_equal(r.X[0], paper.initial.X)
+    assert set(r.rmse()) == set(metrics.RMSE_KEYS)
+    plant = paper.plant()
+    # the logged q and F are the plant's, at the logged poses
+    np.testing.assert_allclose(r.q[::500], plant.inverse_kinematics(r.X[::500]), rtol=1e-12)
+    JT_tau = np.einsum("nij,ni->nj", plant.jacobian(r.X[::500]), r.tau[::500])
+    np.testing.assert_allclose(r.F[::500], JT_tau, rtol=1e-10, atol=1e-9)
+
+
+def test_same_seed_bit_identical_other_seed_differs(paper):
+    a = pkmctl.simulate(paper, controller="afsmc", duration=SHORT, seed=3)
+    b = pkmctl.simulate(paper, controller="afsmc", duration=SHORT, seed=3)
+    c = pkmctl.simulate(paper, controller="afsmc", duration=SHORT, seed=4)
+    for name in ("X", "Xdot", "tau", "F", "theta_hat", "disturbance"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert not np.array_equal(a.disturbance, c.disturbance)
+    assert not np.array_equal(a.X, c.X)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["paper", "paper-1khz"])
+@pytest.mark.parametrize("controller", ["smc", "fsmc", "afsmc"])
+def test_halving_rk4_substep_changes_rmse_under_1_percent(name, controller):
+    sc = pkmctl.Scenario.builtin(name)
+    sc = sc.replace(**{"timing.duration": 10.0 if FULL else 1.0})
+    finer = sc.replace(**{"timing.substeps": 2 * sc.timing.substeps})
+    a = pkmctl.simulate(sc, controller=controller).rmse()
+    b = pkmctl.simulate(finer, controller=controller).rmse()
+    for k in a:
+        assert abs(a[k] - b[k]) < 0.01 * abs(b[k]), (k, a[k], b[k])
+
+
+@pytest.mark.parametrize("controller", ["smc", "afsmc"])
+def test_logged_run_satisfies_the_plant_equation(paper, controller):
+    """M Xdd + C Xd + G - F recomputed from the log with the true model is the disturbance.
+
+    Over period k the actuator forces and the disturbance are held, so the mean
+    acceleration (Xdot_{k+1} - Xdot_k) / T_c at the period's midpoint satisfies the plant
+    equation to O(T_c^2).
+    """
+    r = pkmctl.simulate(paper, controller=controller, duration=SHORT)
+    plant = paper.plant()
+    Tc = paper.timing.control_period
+    k = np.arange(100, r.t.size - 1, 37)  # away from the first kilonewton transient
+    Xm = 0.5 * (r.X[k] + r.X[k + 1])
+    Vm = 0.5 * (r.Xdot[k] + r.Xdot[k + 1])
+    A = (r.Xdot[k + 1] - r.Xdot[k]) / Tc
+    F_mid = np.einsum("nij,ni->nj", plant.jacobian(Xm), r.tau[k])
+    residual = plant.inverse_dynamics(Xm, Vm, A) - F_mid
+    assert np.all(np.abs(residual) <= 2.0 + 1e-3)
+    assert np.abs(residual).max() > 0.5  # a disturbance was applied
+    np.testing.assert_allclose(residual, r.disturbance[k], atol=2e-3)
+
+
+def test_diverging_run_raises_with_time_state_and_partial(paper):
+    absurd = paper.replace(**{"gains.K": [1e9, 1e9, 1e9]})
+    with pytest.raises(pkmctl.SimulationDiverged) as info:
+        pkmctl.simulate(absurd, controller="smc", duration=0.5)
+    err = info.value
+    assert "diverged at t = " in str(err) and "X = " in str(err)
+    assert 0 <= err.time < 0.5
+    assert err.state.shape == (6,)
+    assert err.partial is not None and not err.partial.success
+    assert err.partial.t.size == int(round(err.time / 5e-5))
+    assert np.all(np.isfinite(err.partial.X))
+
+
+def test_force_limit_option(paper):
+    lim = paper.replace(**{"actuators.force_limit": 300.0})
+    r = pkmctl.simulate(lim, controller="afsmc", duration=0.05)
+    assert np.abs(r.tau).max() <= 300.0 + 1e-12
+    free = pkmctl.simulate(paper, controller="afsmc", duration=0.05)
+    assert np.abs(free.tau).max() > 1000.0  # the paper's unbounded actuators ask for kN
+
+
+def test_save_and_load_round_trip(paper, tmp_path):
+    r = pkmctl.simulate(paper, controller="afsmc", duration=0.02)
+    csv_path, json_path = save_result(r, tmp_path)
+    back = load_result(json_path)
+    for name in ("t", "X", "Xdot", "X_desired", "q", "q_desired", "F", "tau", "theta_hat"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(r, name), err_msg=name)
+    assert back.scenario == r.scenario and back.controller == "afsmc"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afsmc.csv", "afsmc.json"]
+
+
+def test_unknown_controller(paper):
+    with pytest.raises(ValueError, match="controller = 'pid'"):
+        pkmctl.simulate(paper, controller="pid", duration=0.01)
