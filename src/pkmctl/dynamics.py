@@ -61,25 +61,44 @@ def _kinematics(geom, X, Xd, work):
 
 @njit(cache=True, nogil=True)
 def _assemble(geom, theta, Xd, work, M, C, G):
-    """M, C, G from filled body kinematics (the sums of the module docstring)."""
+    """M, C, G from filled body kinematics (the sums of the module docstring).
+
+    The two bodies of a limb share its frame and angular velocity, so their rotational
+    terms are summed once with the summed inertia (5 rotating frames, not 9).
+    """
     Rb, Jv, Jw, dJv, dJw = work[1], work[2], work[3], work[4], work[5]
     g = geom[10]
     M[:, :] = 0.0
     C[:, :] = 0.0
     G[:] = 0.0
+    for b in range(N_BODIES):  # translation
+        m = theta[4 * b]
+        for i in range(3):
+            for j in range(3):
+                mv = 0.0
+                cv = 0.0
+                for k in range(3):
+                    mv += Jv[b, k, i] * Jv[b, k, j]
+                    cv += Jv[b, k, i] * dJv[b, k, j]
+                M[i, j] += m * mv
+                C[i, j] += m * cv
+            G[i] += m * g * Jv[b, 2, i]
     # scratch reused from the kinematics (free once it has run)
     Iw, A, IJ = work[9][0], work[9][1], work[9][2]  # R I R^T, Iw dJw + [w]x Iw Jw, Iw Jw
     w = work[8][0]
-    for b in range(N_BODIES):
-        m = theta[4 * b]
+    for f in range(5):  # rotation: platform, then limbs 1-4 (lower + upper body)
+        b = f
+        i0 = theta[4 * b + 1]
+        i1 = theta[4 * b + 2]
+        i2 = theta[4 * b + 3]
+        if f > 0:
+            i0 += theta[4 * (b + 4) + 1]
+            i1 += theta[4 * (b + 4) + 2]
+            i2 += theta[4 * (b + 4) + 3]
         R = Rb[b]
         for k in range(3):
             for n in range(3):
-                Iw[k, n] = (
-                    theta[4 * b + 1] * R[k, 0] * R[n, 0]
-                    + theta[4 * b + 2] * R[k, 1] * R[n, 1]
-                    + theta[4 * b + 3] * R[k, 2] * R[n, 2]
-                )
+                Iw[k, n] = i0 * R[k, 0] * R[n, 0] + i1 * R[k, 1] * R[n, 1] + i2 * R[k, 2] * R[n, 2]
         for k in range(3):
             w[k] = Jw[b, k, 0] * Xd[0] + Jw[b, k, 1] * Xd[1] + Jw[b, k, 2] * Xd[2]
         for k in range(3):
@@ -97,18 +116,13 @@ def _assemble(geom, theta, Xd, work, M, C, G):
                 )
         for i in range(3):
             for j in range(3):
-                mv = 0.0
-                cv = 0.0
                 mw = 0.0
                 cw = 0.0
                 for k in range(3):
-                    mv += Jv[b, k, i] * Jv[b, k, j]
-                    cv += Jv[b, k, i] * dJv[b, k, j]
                     mw += Jw[b, k, i] * IJ[k, j]
                     cw += Jw[b, k, i] * A[k, j]
-                M[i, j] += m * mv + mw
-                C[i, j] += m * cv + cw
-            G[i] += m * g * Jv[b, 2, i]
+                M[i, j] += mw
+                C[i, j] += cw
 
 
 @njit(cache=True, nogil=True)
@@ -133,6 +147,11 @@ def _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y):
             Y[i, 4 * b] = (
                 Jv[b, 0, i] * acc[0] + Jv[b, 1, i] * acc[1] + Jv[b, 2, i] * acc[2] + g * Jv[b, 2, i]
             )
+        if b >= 5:  # an upper limb turns with its lower limb: same inertia columns
+            for i in range(3):
+                for n in range(1, 4):
+                    Y[i, 4 * b + n] = Y[i, 4 * (b - 4) + n]
+            continue
         # inertia columns: J_w^T (r_k a_k + b_k omega x r_k)
         for k in range(3):
             acc[k] = 0.0

@@ -46,6 +46,12 @@ N_BODIES = 9
 GEOM_SIZE = 11
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _cx(a0, a1, a2, b0, b1, b2):
+    """a x b on scalars (no array views in the hot loop)."""
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
 @njit(cache=True, nogil=True)
 def _cross(a, b, out):
     out[0] = a[1] * b[2] - a[2] * b[1]
@@ -108,17 +114,8 @@ def body_jacobians(geom, X, Xd, com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat):
     p = com[0]
     _platform(X, Xd, p, Rb[0], Jv[0], Jw[0], dJv[0], dJw[0])
     R = Rb[0]
-    rho, rhod, P, u, ud, tmp, tmp2, col, w0 = (
-        vec[0],
-        vec[1],
-        vec[2],
-        vec[3],
-        vec[4],
-        vec[5],
-        vec[6],
-        vec[7],
-        vec[8],
-    )
+    rho, rhod, P, u, ud = vec[0], vec[1], vec[2], vec[3], vec[4]
+    tmp, tmp2, w0 = vec[5], vec[6], vec[8]
     JP, dJP, Ju, dJu = mat[0], mat[1], mat[2], mat[3]
     for k in range(3):  # platform angular velocity
         w0[k] = Jw[0, k, 0] * Xd[0] + Jw[0, k, 1] * Xd[1] + Jw[0, k, 2] * Xd[2]
@@ -132,35 +129,38 @@ def body_jacobians(geom, X, Xd, com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat):
         d0, d1, d2 = P[0] - r_b * cth, P[1] - r_b * sth, P[2]
         qi = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         q[i] = qi
-        u[0], u[1], u[2] = d0 / qi, d1 / qi, d2 / qi
+        iq = 1.0 / qi
+        u[0], u[1], u[2] = d0 * iq, d1 * iq, d2 * iq
         # J_P: velocity of the platform joint point; dJ_P its time derivative
         for j in range(3):
-            _cross(Jw[0, :, j], rho, tmp)
-            _cross(dJw[0, :, j], rho, tmp2)
-            _cross(Jw[0, :, j], rhod, col)
-            for k in range(3):
-                JP[k, j] = Jv[0, k, j] + tmp[k]
-                dJP[k, j] = dJv[0, k, j] + tmp2[k] + col[k]
+            wj0, wj1, wj2 = Jw[0, 0, j], Jw[0, 1, j], Jw[0, 2, j]
+            dw0, dw1, dw2 = dJw[0, 0, j], dJw[0, 1, j], dJw[0, 2, j]
+            t0, t1, t2 = _cx(wj0, wj1, wj2, rho[0], rho[1], rho[2])
+            s0, s1, s2 = _cx(dw0, dw1, dw2, rho[0], rho[1], rho[2])
+            c0, c1, c2 = _cx(wj0, wj1, wj2, rhod[0], rhod[1], rhod[2])
+            JP[0, j] = Jv[0, 0, j] + t0
+            JP[1, j] = Jv[0, 1, j] + t1
+            JP[2, j] = Jv[0, 2, j] + t2
+            dJP[0, j] = dJv[0, 0, j] + s0 + c0
+            dJP[1, j] = dJv[0, 1, j] + s1 + c1
+            dJP[2, j] = dJv[0, 2, j] + s2 + c2
         # q_dot = u . P_dot ; u_dot = (I - u u^T) P_dot / q
         Pd = tmp
         for k in range(3):
             Pd[k] = JP[k, 0] * Xd[0] + JP[k, 1] * Xd[1] + JP[k, 2] * Xd[2]
         qd = u[0] * Pd[0] + u[1] * Pd[1] + u[2] * Pd[2]
         for k in range(3):
-            ud[k] = (Pd[k] - u[k] * qd) / qi
+            ud[k] = (Pd[k] - u[k] * qd) * iq
         for j in range(3):
             uv = u[0] * JP[0, j] + u[1] * JP[1, j] + u[2] * JP[2, j]
             udv = ud[0] * JP[0, j] + ud[1] * JP[1, j] + ud[2] * JP[2, j]
             udP = u[0] * dJP[0, j] + u[1] * dJP[1, j] + u[2] * dJP[2, j]
             Jq[i, j] = uv
             for k in range(3):
-                Ju[k, j] = (JP[k, j] - u[k] * uv) / qi
+                ju = (JP[k, j] - u[k] * uv) * iq
+                Ju[k, j] = ju
                 # d/dt[(I - u u^T)/q] v  +  (I - u u^T)/q  dJ_P v
-                dJu[k, j] = (
-                    -(ud[k] * uv + u[k] * udv) / qi
-                    - (JP[k, j] - u[k] * uv) * qd / (qi * qi)
-                    + (dJP[k, j] - u[k] * udP) / qi
-                )
+                dJu[k, j] = (dJP[k, j] - u[k] * udP - ud[k] * uv - u[k] * udv) * iq - ju * qd * iq
         lo, up = 1 + i, 5 + i
         l1, l2 = geom[2 + i], geom[6 + i]
         for k in range(3):
@@ -184,12 +184,15 @@ def body_jacobians(geom, X, Xd, com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat):
             Rb[lo, k, 2] = u[k]
         # omega_i = u x u_dot + spin u; for SPR the spin (x_dot . y) is alpha_dot * u_x.
         for j in range(3):
-            _cross(u, Ju[:, j], tmp)
-            _cross(ud, Ju[:, j], tmp2)
-            _cross(u, dJu[:, j], col)
-            for k in range(3):
-                Jw[lo, k, j] = tmp[k]
-                dJw[lo, k, j] = tmp2[k] + col[k]
+            t0, t1, t2 = _cx(u[0], u[1], u[2], Ju[0, j], Ju[1, j], Ju[2, j])
+            s0, s1, s2 = _cx(ud[0], ud[1], ud[2], Ju[0, j], Ju[1, j], Ju[2, j])
+            c0, c1, c2 = _cx(u[0], u[1], u[2], dJu[0, j], dJu[1, j], dJu[2, j])
+            Jw[lo, 0, j] = t0
+            Jw[lo, 1, j] = t1
+            Jw[lo, 2, j] = t2
+            dJw[lo, 0, j] = s0 + c0
+            dJw[lo, 1, j] = s1 + c1
+            dJw[lo, 2, j] = s2 + c2
         if spr:
             for k in range(3):
                 Jw[lo, k, 1] += u[0] * u[k]

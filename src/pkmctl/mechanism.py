@@ -403,7 +403,7 @@ def _check_poses(geom: np.ndarray, Xb: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return q, J
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _limbs_batch(geom, Xb):
     n = Xb.shape[0]
     q = np.empty((n, 4))
@@ -413,7 +413,7 @@ def _limbs_batch(geom, Xb):
     return q, J
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _dynamics_batch(geom, theta, Xb, Xdb):
     n = Xb.shape[0]
     M = np.empty((n, 3, 3))
@@ -425,7 +425,7 @@ def _dynamics_batch(geom, theta, Xb, Xdb):
     return M, C, G
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _regressor_batch(geom, Xb, Xdb, Xrdb, Xrddb):
     n = Xb.shape[0]
     Y = np.empty((n, 3, N_THETA))

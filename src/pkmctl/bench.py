@@ -1,0 +1,223 @@
+"""``pkmctl bench``: speed on the machine at hand, peers timed in the same process.
+
+Every number is measured when the command runs; nothing here is a pass/fail test.
+See docs/performance.md for how to read them.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from collections.abc import Callable
+
+import numpy as np
+from numba import njit
+
+from .dynamics import dynamics_kernel, make_work, regressor_kernel
+
+__all__ = ["render", "run_all"]
+
+
+def _best(fn: Callable[[], object], repeats: int) -> float:
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+@njit(cache=True)
+def _loop_mcg(geom, theta, X, Xd, n):
+    work = make_work()
+    M, C, G = np.empty((3, 3)), np.empty((3, 3)), np.empty(3)
+    acc = 0.0
+    for k in range(n):
+        X[2] = 0.3 * np.sin(1e-4 * k)  # vary the pose so nothing is hoisted out of the loop
+        dynamics_kernel(geom, theta, X, Xd, work, M, C, G)
+        acc += M[0, 0] + C[1, 1] + G[0]
+    return acc
+
+
+@njit(cache=True)
+def _loop_regressor(geom, X, Xd, Xr, Xrr, n):
+    work = make_work()
+    Y = np.empty((3, 36))
+    acc = 0.0
+    for k in range(n):
+        X[2] = 0.3 * np.sin(1e-4 * k)
+        regressor_kernel(geom, X, Xd, Xr, Xrr, work, Y)
+        acc += Y[0, 0]
+    return acc
+
+
+def bench_model(quick: bool = False) -> dict[str, float]:
+    """Microseconds per evaluation of M, C, G together and of Y, called from compiled code."""
+    import pkmctl
+
+    robot = pkmctl.Mechanism.paper()
+    n = 20_000 if quick else 200_000
+    X = np.array([0.71, 0.2, -0.1])
+    Xd = np.array([0.02, 0.5, -0.4])
+    g, th = robot.geometry.copy(), robot.theta.copy()
+    _loop_mcg(g, th, X.copy(), Xd, 10)
+    _loop_regressor(g, X.copy(), Xd, 0.9 * Xd, 3 * Xd, 10)
+    mcg = _best(lambda: _loop_mcg(g, th, X.copy(), Xd, n), 5) / n
+    reg = _best(lambda: _loop_regressor(g, X.copy(), Xd, 0.9 * Xd, 3 * Xd, n), 5) / n
+    return {"mcg_us": mcg * 1e6, "regressor_us": reg * 1e6}
+
+
+def bench_steps(duration: float, repeats: int) -> dict[str, dict[str, float]]:
+    """Control steps per second of one run on one core, per controller (paper scenario).
+
+    ``loop``: the compiled closed loop alone (controller + RK4 plant + logging);
+    ``end_to_end``: :func:`pkmctl.simulate` as a user calls it (also builds the desired
+    trajectory, its inverse kinematics and desired forces, and the Result).
+    """
+    import pkmctl
+
+    sc = pkmctl.Scenario.builtin("paper").replace(**{"timing.duration": duration})
+    n = int(round(duration / sc.timing.control_period))
+    out = {}
+    for name in ("smc", "fsmc", "afsmc"):
+        pkmctl.simulate(sc, controller=name, duration=0.01)  # warm (compile cache)
+        loop = np.inf
+        total = np.inf
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            r = pkmctl.simulate(sc, controller=name)
+            total = min(total, time.perf_counter() - t0)
+            loop = min(loop, r.info["kernel_seconds"])
+        out[name] = {"loop_steps_per_s": n / loop, "end_to_end_steps_per_s": n / total}
+    return out
+
+
+def bench_latency(n: int) -> dict[str, float]:
+    """Controller step latency when called from Python (as a hardware loop would), in us."""
+    import pkmctl
+
+    robot = pkmctl.Mechanism.paper()
+    out = {}
+    for name in ("smc", "fsmc", "afsmc"):
+        ctrl = pkmctl.make_controller(name, robot.with_theta(0.85 * robot.theta), period=5e-5)
+        X = np.array([0.7, 0.1, 0.1])
+        Xd = np.array([0.7, 0.12, 0.08])
+        z = np.zeros(3)
+        for _ in range(200):
+            ctrl.step(X, z, Xd, z, z)
+        times = np.empty(n)
+        for k in range(n):
+            t0 = time.perf_counter_ns()
+            ctrl.step(X, z, Xd, z, z)
+            times[k] = time.perf_counter_ns() - t0
+        out[name] = {
+            "p50_us": float(np.percentile(times, 50) / 1e3),
+            "p99_us": float(np.percentile(times, 99) / 1e3),
+        }
+    return out
+
+
+def bench_batch(duration: float, runs: int) -> dict[str, float]:
+    """Aggregate steps/s of ``runs`` AFSMC runs (different seeds) over all cores (threads)."""
+    import pkmctl
+    from pkmctl.simulation import simulate_many
+
+    sc = pkmctl.Scenario.builtin("paper").replace(**{"timing.duration": duration})
+    n = int(round(duration / sc.timing.control_period))
+    workers = os.cpu_count() or 1
+    simulate_many(sc, "afsmc", seeds=range(workers), duration=0.01)
+    t0 = time.perf_counter()
+    simulate_many(sc, "afsmc", seeds=range(runs), workers=workers)
+    wall = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    simulate_many(sc, "afsmc", seeds=range(runs), workers=1)
+    serial = time.perf_counter() - t0
+    return {
+        "workers": workers,
+        "runs": runs,
+        "aggregate_steps_per_s": runs * n / wall,
+        "one_worker_steps_per_s": runs * n / serial,
+        "speedup": serial / wall,
+    }
+
+
+def bench_flc(quick: bool) -> dict[str, float]:
+    """FLC: compiled in-loop scalar, batched, and peers (scikit-fuzzy, simpful) per evaluation."""
+    from pkmctl.fuzzy_bench import run as run_fuzzy
+
+    return run_fuzzy(quick=quick)
+
+
+def run_all(quick: bool = False, progress: Callable[[str], None] | None = None) -> dict:
+    """Run every benchmark; ``quick`` shortens them to a smoke test."""
+    say = progress or (lambda _m: None)
+    res: dict = {
+        "machine": {
+            "cpu": platform.processor() or platform.machine(),
+            "cores": os.cpu_count(),
+            "python": platform.python_version(),
+            "numpy": np.__version__,
+        },
+        "quick": quick,
+    }
+    import numba
+
+    res["machine"]["numba"] = numba.__version__
+    say("model kernels")
+    from pkmctl.flops import estimate as flop_estimate
+
+    res["model"] = bench_model(quick=quick)
+    say("closed-loop steps per second, one core")
+    res["steps"] = bench_steps(0.2 if quick else 10.0, 1 if quick else 3)
+    say("FLC and peers")
+    res["flc"] = bench_flc(quick)
+    say("controller step latency from Python")
+    res["latency"] = bench_latency(2000 if quick else 50_000)
+    say("batch over all cores")
+    res["batch"] = bench_batch(0.2 if quick else 5.0, 2 if quick else 8)
+    say("floating-point operations per step")
+    res["flops"] = flop_estimate(res["steps"]["afsmc"]["loop_steps_per_s"])
+    return res
+
+
+def render(res: dict) -> str:
+    """The results as a plain-text table."""
+    lines = []
+    m = res["machine"]
+    lines.append(
+        f"machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}, "
+        f"NumPy {m['numpy']}, Numba {m['numba']}{' (quick)' if res['quick'] else ''}"
+    )
+    md = res["model"]
+    lines.append(f"model: M, C, G {md['mcg_us']:.2f} us; regressor {md['regressor_us']:.2f} us")
+    lines.append("closed loop, one core (paper scenario, 20 kHz):")
+    for name, v in res["steps"].items():
+        lines.append(
+            f"  {name:6s} loop {v['loop_steps_per_s']:>10,.0f} steps/s   "
+            f"end to end {v['end_to_end_steps_per_s']:>10,.0f} steps/s   "
+            f"(10 s of 20 kHz in {200_000 / v['loop_steps_per_s']:.2f} s)"
+        )
+    f = res["flc"]
+    lines.append("FLC per evaluation:")
+    for key, val in f.items():
+        if key.endswith("_us"):
+            lines.append(f"  {key[:-3]:34s} {val:12.3f} us")
+        elif key.startswith("ratio"):
+            lines.append(f"  {key:34s} {val:12,.0f} x")
+    lines.append("controller step latency from Python:")
+    for name, v in res["latency"].items():
+        lines.append(f"  {name:6s} p50 {v['p50_us']:.2f} us   p99 {v['p99_us']:.2f} us")
+    b = res["batch"]
+    lines.append(
+        f"batch: {b['runs']} AFSMC runs on {b['workers']} threads: "
+        f"{b['aggregate_steps_per_s']:,.0f} steps/s aggregate "
+        f"({b['speedup']:.2f}x one worker's {b['one_worker_steps_per_s']:,.0f})"
+    )
+    fl = res["flops"]
+    lines.append(
+        f"flops: ~{fl['flops_per_step']:,.0f} per AFSMC step -> {fl['gflops']:.2f} GFLOP/s, "
+        f"{100 * fl['fraction_of_peak']:.1f} % of an estimated {fl['peak_gflops']:.0f} GFLOP/s "
+        "scalar-FMA peak per core"
+    )
+    return "\n".join(lines)

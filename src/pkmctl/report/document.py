@@ -1,0 +1,314 @@
+"""``report.md``: the scenario, Table 4 beside the paper's, the figures and a discussion.
+
+Every claim of the discussion is computed from the numbers it is about (rankings,
+ratios, shares), so the text stays true when the numbers change. Renders only: the
+numbers come from :mod:`pkmctl.metrics` and :data:`~pkmctl.report.tables.PAPER_TABLE4`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..metrics import RMSE_KEYS, chattering_index, peak_forces, rmse
+from .figures import FIGURES
+from .tables import (
+    CONTROLLER_LABELS,
+    PAPER_DURATION_S,
+    PAPER_TABLE4,
+    RMSE_AFTER_S,
+    ordered,
+    rmse_after,
+    table4_markdown,
+)
+
+if TYPE_CHECKING:
+    from ..simulation import Result
+
+__all__ = ["render_report"]
+
+_QUANTITY = {
+    "z_mm": "z",
+    "alpha_deg": "α",
+    "beta_deg": "β",
+    "q1_m": "q1",
+    "q2_m": "q2",
+    "q3_m": "q3",
+    "q4_m": "q4",
+}
+_T_TRANSIENT = 0.2  # s: "the first ~0.2 s" of DESIGN.md §4
+_TIE = 0.01  # relative spread below which our three values count as a tie
+_CAPTIONS = {spec.filename: spec for spec in FIGURES}
+
+
+def _seconds(x: float) -> str:
+    """A duration with a readable unit (µs, ms or s)."""
+    if x == 0.0:
+        return "0 s"
+    if x < 1e-3:
+        return f"{x * 1e6:.3g} µs"
+    if x < 1.0:
+        return f"{x * 1e3:.3g} ms"
+    return f"{x:.4g} s"
+
+
+def _ranking(values: Mapping[str, float]) -> list[str]:
+    """Controller names from the lowest value to the highest."""
+    return sorted(values, key=lambda c: values[c])
+
+
+def _chain(names: Sequence[str]) -> str:
+    return " < ".join(CONTROLLER_LABELS[c] for c in names)
+
+
+def _words(items: Sequence[str]) -> str:
+    items = list(items)
+    if len(items) <= 1:
+        return "".join(items)
+    return ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def _span(lo: float, hi: float, spec: str) -> str:
+    """``"a–b"``, or ``"a"`` when both print the same."""
+    a, b = format(lo, spec), format(hi, spec)
+    return a if a == b else f"{a}–{b}"
+
+
+def _ranking_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
+    names = [c for c, _ in pairs]
+    if len(names) < 2:
+        return ["- Rankings: only one controller was run, so there is nothing to rank."]
+    ours = {c: r.rmse() for c, r in pairs}
+    same, differ, ties = [], [], []
+    for k in RMSE_KEYS:
+        values = {c: ours[c][k] for c in names}
+        mine = _ranking(values)
+        theirs = _ranking({c: PAPER_TABLE4[c][k] for c in names})
+        if mine == theirs:
+            same.append(_QUANTITY[k])
+        else:
+            differ.append(f"{_QUANTITY[k]} (ours {_chain(mine)}; paper {_chain(theirs)})")
+        lo, hi = min(values.values()), max(values.values())
+        if lo > 0 and hi / lo - 1.0 < _TIE:
+            ties.append(f"{_QUANTITY[k]} (±{50 * (hi / lo - 1.0):.2g} %)")
+    n = len(same)
+    count = "none" if n == 0 else ("all" if n == len(RMSE_KEYS) else f"{n}")
+    lines = [
+        f"- **Ranking, whole-run RMSE**: ours orders the controllers as the paper's Table 4 "
+        f"does for {count} of the {len(RMSE_KEYS)} quantities"
+        + (f" ({_words(same)})" if same and n < len(RMSE_KEYS) else "")
+        + "."
+        + (f" It differs for {_words(differ)}." if differ else "")
+    ]
+    if ties:
+        lines.append(
+            f"  Our controllers are within {100 * _TIE:g} % of each other on {_words(ties)}: "
+            "there the order is a tie and says nothing about which tracks better."
+        )
+    ratios = np.array([ours[c][k] / PAPER_TABLE4[c][k] for c in names for k in RMSE_KEYS])
+    below = int(np.sum(ratios < 1.0))
+    line = (
+        f"- **Ours / paper**: the ratio ranges from {ratios.min():.2g} to {ratios.max():.2g} "
+        f"(median {np.median(ratios):.2g}); {below} of our {ratios.size} RMSEs are below "
+        "the paper's."
+    )
+    duration = pairs[0][1].scenario.timing.duration
+    if not math.isclose(duration, PAPER_DURATION_S):
+        line += (
+            f" Our run lasts {duration:g} s and the paper's {PAPER_DURATION_S:g} s, so "
+            "whole-run RMSEs are not directly comparable (the start weighs more in a "
+            "shorter run)."
+        )
+    lines.append(line)
+    return lines
+
+
+def _transient_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
+    ref = pairs[0][1]
+    sc = ref.scenario
+    e0 = math.degrees(abs(ref.X_desired[0, 2] - ref.X[0, 2]))
+    lam = float(sc.gains.lam[2])
+    T = float(ref.t[-1] - ref.t[0]) + sc.timing.control_period
+    if e0 < 1e-9:
+        return ["- **Start**: β starts on its trajectory, so no initial transient dominates."]
+    estimate = e0 / math.sqrt(2.0 * lam * T)
+    paper_estimate = e0 / math.sqrt(2.0 * lam * PAPER_DURATION_S)
+    ours = [r.rmse()["beta_deg"] for _, r in pairs]
+    paper = [PAPER_TABLE4[c]["beta_deg"] for c, _ in pairs]
+    line = (
+        f"- **The first instants dominate**: β starts {e0:.3g}° off its trajectory. A "
+        f"controller that reaches the sliding surface quickly then lets the error decay as "
+        f"e^(−λ_β t), whose RMSE over T = {T:.3g} s is ≈ {e0:.3g}°/√(2·{lam:g}·{T:.3g}) = "
+        f"{estimate:.3g}°. Our whole-run β RMSEs are "
+        f"{_words([f'{v:.4g}°' for v in ours])} "
+        f"({_span(min(ours) / estimate, max(ours) / estimate, '.2f')} × the estimate); "
+        f"the paper's are {_words([f'{v:.3g}°' for v in paper])} "
+        f"({_span(min(paper) / paper_estimate, max(paper) / paper_estimate, '.2f')} × "
+        f"the same estimate for their {PAPER_DURATION_S:g} s, {paper_estimate:.3g}°)."
+    )
+    shares = []
+    for c, r in pairs:
+        if r.t[-1] <= _T_TRANSIENT:
+            continue
+        n_all = r.t.size
+        n_after = int(np.sum(r.t >= _T_TRANSIENT - 1e-12))
+        sse_all = n_all * rmse(r)["beta_deg"] ** 2
+        sse_after = n_after * rmse(r, t_from=_T_TRANSIENT)["beta_deg"] ** 2
+        if sse_all > 0:
+            shares.append(f"{100 * (1 - sse_after / sse_all):.4g} % ({CONTROLLER_LABELS[c]})")
+    if shares:
+        line += (
+            f" The first {_T_TRANSIENT:g} s hold {_words(shares)} of the squared β error, "
+            "so the whole-run RMSE measures the start, not the tracking."
+        )
+    return [line]
+
+
+def _after_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
+    after = {c: rmse_after(r) for c, r in pairs}
+    after = {c: v for c, v in after.items() if v is not None}
+    if len(after) < 2:
+        return [
+            f"- **After {RMSE_AFTER_S:g} s**: the runs are too short to compare the RMSE "
+            f"after the first {RMSE_AFTER_S:g} s."
+        ]
+    best: dict[str, list[str]] = {c: [] for c in after}
+    for k in RMSE_KEYS:
+        best[_ranking({c: after[c][k] for c in after})[0]].append(_QUANTITY[k])
+    parts = [
+        f"{CONTROLLER_LABELS[c]} for {_words(q)}" for c, q in best.items() if q
+    ]  # fmt: skip
+    spread = {
+        k: max(v[k] for v in after.values()) / min(v[k] for v in after.values())
+        for k in RMSE_KEYS
+        if min(v[k] for v in after.values()) > 0
+    }
+    line = (
+        f"- **After the first {RMSE_AFTER_S:g} s**, where the controllers differ, the lowest "
+        f"RMSE is {_words(parts)}."
+    )
+    if spread:
+        k_max = max(spread, key=spread.get)
+        line += (
+            f" The largest spread between controllers is on {_QUANTITY[k_max]} "
+            f"(×{spread[k_max]:.3g} from best to worst)."
+        )
+    return [line]
+
+
+def _force_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
+    ref = pairs[0][1]
+    limit = ref.scenario.actuators.force_limit
+    peaks = []
+    for c, r in pairs:
+        p = peak_forces(r)
+        i = int(np.argmax(p))
+        k = int(np.argmax(np.abs(r.tau[:, i])))
+        peaks.append(
+            f"{p[i]:.4g} N ({CONTROLLER_LABELS[c]}, τ{i + 1} at t = {_seconds(float(r.t[k]))})"
+        )
+    desired = float(np.max(np.abs(ref.tau_desired)))
+    bound = (
+        "unbounded, as in the paper (which gives no limits)"
+        if limit is None
+        else f"limited to ±{limit:g} N in this scenario"
+    )
+    chat = [
+        f"{float(np.mean(chattering_index(r))):.3g} N/s ({CONTROLLER_LABELS[c]})" for c, r in pairs
+    ]
+    return [
+        f"- **Forces**: the peak |τ_i| is {_words(peaks)}, against at most {desired:.3g} N for "
+        f"the desired driving forces; the actuators are {bound}. The chattering index "
+        f"(mean |Δτ| per second, averaged over the four actuators) is {_words(chat)}."
+    ]
+
+
+def _sampling_sentence(pairs: list[tuple[str, Result]]) -> list[str]:
+    timing = pairs[0][1].scenario.timing
+    return [
+        f"- **Sampling**: the paper's study is continuous time; here the controller runs "
+        f"every T_c = {_seconds(timing.control_period)} and its actuator forces are held "
+        f"over the period (zero-order hold), with the plant integrated by RK4 "
+        f"({timing.substeps} sub-step{'s' if timing.substeps != 1 else ''} per period)."
+    ]
+
+
+def render_report(
+    results: Mapping[str, Result],
+    *,
+    figures: Sequence[Path | str],
+    scenario_name: str,
+    wall_time_s: float | None = None,
+) -> str:
+    """The markdown of ``report.md`` for one reproduction run.
+
+    Parameters
+    ----------
+    results : mapping of str to Result
+        Keyed by controller name (``"smc"``, ``"fsmc"``, ``"afsmc"``); all from the
+        same scenario. Timing, seed and limits are read from the first.
+    figures : sequence of Path or str, keyword-only
+        The figure files (as returned by :func:`~pkmctl.report.make_figures`); each
+        is linked as ``figures/<file name>``, so report.md sits beside ``figures/``.
+    scenario_name : str, keyword-only
+        Name shown in the title and scenario line.
+    wall_time_s : float or None, keyword-only
+        Wall-clock time of the run, shown if given.
+
+    Returns
+    -------
+    str
+        Markdown: title, scenario, Table 4 (:func:`~pkmctl.report.table4_markdown`),
+        a discussion computed from the numbers, and the figures with captions.
+
+    Raises
+    ------
+    ValueError
+        If ``results`` holds none of the known controllers.
+    """
+    pairs = ordered(results)
+    if not pairs:
+        raise ValueError(
+            f"results: no known controller among {sorted(results)} "
+            f"(expected some of {list(CONTROLLER_LABELS)})"
+        )
+    sc = pairs[0][1].scenario
+    lines = [f"# pkmctl — the paper's experiment, scenario “{scenario_name}”", ""]
+    if sc.description:
+        lines += [sc.description, ""]
+    limit = sc.actuators.force_limit
+    run = (
+        f"Scenario **{scenario_name}**: T_c = {_seconds(sc.timing.control_period)}, "
+        f"duration {sc.timing.duration:g} s, disturbance seed {sc.disturbance.seed}, "
+        f"actuators {'unbounded' if limit is None else f'limited to ±{limit:g} N'}; "
+        f"controllers {_words([CONTROLLER_LABELS[c] for c, _ in pairs])}."
+    )
+    if wall_time_s is not None:
+        run += f" Wall time {wall_time_s:.1f} s."
+    lines += [run, ""]
+    for c, r in pairs:
+        if not r.success:
+            lines += [f"**Warning**: the {CONTROLLER_LABELS[c]} run failed: {r.message}.", ""]
+
+    lines += ["## Table 4", "", table4_markdown(results).rstrip("\n"), ""]
+
+    lines += ["## Discussion", ""]
+    lines += _ranking_sentences(pairs)
+    lines += _transient_sentences(pairs)
+    lines += _after_sentences(pairs)
+    lines += _force_sentences(pairs)
+    lines += _sampling_sentence(pairs)
+    lines.append("")
+
+    lines += ["## Figures", ""]
+    for f in figures:
+        name = Path(f).name
+        spec = _CAPTIONS.get(name)
+        title = spec.title if spec else name
+        caption = spec.caption if spec else ""
+        lines += [f"![{title}](figures/{name})", "", f"*{title}.* {caption}".rstrip(), ""]
+    return "\n".join(lines).rstrip("\n") + "\n"

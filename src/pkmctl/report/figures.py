@@ -1,0 +1,448 @@
+"""Figures 10-26 of the paper, redrawn from our runs (DESIGN.md §4).
+
+Renders only. Uses :class:`matplotlib.figure.Figure` with the Agg canvas directly,
+never :mod:`matplotlib.pyplot`, so no global figure state is created or left behind.
+
+Every figure has two panels, because one scale cannot show both the start and the
+rest of the run: the initial 30° β error and the kilonewton forces of the first
+milliseconds dwarf everything after them.
+
+- 10-16 (tracking of z, α, β and limb lengths q1..q4): the whole run above, the
+  first 0.3 s below (where the controllers differ visibly).
+- 17-19 (tracking errors): the whole run above, t ≥ 1 s below.
+- 20-22 (box plots of the errors): the whole run left, t ≥ 1 s right.
+- 23-26 (actuator forces): the first 50 ms at full scale (the kilonewton peak),
+  then t ≥ 50 ms with the y axis fitted to the steady part (t ≥ 0.5 s), then a
+  50 ms window mid-run at full resolution, where the controllers' ripple differs.
+
+Long series are thinned for plotting to at most ``_MAX_POINTS`` points per line by
+min/max decimation (each bucket keeps its smallest and largest value, so chattering
+shows as a band rather than aliasing away), with the first 0.2 s given their own
+budget so the transient stays resolved.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import tempfile
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.cbook import boxplot_stats
+from matplotlib.figure import Figure
+
+from .tables import CONTROLLER_LABELS, RMSE_AFTER_S, ordered
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+
+    from ..simulation import Result
+
+__all__ = ["FIGURES", "FigureSpec", "make_figures"]
+
+_MAX_POINTS = 5000  # per plotted line
+_T_TRANSIENT = 0.2  # s: the part of the run that gets its own point budget
+_T_ZOOM_START = 0.3  # s: length of the "first instants" panel of figures 10-16
+_FORCE_SPLIT = 0.05  # s: figures 23-26 split here (the force peak is over within ~10 ms)
+_FORCE_DETAIL = 0.05  # s: length of the full-resolution window of figures 23-26
+_FORCE_STEADY_FROM = 0.5  # s: the steady y range of figures 23-26 is fitted from here
+_MAX_FLIERS = 300  # per box
+_FIGSIZE = {"force": (8.0, 8.0)}  # inches; the others are 8 x 6
+# Fixed margins (fractions of the figure): a constrained layout would double the
+# rendering time, and every figure here has the same simple grid.
+_GRID_V = {"left": 0.1, "right": 0.98, "bottom": 0.08, "top": 0.9, "hspace": 0.5}
+_GRID_H = {"left": 0.1, "right": 0.98, "bottom": 0.08, "top": 0.88, "wspace": 0.3}
+
+_COLORS = {"smc": "tab:blue", "fsmc": "tab:orange", "afsmc": "tab:green"}
+_DESIRED_STYLE = {"color": "black", "linestyle": "--", "linewidth": 1.2, "label": "desired"}
+_RAD2DEG = 180.0 / math.pi
+
+
+@dataclass(frozen=True)
+class FigureSpec:
+    """One figure: number, kind, the series it shows, its title and caption.
+
+    ``kind`` is ``"tracking"``, ``"error"``, ``"box"`` or ``"force"``. ``quantity``
+    names the series (``"z"``, ``"alpha"``, ``"beta"``, ``"q1"``.., ``"tau1"``..).
+    """
+
+    number: int
+    kind: str
+    quantity: str
+    title: str
+    caption: str
+
+    @property
+    def filename(self) -> str:
+        """``figNN.png``."""
+        return f"fig{self.number}.png"
+
+
+# quantity -> (accessor of actual, accessor of desired, scale to plot units, y label)
+_Accessor = Callable[["Result"], np.ndarray]
+_SERIES: dict[str, tuple[_Accessor, _Accessor, float, str]] = {
+    "z": (lambda r: r.X[:, 0], lambda r: r.X_desired[:, 0], 1e3, "z (mm)"),
+    "alpha": (lambda r: r.X[:, 1], lambda r: r.X_desired[:, 1], _RAD2DEG, "α (°)"),
+    "beta": (lambda r: r.X[:, 2], lambda r: r.X_desired[:, 2], _RAD2DEG, "β (°)"),
+}
+for _i in range(4):
+    _SERIES[f"q{_i + 1}"] = (
+        lambda r, i=_i: r.q[:, i],
+        lambda r, i=_i: r.q_desired[:, i],
+        1.0,
+        f"q{_i + 1} (m)",
+    )
+    _SERIES[f"tau{_i + 1}"] = (
+        lambda r, i=_i: r.tau[:, i],
+        lambda r, i=_i: r.tau_desired[:, i],
+        1.0,
+        f"τ{_i + 1} (N)",
+    )
+_ERROR_LABEL = {"z": "z error (mm)", "alpha": "α error (°)", "beta": "β error (°)"}
+_NAME = {"z": "z", "alpha": "α", "beta": "β"}
+
+
+def _specs() -> tuple[FigureSpec, ...]:
+    specs = []
+    for n, x in zip((10, 11, 12), ("z", "alpha", "beta"), strict=True):
+        specs.append(
+            FigureSpec(
+                n,
+                "tracking",
+                x,
+                f"Fig. {n} — {_NAME[x]} tracking",
+                f"Tracking of {_NAME[x]}: desired and the three controllers.",
+            )
+        )
+    for i in range(1, 5):
+        n = 12 + i
+        specs.append(
+            FigureSpec(
+                n,
+                "tracking",
+                f"q{i}",
+                f"Fig. {n} — limb length q{i}",
+                f"Length of limb {i}: desired and the three controllers.",
+            )
+        )
+    for n, x in zip((17, 18, 19), ("z", "alpha", "beta"), strict=True):
+        specs.append(
+            FigureSpec(
+                n,
+                "error",
+                x,
+                f"Fig. {n} — {_NAME[x]} tracking error",
+                f"Tracking error of {_NAME[x]} (desired − actual); lower panel from "
+                f"t = {RMSE_AFTER_S:g} s.",
+            )
+        )
+    for n, x in zip((20, 21, 22), ("z", "alpha", "beta"), strict=True):
+        specs.append(
+            FigureSpec(
+                n,
+                "box",
+                x,
+                f"Fig. {n} — {_NAME[x]} error box plot",
+                f"Box plots of the {_NAME[x]} tracking error: whole run and "
+                f"t ≥ {RMSE_AFTER_S:g} s.",
+            )
+        )
+    for i in range(1, 5):
+        n = 22 + i
+        specs.append(
+            FigureSpec(
+                n,
+                "force",
+                f"tau{i}",
+                f"Fig. {n} — actuator force τ{i}",
+                f"Force of actuator {i} for the three controllers against the desired "
+                f"driving force.",
+            )
+        )
+    return tuple(specs)
+
+
+#: Figures 10-26, in order.
+FIGURES: tuple[FigureSpec, ...] = _specs()
+
+
+# ---------------------------------------------------------------- decimation
+def _minmax(t: np.ndarray, y: np.ndarray, budget: int) -> tuple[np.ndarray, np.ndarray]:
+    """Thin (t, y) to about ``budget`` points, keeping each bucket's min and max in order."""
+    n = t.size
+    if n <= budget:
+        return t, y
+    nb = max(1, budget // 2)
+    size = math.ceil(n / nb)
+    nfull = n // size
+    head = y[: nfull * size].reshape(nfull, size)
+    base = np.arange(nfull) * size
+    imin = base + np.argmin(head, axis=1)
+    imax = base + np.argmax(head, axis=1)
+    idx = np.concatenate([np.minimum(imin, imax), np.maximum(imin, imax)])
+    if nfull * size < n:  # the ragged tail
+        tail = np.arange(nfull * size, n)
+        idx = np.concatenate([idx, tail[[np.argmin(y[tail]), np.argmax(y[tail])]]])
+    idx = np.unique(idx)
+    return t[idx], y[idx]
+
+
+def _thin(t: np.ndarray, y: np.ndarray, budget: int = _MAX_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """Thin a series for plotting, giving t < 0.2 s its own share of the point budget."""
+    if t.size <= budget:
+        return t, y
+    k = int(np.searchsorted(t, _T_TRANSIENT))
+    t0, y0 = _minmax(t[:k], y[:k], (2 * budget) // 5)
+    t1, y1 = _minmax(t[k:], y[k:], budget - t0.size)
+    return np.concatenate([t0, t1]), np.concatenate([y0, y1])
+
+
+def _window(
+    t: np.ndarray, y: np.ndarray, lo: float, hi: float = math.inf
+) -> tuple[np.ndarray, np.ndarray]:
+    """The samples with lo <= t <= hi."""
+    sel = (t >= lo - 1e-12) & (t <= hi + 1e-12)
+    return t[sel], y[sel]
+
+
+# ---------------------------------------------------------------- drawing
+def _plot_lines(
+    ax: Axes,
+    curves: list[tuple[str, np.ndarray, np.ndarray]],
+    desired: tuple[np.ndarray, np.ndarray] | None,
+    lo: float = 0.0,
+    hi: float = math.inf,
+) -> None:
+    for name, t, y in curves:
+        tw, yw = _thin(*_window(t, y, lo, hi))
+        ax.plot(tw, yw, color=_COLORS[name], linewidth=1.0, label=CONTROLLER_LABELS[name])
+    if desired is not None:
+        tw, yw = _thin(*_window(*desired, lo, hi))
+        ax.plot(tw, yw, **_DESIRED_STYLE)
+    ax.grid(True, alpha=0.3)
+
+
+def _steady_limits(arrays: list[np.ndarray]) -> tuple[float, float] | None:
+    """A y range holding the 0.1-99.9 % of the steady-part samples, with a margin."""
+    data = np.concatenate([a for a in arrays if a.size]) if arrays else np.empty(0)
+    data = data[np.isfinite(data)]
+    if data.size == 0:
+        return None
+    lo, hi = np.percentile(data, [0.1, 99.9])
+    pad = 0.15 * (hi - lo) if hi > lo else max(1.0, abs(hi) * 0.1)
+    return float(lo - pad), float(hi + pad)
+
+
+def _draw_tracking(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) -> None:
+    actual, desired, scale, ylabel = _SERIES[spec.quantity]
+    curves = [(n, r.t, scale * actual(r)) for n, r in pairs]
+    ref = pairs[0][1]
+    des = (ref.t, scale * desired(ref))
+    top, bottom = fig.subplots(2, 1, height_ratios=[3, 2], gridspec_kw=_GRID_V)
+    _plot_lines(top, curves, des)
+    top.set_ylabel(ylabel)
+    top.set_xlabel("t (s)")
+    top.set_title("whole run", fontsize="small")
+    top.legend(loc="best", fontsize="small", ncols=2)
+    hi = min(_T_ZOOM_START, float(ref.t[-1]))
+    _plot_lines(bottom, curves, des, 0.0, hi)
+    bottom.set_xlim(0.0, hi)
+    bottom.set_ylabel(ylabel)
+    bottom.set_xlabel("t (s)")
+    bottom.set_title(f"first {hi:g} s", fontsize="small")
+
+
+def _errors(spec: FigureSpec, pairs: list[tuple[str, Result]]):
+    actual, desired, scale, _ = _SERIES[spec.quantity]
+    return [(n, r.t, scale * (desired(r) - actual(r))) for n, r in pairs]
+
+
+def _draw_error(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) -> None:
+    curves = _errors(spec, pairs)
+    ylabel = _ERROR_LABEL[spec.quantity]
+    top, bottom = fig.subplots(2, 1, gridspec_kw=_GRID_V)
+    _plot_lines(top, curves, None)
+    top.axhline(0.0, color="black", linewidth=0.6)
+    top.set_ylabel(ylabel)
+    top.set_xlabel("t (s)")
+    top.set_title("whole run", fontsize="small")
+    top.legend(loc="best", fontsize="small")
+    t_end = max(float(t[-1]) for _, t, _ in curves)
+    if t_end > RMSE_AFTER_S:
+        _plot_lines(bottom, curves, None, RMSE_AFTER_S)
+        bottom.axhline(0.0, color="black", linewidth=0.6)
+        bottom.set_xlim(RMSE_AFTER_S, t_end)
+        bottom.set_title(f"t ≥ {RMSE_AFTER_S:g} s (zoomed)", fontsize="small")
+    else:
+        bottom.text(
+            0.5, 0.5, f"run shorter than {RMSE_AFTER_S:g} s", ha="center", va="center",
+            transform=bottom.transAxes,
+        )  # fmt: skip
+        bottom.set_title(f"t ≥ {RMSE_AFTER_S:g} s", fontsize="small")
+    bottom.set_ylabel(ylabel)
+    bottom.set_xlabel("t (s)")
+
+
+def _box_stats(name: str, data: np.ndarray) -> dict:
+    stats = boxplot_stats(data, whis=1.5)[0]
+    fliers = np.sort(stats["fliers"])
+    if fliers.size > _MAX_FLIERS:  # evenly spaced in rank, extremes kept
+        fliers = fliers[np.linspace(0, fliers.size - 1, _MAX_FLIERS).round().astype(int)]
+    stats["fliers"] = fliers
+    stats["label"] = CONTROLLER_LABELS[name]
+    return stats
+
+
+def _draw_box(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) -> None:
+    curves = _errors(spec, pairs)
+    ylabel = _ERROR_LABEL[spec.quantity]
+    left, right = fig.subplots(1, 2, gridspec_kw=_GRID_H)
+    for ax, lo, title in (
+        (left, 0.0, "whole run"),
+        (right, RMSE_AFTER_S, f"t ≥ {RMSE_AFTER_S:g} s"),
+    ):
+        stats, colors = [], []
+        for name, t, e in curves:
+            _, ew = _window(t, e, lo)
+            if ew.size:
+                stats.append(_box_stats(name, ew))
+                colors.append(_COLORS[name])
+        if stats:
+            art = ax.bxp(
+                stats,
+                patch_artist=True,
+                flierprops={"marker": ".", "markersize": 2, "alpha": 0.5},
+                medianprops={"color": "black"},
+            )
+            for patch, c in zip(art["boxes"], colors, strict=True):
+                patch.set_facecolor(c)
+                patch.set_alpha(0.6)
+            if lo == 0.0:  # the transient's fliers span orders of magnitude beyond the boxes
+                reach = max(max(abs(st["whislo"]), abs(st["whishi"])) for st in stats)
+                far = max(
+                    (np.max(np.abs(st["fliers"])) for st in stats if st["fliers"].size), default=0.0
+                )
+                if reach > 0 and far > 10 * reach:
+                    ax.set_yscale("symlog", linthresh=reach, linscale=2.0)
+                    title += " (symlog: linear within the whiskers)"
+        else:
+            ax.text(0.5, 0.5, "no samples", ha="center", va="center", transform=ax.transAxes)
+        ax.axhline(0.0, color="black", linewidth=0.6)
+        ax.grid(True, axis="y", alpha=0.3)
+        ax.set_ylabel(ylabel)
+        ax.set_title(title, fontsize="small")
+
+
+def _draw_force(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) -> None:
+    actual, desired, _, ylabel = _SERIES[spec.quantity]
+    curves = [(n, r.t, actual(r)) for n, r in pairs]
+    ref = pairs[0][1]
+    des = (ref.t, desired(ref))
+    t_end = float(ref.t[-1])
+    top, middle, bottom = fig.subplots(3, 1, gridspec_kw=_GRID_V)
+    split = min(_FORCE_SPLIT, t_end)
+    _plot_lines(top, curves, des, 0.0, split)
+    top.set_xlim(0.0, split)
+    top.set_title(f"first {split * 1e3:g} ms (full scale)", fontsize="small")
+    top.legend(loc="best", fontsize="small", ncols=2)
+    if t_end > _FORCE_SPLIT:
+        _plot_lines(middle, curves, des, _FORCE_SPLIT)
+        middle.set_xlim(_FORCE_SPLIT, t_end)
+        steady_from = _FORCE_STEADY_FROM if t_end > _FORCE_STEADY_FROM else _FORCE_SPLIT
+        limits = _steady_limits(
+            [_window(t, y, steady_from)[1] for _, t, y in curves] + [_window(*des, steady_from)[1]]
+        )
+        if limits is not None:
+            middle.set_ylim(*limits)
+        middle.set_title(
+            f"t ≥ {split * 1e3:g} ms, y axis fitted to t ≥ {steady_from:g} s "
+            "(bands: min/max envelope of the samples)",
+            fontsize="small",
+        )
+        # a short window at full resolution, in the middle of the steady part
+        lo = max(steady_from, 0.5 * t_end - 0.5 * _FORCE_DETAIL)
+        hi = min(t_end, lo + _FORCE_DETAIL)
+        _plot_lines(bottom, curves, des, lo, hi)
+        bottom.set_xlim(lo, hi)
+        bottom.set_title(f"detail: {lo:.3g}-{hi:.3g} s", fontsize="small")
+    else:
+        for ax in (middle, bottom):
+            ax.text(0.5, 0.5, "run too short", ha="center", va="center", transform=ax.transAxes)
+    for ax in (top, middle, bottom):
+        ax.set_ylabel(ylabel)
+    bottom.set_xlabel("t (s)")
+
+
+_DRAW = {"tracking": _draw_tracking, "error": _draw_error, "box": _draw_box, "force": _draw_force}
+
+
+def _save_atomic(fig: Figure, path: Path, dpi: float) -> None:
+    """Write ``fig`` as PNG to a temporary file beside ``path``, then rename it over."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png.tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fig.savefig(fh, format="png", dpi=dpi)
+        os.chmod(tmp, 0o644)  # mkstemp makes it private; the figure is a normal file
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def make_figures(
+    results: Mapping[str, Result], outdir: Path | str, *, dpi: float = 110
+) -> list[Path]:
+    """Draw figures 10-26 (DESIGN.md §4) as ``fig10.png`` ... ``fig26.png`` in ``outdir``.
+
+    Parameters
+    ----------
+    results : mapping of str to Result
+        Keyed by controller name (``"smc"``, ``"fsmc"``, ``"afsmc"``); the controllers
+        present are drawn, in that order. The desired curves come from the first.
+    outdir : Path or str
+        Created if missing. Each file is written to a temporary file in the same
+        directory and renamed into place, so a reader never sees a partial PNG.
+    dpi : float, keyword-only
+        Resolution of the PNGs.
+
+    Returns
+    -------
+    list of Path
+        The 17 files written, in figure order.
+
+    Raises
+    ------
+    ValueError
+        If ``results`` holds none of the known controllers, or a run is empty.
+    """
+    pairs = ordered(results)
+    if not pairs:
+        raise ValueError(
+            f"results: no known controller among {sorted(results)} "
+            f"(expected some of {list(CONTROLLER_LABELS)})"
+        )
+    for name, r in pairs:
+        if r.t.size < 2:
+            raise ValueError(f"results[{name!r}]: needs at least 2 samples, has {r.t.size}")
+    if not (dpi > 0):
+        raise ValueError(f"dpi = {dpi}: must be > 0")
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for spec in FIGURES:
+        fig = Figure(figsize=_FIGSIZE.get(spec.kind, (8.0, 6.0)))
+        FigureCanvasAgg(fig)
+        _DRAW[spec.kind](fig, spec, pairs)
+        fig.suptitle(spec.title)
+        path = outdir / spec.filename
+        _save_atomic(fig, path, dpi)
+        fig.clear()  # a Figure without pyplot is freed when its last reference goes
+        paths.append(path)
+    return paths

@@ -1,0 +1,204 @@
+"""Tests of pkmctl.report: Table 4 (CSV, markdown), figures 10-26 and report.md."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import pkmctl
+from pkmctl.metrics import RMSE_KEYS
+from pkmctl.report import (
+    FIGURES,
+    PAPER_TABLE4,
+    make_figures,
+    render_report,
+    table4_csv,
+    table4_markdown,
+)
+from pkmctl.simulation import Result
+
+CONTROLLERS = ("smc", "fsmc", "afsmc")
+EXPECTED_FIGURES = [f"fig{n}.png" for n in range(10, 27)]
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def results() -> dict[str, Result]:
+    """Short runs of the paper scenario: long enough to cover the 0.2 s transient."""
+    return {c: pkmctl.simulate("paper", controller=c, duration=0.3) for c in CONTROLLERS}
+
+
+@pytest.fixture(scope="module")
+def figure_dir(results, tmp_path_factory) -> tuple[Path, list[Path]]:
+    outdir = tmp_path_factory.mktemp("figures")
+    return outdir, make_figures(results, outdir, dpi=60)
+
+
+class _FixedRMSE(Result):
+    """A result whose whole-run RMSE is given (in ``info["rmse"]``), to steer rankings."""
+
+    def rmse(self) -> dict[str, float]:
+        return dict(self.info["rmse"])
+
+
+def _with_rmse(result: Result, values: dict[str, float]) -> Result:
+    fields = {f.name: getattr(result, f.name) for f in dataclasses.fields(Result)}
+    fields["info"] = {"rmse": values}
+    return _FixedRMSE(**fields)
+
+
+# ---------------------------------------------------------------- tables
+def test_paper_table4_is_complete() -> None:
+    assert list(PAPER_TABLE4) == list(CONTROLLERS)
+    for row in PAPER_TABLE4.values():
+        assert tuple(row) == RMSE_KEYS
+        assert all(v > 0 for v in row.values())
+    assert PAPER_TABLE4["smc"]["beta_deg"] == 6.12032
+    assert PAPER_TABLE4["afsmc"]["q4_m"] == 0.0075560
+
+
+def test_table4_csv_parses_and_matches_rmse(results) -> None:
+    rows = list(csv.reader(io.StringIO(table4_csv(results))))
+    assert rows[0] == [
+        "controller",
+        "z_mm",
+        "alpha_deg",
+        "beta_deg",
+        "q1_m",
+        "q2_m",
+        "q3_m",
+        "q4_m",
+    ]
+    assert [r[0] for r in rows[1:]] == list(CONTROLLERS)
+    for row in rows[1:]:
+        expected = results[row[0]].rmse()
+        assert [float(v) for v in row[1:]] == [expected[k] for k in RMSE_KEYS]  # exact
+
+
+def test_table4_csv_orders_and_filters_rows(results) -> None:
+    text = table4_csv({"afsmc": results["afsmc"], "smc": results["smc"], "other": None})
+    assert [r[0] for r in csv.reader(io.StringIO(text))][1:] == ["smc", "afsmc"]
+    assert table4_csv({}).strip() == "controller,z_mm,alpha_deg,beta_deg,q1_m,q2_m,q3_m,q4_m"
+
+
+def test_table4_markdown_shows_ours_and_the_papers(results) -> None:
+    md = table4_markdown(results)
+    for row in PAPER_TABLE4.values():
+        for value in row.values():
+            assert repr(value) in md
+    for literal in ("0.545968", "6.12032", "2.66612", "0.00061928"):
+        assert literal in md
+    for header in ("z (mm)", "α (°)", "β (°)", "q1 (m)", "(N)", "(N/s)"):
+        assert header in md
+    for label in ("SMC", "FSMC", "AFSMC"):
+        assert f"| {label} | ours |" in md
+        assert f"| {label} | paper |" in md
+    assert "after the first 1 s" in md
+    # every table row has as many cells as its header
+    for block in md.split("\n\n"):
+        rows = [line for line in block.splitlines() if line.startswith("|")]
+        if rows:
+            assert len({r.count("|") for r in rows}) == 1
+
+
+# ---------------------------------------------------------------- figures
+def test_make_figures_writes_17_pngs_and_nothing_else(figure_dir) -> None:
+    outdir, paths = figure_dir
+    assert [p.name for p in paths] == EXPECTED_FIGURES
+    assert sorted(os.listdir(outdir)) == sorted(EXPECTED_FIGURES)  # no temporary files left
+    for p in paths:
+        assert p.parent == outdir
+        data = p.read_bytes()
+        assert len(data) > len(PNG_SIGNATURE)
+        assert data.startswith(PNG_SIGNATURE)
+
+
+def test_figure_specs_follow_the_paper_numbering() -> None:
+    assert [s.filename for s in FIGURES] == EXPECTED_FIGURES
+    assert [s.kind for s in FIGURES] == ["tracking"] * 7 + ["error"] * 3 + ["box"] * 3 + [
+        "force"
+    ] * 4
+    assert all(s.title.startswith(f"Fig. {s.number} — ") for s in FIGURES)
+
+
+def test_make_figures_leaves_no_temporary_file_on_failure(results, tmp_path, monkeypatch) -> None:
+    from matplotlib.figure import Figure
+
+    def broken_savefig(self, fname, **kwargs):
+        fname.write(b"partial")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(Figure, "savefig", broken_savefig)
+    with pytest.raises(OSError, match="disk full"):
+        make_figures(results, tmp_path)
+    assert os.listdir(tmp_path) == []
+
+
+def test_make_figures_rejects_empty_input(tmp_path) -> None:
+    with pytest.raises(ValueError, match="no known controller"):
+        make_figures({}, tmp_path)
+
+
+def test_report_package_does_not_import_pyplot() -> None:
+    code = "import sys, pkmctl.report; sys.exit('matplotlib.pyplot' in sys.modules)"
+    env = {**os.environ, "PYTHONPATH": str(Path(pkmctl.__file__).parents[1])}
+    assert subprocess.run([sys.executable, "-c", code], env=env, timeout=120).returncode == 0
+
+
+# ---------------------------------------------------------------- report.md
+def test_render_report_links_every_figure_and_contains_the_table(results, figure_dir) -> None:
+    _, paths = figure_dir
+    text = render_report(results, figures=paths, scenario_name="paper", wall_time_s=12.5)
+    for name in EXPECTED_FIGURES:
+        assert f"](figures/{name})" in text
+    assert table4_markdown(results).strip() in text
+    assert "T_c = 50 µs" in text
+    assert "duration 0.3 s" in text
+    assert "seed 0" in text
+    assert "12.5 s" in text
+    assert "## Discussion" in text
+    assert "continuous time" in text
+    assert "unbounded" in text
+    assert "not directly comparable" in text  # 0.3 s against the paper's 10 s
+
+
+def test_render_report_accepts_relative_paths(results) -> None:
+    rel = [Path("figures") / n for n in EXPECTED_FIGURES]
+    text = render_report(results, figures=rel, scenario_name="paper")
+    assert text.count("](figures/fig") == len(EXPECTED_FIGURES)
+    assert "figures/figures" not in text
+
+
+def test_render_report_ranking_claims_follow_the_numbers(results) -> None:
+    """The discussion says "matches" only when the ranking does, and "differs" otherwise."""
+    like_paper = {c: _with_rmse(r, dict(PAPER_TABLE4[c])) for c, r in results.items()}
+    text = render_report(like_paper, figures=[], scenario_name="paper")
+    assert "does for all of the 7 quantities" in text
+    assert "It differs" not in text
+
+    reversed_ = {
+        c: _with_rmse(r, {k: 1.0 / PAPER_TABLE4[c][k] for k in RMSE_KEYS})
+        for c, r in results.items()
+    }
+    text = render_report(reversed_, figures=[], scenario_name="paper")
+    assert "does for none of the 7 quantities" in text
+    assert "It differs for z (ours" in text
+
+
+def test_render_report_estimates_the_beta_transient(results) -> None:
+    text = render_report(results, figures=[], scenario_name="paper")
+    # 30° / sqrt(2 * 20 * 0.3 s) = 8.66°
+    assert "β starts 30° off its trajectory" in text
+    assert "= 8.66°" in text
+
+
+def test_render_report_rejects_empty_input() -> None:
+    with pytest.raises(ValueError, match="no known controller"):
+        render_report({}, figures=[], scenario_name="paper")
