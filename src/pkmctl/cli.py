@@ -48,12 +48,16 @@ def _rmse_table(results: dict, title: str) -> Table:
     from .metrics import RMSE_KEYS
 
     table = Table(title=title)
-    table.add_column("controller")
+    table.add_column("RMSE")
     for k in RMSE_KEYS:
-        table.add_column(k, justify="right")
+        table.add_column(
+            k.replace("_deg", " °").replace("_mm", " mm").replace("_m", " m"),
+            justify="right",
+            no_wrap=True,
+        )
     for name, res in results.items():
         r = res.rmse()
-        table.add_row(name, *(f"{r[k]:.5g}" for k in RMSE_KEYS))
+        table.add_row(name, *(f"{r[k]:.4g}" for k in RMSE_KEYS))
     return table
 
 

@@ -1,0 +1,221 @@
+"""Estimate floating-point operations per control step by counting them in the source.
+
+This machine exposes no hardware counters (``perf stat`` reports them unsupported), so
+the count is static: the abstract syntax tree of each compiled kernel is walked with
+its loops unrolled (trip counts are known: 3 coordinates, 4 limbs, 9 bodies, 36
+parameters), every ``+ - * /`` on floats counts 1, ``sqrt``/``sin``/``cos`` count 1 each,
+calls into other kernels are followed, and integer index arithmetic (anything that
+can be evaluated from loop indices and constants alone) counts 0. Where a branch
+depends on data, the larger branch is counted (an upper bound); data-dependent loops
+take the trip count given in ``hints``. A fused multiply-add counts as 2.
+
+The peak is also an estimate: scalar double precision, 2 FMA units x 2 flops x the
+nominal clock (from /proc/cpuinfo when it gives one, else 3 GHz). The compiled code is
+scalar, so scalar peak is the fair yardstick; AVX-512 peak is 8x higher.
+"""
+
+from __future__ import annotations
+
+import ast
+import inspect
+import textwrap
+from functools import cache
+from typing import Any
+
+__all__ = ["count", "estimate"]
+
+_FREE_CALLS = {"min", "max", "abs", "range", "float", "int", "len", "isfinite", "empty", "zeros"}
+_COUNTED_CALLS = {"sqrt": 1, "sin": 1, "cos": 1, "exp": 1, "tan": 1}
+
+
+def _constants(fn) -> dict[str, Any]:
+    """The module-level numbers a kernel sees (N_BODIES, ...)."""
+    return {k: v for k, v in fn.__globals__.items() if isinstance(v, int | float) and k.isupper()}
+
+
+class _Unknown(Exception):
+    pass
+
+
+def _kernels() -> dict[str, Any]:
+    from . import controllers, dynamics, fuzzy, kinematics, simulation
+
+    table: dict[str, Any] = {}
+    for mod in (kinematics, dynamics, controllers, simulation, fuzzy):
+        for name, obj in vars(mod).items():
+            fn = getattr(obj, "py_func", None)
+            if fn is not None and getattr(fn, "__module__", None) == mod.__name__:
+                table[name] = fn
+    return table
+
+
+@cache
+def _tree(fn) -> ast.FunctionDef:
+    return ast.parse(textwrap.dedent(inspect.getsource(fn))).body[0]
+
+
+class _Counter:
+    def __init__(self, hints: dict[str, int]):
+        self.kernels = _kernels()
+        self.hints = hints
+
+    # -- evaluation of integer/boolean expressions from known values --------------------
+    def value(self, node: ast.AST, env: dict) -> Any:
+        src = ast.unparse(node)
+        if src in self.hints:
+            return self.hints[src]
+        try:
+            return eval(compile(ast.Expression(node), "<flops>", "eval"), {"__builtins__": {}}, env)
+        except Exception as exc:  # noqa: BLE001 - anything unknown is data
+            raise _Unknown(src) from exc
+
+    def known(self, node: ast.AST, env: dict) -> bool:
+        try:
+            self.value(node, env)
+            return True
+        except _Unknown:
+            return False
+
+    # -- expressions --------------------------------------------------------------------
+    def expr(self, node: ast.AST, env: dict) -> int:
+        if node is None:
+            return 0
+        if isinstance(node, ast.BinOp | ast.UnaryOp | ast.BoolOp | ast.Compare) and self.known(
+            node, env
+        ):
+            return 0  # index arithmetic or a constant
+        if isinstance(node, ast.BinOp):
+            own = 1 if isinstance(node.op, ast.Add | ast.Sub | ast.Mult | ast.Div | ast.Pow) else 0
+            return own + self.expr(node.left, env) + self.expr(node.right, env)
+        if isinstance(node, ast.Subscript):
+            return self.expr(node.value, env)  # the index is integer arithmetic
+        if isinstance(node, ast.Call):
+            name = (
+                node.func.attr
+                if isinstance(node.func, ast.Attribute)
+                else getattr(node.func, "id", "")
+            )
+            args = sum(self.expr(a, env) for a in node.args)
+            if name in self.kernels:
+                return args + self.function(name, node.args, env)
+            if name in _COUNTED_CALLS:
+                return args + _COUNTED_CALLS[name]
+            return args
+        if isinstance(node, ast.IfExp):
+            return max(self.expr(node.body, env), self.expr(node.orelse, env))
+        return sum(self.expr(c, env) for c in ast.iter_child_nodes(node))
+
+    def function(self, name: str, args: list[ast.AST], env: dict) -> int:
+        tree = _tree(self.kernels[name])
+        inner = _constants(self.kernels[name])
+        for param, arg in zip(tree.args.args, args, strict=False):
+            try:
+                inner[param.arg] = self.value(arg, env)
+            except _Unknown:
+                pass
+        return self.block(tree.body, inner)[0]
+
+    # -- statements ---------------------------------------------------------------------
+    def block(self, stmts: list[ast.stmt], env: dict) -> tuple[int, str | None]:
+        total = 0
+        for st in stmts:
+            n, flow = self.stmt(st, env)
+            total += n
+            if flow:
+                return total, flow
+        return total, None
+
+    def stmt(self, st: ast.stmt, env: dict) -> tuple[int, str | None]:
+        if isinstance(st, ast.Assign):
+            n = self.expr(st.value, env)
+            for target in st.targets:
+                if isinstance(target, ast.Name):
+                    try:
+                        env[target.id] = self.value(st.value, env)
+                    except _Unknown:
+                        env.pop(target.id, None)
+            return n, None
+        if isinstance(st, ast.AugAssign):
+            own = 1 if isinstance(st.op, ast.Add | ast.Sub | ast.Mult | ast.Div) else 0
+            return own + self.expr(st.value, env), None
+        if isinstance(st, ast.Expr | ast.Return):
+            return self.expr(st.value, env), ("return" if isinstance(st, ast.Return) else None)
+        if isinstance(st, ast.If):
+            test = self.expr(st.test, env)
+            try:
+                branch = st.body if self.value(st.test, env) else st.orelse
+                n, flow = self.block(branch, dict(env) | {})
+                return test + n, flow
+            except _Unknown:
+                a, _ = self.block(st.body, dict(env))
+                b, _ = self.block(st.orelse, dict(env))
+                return test + max(a, b), None
+        if isinstance(st, ast.For):
+            it = st.iter
+            if not (isinstance(it, ast.Call) and getattr(it.func, "id", "") == "range"):
+                raise _Unknown(ast.unparse(it))
+            bounds = [self.value(a, env) for a in it.args]
+            total = 0
+            for v in range(*bounds):
+                env[st.target.id] = v
+                n, flow = self.block(st.body, env)
+                total += n
+                if flow == "break" or flow == "return":
+                    break
+            else:
+                total += self.block(st.orelse, env)[0]
+            return total, None
+        if isinstance(st, ast.While):
+            raise _Unknown("while loop: give its trip count in hints")
+        if isinstance(st, ast.Continue):
+            return 0, "continue"
+        if isinstance(st, ast.Break):
+            return 0, "break"
+        return 0, None
+
+
+def count(kernel: str, *, hints: dict[str, int] | None = None, **known: Any) -> int:
+    """Floating-point operations of one call of a compiled kernel (by name).
+
+    ``known`` gives values of its integer arguments (e.g. ``kind=2``); ``hints`` maps
+    source text of data-dependent trip counts or shapes to numbers.
+    """
+    counter = _Counter(hints or {})
+    fn = counter.kernels[kernel]
+    return counter.block(_tree(fn).body, _constants(fn) | known)[0]
+
+
+def _clock_ghz() -> float:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.lower().startswith("cpu mhz"):
+                    return float(line.split(":")[1]) / 1000.0
+    except OSError:
+        pass
+    return 3.0
+
+
+def estimate(steps_per_s: float) -> dict[str, float]:
+    """Flops per AFSMC control step (paper scenario, 1 RK4 sub-step) and share of peak."""
+    hints = {
+        "Xdes.shape[0]": 1,  # one control period
+        "model_theta.shape[0]": 36,
+        "theta_hat.shape[0]": 36,
+        "Y.shape[1]": 36,
+        "Y.shape[0]": 3,
+        "log_theta.shape[0]": 1,
+    }
+    per_step = count("_run_kernel", hints=hints, kind=2, substeps=1, force_limit=-1.0)
+    ghz = _clock_ghz()
+    peak = 2 * 2 * ghz  # 2 FMA pipes x 2 flops, scalar double
+    gflops = per_step * steps_per_s / 1e9
+    return {
+        "flops_per_step": float(per_step),
+        "plant_eval_flops": float(count("_plant_accel", hints=hints)),
+        "controller_flops": float(count("control_step", hints=hints, kind=2)),
+        "clock_ghz": ghz,
+        "peak_gflops": peak,
+        "gflops": gflops,
+        "fraction_of_peak": gflops / peak,
+    }

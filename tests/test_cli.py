@@ -1,0 +1,92 @@
+"""End to end through the ``pkmctl`` entry point."""
+
+import csv
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import pkmctl
+from pkmctl.cli import app
+from pkmctl.metrics import RMSE_KEYS
+from pkmctl.results_io import load_result
+
+runner = CliRunner()
+
+
+def test_reproduce_end_to_end(tmp_path):
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["reproduce", "--out", str(out), "--duration", "0.2", "--seed", "5"])
+    assert res.exit_code == 0, res.output
+    with open(out / "table4.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["controller"] for r in rows] == ["smc", "fsmc", "afsmc"]
+    assert list(rows[0]) == ["controller", *RMSE_KEYS]
+    assert all(float(r[k]) > 0 for r in rows for k in RMSE_KEYS)
+    md = (out / "table4.md").read_text()
+    assert "6.12032" in md  # the paper's SMC beta RMSE beside ours
+    report = (out / "report.md").read_text()
+    figs = sorted(p.name for p in (out / "figures").iterdir())
+    assert figs == [f"fig{n}.png" for n in range(10, 27)]
+    for name in figs:
+        assert f"figures/{name}" in report
+        assert (out / "figures" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    series = load_result(out / "timeseries" / "afsmc.json")
+    assert series.t.size == 4000 and series.scenario.disturbance.seed == 5
+    assert np.isclose(float(rows[2]["beta_deg"]), series.rmse()["beta_deg"], rtol=1e-12)
+    meta = json.loads((out / "timeseries" / "smc.json").read_text())
+    assert meta["controller"] == "smc" and "rmse" in meta["metrics"]
+    assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]
+
+
+def test_scenario_and_simulate_commands(tmp_path):
+    res = runner.invoke(app, ["scenario", "paper-1khz"])
+    assert res.exit_code == 0
+    sc = pkmctl.Scenario.from_toml(res.stdout)
+    assert sc == pkmctl.Scenario.builtin("paper-1khz")
+    path = tmp_path / "s.toml"
+    path.write_text(sc.replace(**{"timing.duration": 0.05}).to_toml())
+    res = runner.invoke(app, ["simulate", str(path), "--controller", "fsmc", "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert load_result(tmp_path / "fsmc.json").t.size == 50
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (["reproduce", "--scenario", "nope"], "unknown built-in"),
+        (["reproduce", "--duration", "-1"], "timing.duration = -1.0"),
+        (["reproduce", "--seed", "-3"], "disturbance.seed = -3"),
+        (["scenario", "nope"], "unknown built-in"),
+        (["simulate", "missing.toml"], "No such file"),
+        (["simulate", "paper", "--controller", "pid"], "--controller = 'pid'"),
+    ],
+)
+def test_bad_input_exits_2_with_one_line(args, match):
+    res = runner.invoke(app, args)
+    assert res.exit_code == 2
+    assert match in res.output
+    lines = [ln for ln in res.output.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1, res.output
+
+
+def test_diverging_simulation_exits_1(tmp_path):
+    bad = pkmctl.Scenario.builtin("paper").replace(
+        **{"gains.K": [1e9, 1e9, 1e9], "timing.duration": 0.2}
+    )
+    path = tmp_path / "bad.toml"
+    path.write_text(bad.to_toml())
+    res = runner.invoke(app, ["simulate", str(path), "--controller", "smc"])
+    assert res.exit_code == 1
+    assert "diverged at t = " in res.output
+
+
+def test_console_script_installed():
+    # the installed entry point, as a user runs it
+    res = subprocess.run(
+        [sys.executable, "-m", "pkmctl", "scenario", "paper"], capture_output=True, text=True
+    )
+    assert res.returncode == 0 and 'name = "paper"' in res.stdout
