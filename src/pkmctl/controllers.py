@@ -38,7 +38,7 @@ from typing import ClassVar
 import numpy as np
 from numba import njit
 
-from .dynamics import dynamics_kernel, make_work, regressor_kernel
+from .dynamics import dynamics_kernel, gravity_kernel, make_work, regressor_kernel
 from .fuzzy import FLC, flc_eval
 from .mechanism import Mechanism
 
@@ -239,19 +239,12 @@ def control_step(
                 acc += Y[i, k] * theta_hat[k]
             F[i] = acc
     else:
-        dynamics_kernel(geom, theta_model, Xdes, Xddes, work, M, C, G)  # G^(X_d)
+        gravity_kernel(geom, theta_model, Xdes, work, G)  # G^(X_d), as eq. 25-26 write it
         for i in range(3):
             F[i] = G[i]
-        dynamics_kernel(geom, theta_model, X, Xd, work, M, C, G)
+        dynamics_kernel(geom, theta_model, X, Xd, xr_d, work, M, C, G)  # C holds C^ Xr_dot
         for i in range(3):
-            F[i] += (
-                M[i, 0] * xr_dd[0]
-                + M[i, 1] * xr_dd[1]
-                + M[i, 2] * xr_dd[2]
-                + C[i, 0] * xr_d[0]
-                + C[i, 1] * xr_d[1]
-                + C[i, 2] * xr_d[2]
-            )
+            F[i] += M[i, 0] * xr_dd[0] + M[i, 1] * xr_dd[1] + M[i, 2] * xr_dd[2] + C[i]
     for i in range(3):
         F[i] += gains[1, i] * s[i]
         if kind == 0:
@@ -295,7 +288,7 @@ class Controller:
         # for the same share of the force (DESIGN.md §4 asks for a per-parameter scaling).
         self.gamma_vec = self.gains.gamma * th0**2
         self._work = make_work()
-        self._M, self._C, self._G = np.empty((3, 3)), np.empty((3, 3)), np.empty(3)
+        self._M, self._C, self._G = np.empty((3, 3)), np.empty(3), np.empty(3)
         self._Y = np.empty((3, th0.size))
         self.reset()
 

@@ -8,6 +8,9 @@ Every term is a sum over the 9 bodies of :func:`pkmctl.kinematics.body_jacobians
     C = sum  m J_v^T dJ_v + J_w^T ((R I R^T) dJ_w + [omega]x (R I R^T) J_w)
     G = sum  m g J_v[z]^T
 
+The kernels compute C v for one vector v (the plant needs C Xdot, the controllers
+C Xr_dot), from the Jacobian derivatives applied to v; the matrix C is C e_j.
+
 This C makes Mdot - 2C skew-symmetric. T and V are linear in the body parameters
 Theta_b = [m, I_xx, I_yy, I_zz], so with the columns r_k of R_b,
 R I R^T = sum_k I_k r_k r_k^T and the regressor Y (3, 36) follows body by body:
@@ -28,6 +31,7 @@ __all__ = [
     "N_THETA",
     "actuator_forces_kernel",
     "dynamics_kernel",
+    "gravity_kernel",
     "make_work",
     "regressor_kernel",
     "solve_spd3",
@@ -38,14 +42,14 @@ N_THETA = 4 * N_BODIES
 
 @njit(cache=True, nogil=True)
 def make_work():
-    """Scratch arrays for one pose: (com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat)."""
+    """Scratch arrays for one pose: (com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat)."""
     return (
         np.empty((N_BODIES, 3)),
         np.empty((N_BODIES, 3, 3)),
         np.empty((N_BODIES, 3, 3)),
         np.empty((N_BODIES, 3, 3)),
-        np.empty((N_BODIES, 3, 3)),
-        np.empty((N_BODIES, 3, 3)),
+        np.empty((N_BODIES, 3)),
+        np.empty((N_BODIES, 3)),
         np.empty((4, 3)),
         np.empty(4),
         np.empty((9, 3)),
@@ -54,95 +58,109 @@ def make_work():
 
 
 @njit(cache=True, nogil=True)
-def _kinematics(geom, X, Xd, work):
-    com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat = work
-    body_jacobians(geom, X, Xd, com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat)
+def _kinematics(geom, X, Xd, v, work):
+    com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat = work
+    body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat)
 
 
 @njit(cache=True, nogil=True)
-def _assemble(geom, theta, Xd, work, M, C, G):
-    """M, C, G from filled body kinematics (the sums of the module docstring).
+def _rotating_inertia(theta, f, R, Iw):
+    """R I R^T of rotating frame f: the platform (f = 0) or limb f (lower + upper body)."""
+    i0, i1, i2 = theta[4 * f + 1], theta[4 * f + 2], theta[4 * f + 3]
+    if f > 0:  # both bodies of a limb turn together: their inertias add
+        i0 += theta[4 * (f + 4) + 1]
+        i1 += theta[4 * (f + 4) + 2]
+        i2 += theta[4 * (f + 4) + 3]
+    for k in range(3):
+        for n in range(k, 3):
+            Iw[k, n] = i0 * R[k, 0] * R[n, 0] + i1 * R[k, 1] * R[n, 1] + i2 * R[k, 2] * R[n, 2]
+            Iw[n, k] = Iw[k, n]
+
+
+@njit(cache=True, nogil=True)
+def _assemble(geom, theta, Xd, v, work, M, Cv, G):
+    """M, C(X, Xd) v and G from filled body kinematics (the sums of the module docstring).
 
     The two bodies of a limb share its frame and angular velocity, so their rotational
     terms are summed once with the summed inertia (5 rotating frames, not 9).
     """
-    Rb, Jv, Jw, dJv, dJw = work[1], work[2], work[3], work[4], work[5]
+    Rb, Jv, Jw, av, aw = work[1], work[2], work[3], work[4], work[5]
     g = geom[10]
     M[:, :] = 0.0
-    C[:, :] = 0.0
+    Cv[:] = 0.0
     G[:] = 0.0
-    for b in range(N_BODIES):  # translation
+    for b in range(N_BODIES):  # translation: m J_v^T J_v, m J_v^T (dJ_v v), m g dz/dX
         m = theta[4 * b]
         for i in range(3):
-            for j in range(3):
-                mv = 0.0
-                cv = 0.0
-                for k in range(3):
-                    mv += Jv[b, k, i] * Jv[b, k, j]
-                    cv += Jv[b, k, i] * dJv[b, k, j]
-                M[i, j] += m * mv
-                C[i, j] += m * cv
-            G[i] += m * g * Jv[b, 2, i]
-    # scratch reused from the kinematics (free once it has run)
-    Iw, A, IJ = work[9][0], work[9][1], work[9][2]  # R I R^T, Iw dJw + [w]x Iw Jw, Iw Jw
-    w = work[8][0]
-    for f in range(5):  # rotation: platform, then limbs 1-4 (lower + upper body)
-        b = f
-        i0 = theta[4 * b + 1]
-        i1 = theta[4 * b + 2]
-        i2 = theta[4 * b + 3]
-        if f > 0:
-            i0 += theta[4 * (b + 4) + 1]
-            i1 += theta[4 * (b + 4) + 2]
-            i2 += theta[4 * (b + 4) + 3]
-        R = Rb[b]
-        for k in range(3):
-            for n in range(3):
-                Iw[k, n] = i0 * R[k, 0] * R[n, 0] + i1 * R[k, 1] * R[n, 1] + i2 * R[k, 2] * R[n, 2]
-        for k in range(3):
-            w[k] = Jw[b, k, 0] * Xd[0] + Jw[b, k, 1] * Xd[1] + Jw[b, k, 2] * Xd[2]
-        for k in range(3):
-            for j in range(3):
-                IJ[k, j] = Iw[k, 0] * Jw[b, 0, j] + Iw[k, 1] * Jw[b, 1, j] + Iw[k, 2] * Jw[b, 2, j]
-        for k in range(3):
-            k1, k2 = (k + 1) % 3, (k + 2) % 3
-            for j in range(3):
-                A[k, j] = (
-                    Iw[k, 0] * dJw[b, 0, j]
-                    + Iw[k, 1] * dJw[b, 1, j]
-                    + Iw[k, 2] * dJw[b, 2, j]
-                    + w[k1] * IJ[k2, j]
-                    - w[k2] * IJ[k1, j]
+            for j in range(i, 3):
+                M[i, j] += m * (
+                    Jv[b, 0, i] * Jv[b, 0, j]
+                    + Jv[b, 1, i] * Jv[b, 1, j]
+                    + (Jv[b, 2, i] * Jv[b, 2, j])
                 )
-        for i in range(3):
+            Cv[i] += m * (Jv[b, 0, i] * av[b, 0] + Jv[b, 1, i] * av[b, 1] + Jv[b, 2, i] * av[b, 2])
+            G[i] += m * g * Jv[b, 2, i]
+    Iw, IJ = work[9][0], work[9][1]  # scratch, free once the kinematics has run
+    t = work[8][0]
+    for f in range(5):  # rotation: J_w^T Iw J_w and J_w^T (Iw dJ_w v + omega x Iw J_w v)
+        _rotating_inertia(theta, f, Rb[f], Iw)
+        for k in range(3):
             for j in range(3):
-                mw = 0.0
-                cw = 0.0
-                for k in range(3):
-                    mw += Jw[b, k, i] * IJ[k, j]
-                    cw += Jw[b, k, i] * A[k, j]
-                M[i, j] += mw
-                C[i, j] += cw
+                IJ[k, j] = Iw[k, 0] * Jw[f, 0, j] + Iw[k, 1] * Jw[f, 1, j] + Iw[k, 2] * Jw[f, 2, j]
+        for i in range(3):
+            for j in range(i, 3):
+                M[i, j] += Jw[f, 0, i] * IJ[0, j] + Jw[f, 1, i] * IJ[1, j] + Jw[f, 2, i] * IJ[2, j]
+        w0 = Jw[f, 0, 0] * Xd[0] + Jw[f, 0, 1] * Xd[1] + Jw[f, 0, 2] * Xd[2]
+        w1 = Jw[f, 1, 0] * Xd[0] + Jw[f, 1, 1] * Xd[1] + Jw[f, 1, 2] * Xd[2]
+        w2 = Jw[f, 2, 0] * Xd[0] + Jw[f, 2, 1] * Xd[1] + Jw[f, 2, 2] * Xd[2]
+        h0 = IJ[0, 0] * v[0] + IJ[0, 1] * v[1] + IJ[0, 2] * v[2]  # Iw J_w v
+        h1 = IJ[1, 0] * v[0] + IJ[1, 1] * v[1] + IJ[1, 2] * v[2]
+        h2 = IJ[2, 0] * v[0] + IJ[2, 1] * v[1] + IJ[2, 2] * v[2]
+        for k in range(3):
+            t[k] = Iw[k, 0] * aw[f, 0] + Iw[k, 1] * aw[f, 1] + Iw[k, 2] * aw[f, 2]
+        t[0] += w1 * h2 - w2 * h1
+        t[1] += w2 * h0 - w0 * h2
+        t[2] += w0 * h1 - w1 * h0
+        for i in range(3):
+            Cv[i] += Jw[f, 0, i] * t[0] + Jw[f, 1, i] * t[1] + Jw[f, 2, i] * t[2]
+    M[1, 0], M[2, 0], M[2, 1] = M[0, 1], M[0, 2], M[1, 2]
 
 
 @njit(cache=True, nogil=True)
-def dynamics_kernel(geom, theta, X, Xd, work, M, C, G):
-    """Fill M (3, 3), C (3, 3) and G (3,) at (X, Xd) (eq. 9-24)."""
-    _kinematics(geom, X, Xd, work)
-    _assemble(geom, theta, Xd, work, M, C, G)
+def dynamics_kernel(geom, theta, X, Xd, v, work, M, Cv, G):
+    """Fill M (3, 3), C(X, Xd) v (3,) and G (3,) (eq. 9-24).
+
+    v = Xd gives the Coriolis/centrifugal vector of the plant; v = Xr_dot the
+    controllers' C Xr_dot. The matrix C is C e_j column by column.
+    """
+    _kinematics(geom, X, Xd, v, work)
+    _assemble(geom, theta, Xd, v, work, M, Cv, G)
+
+
+@njit(cache=True, nogil=True)
+def gravity_kernel(geom, theta, X, work, G):
+    """Fill G (3,) at X: sum of m g dz_b/dX (eq. 24), without the velocity terms."""
+    z3 = work[8][4]
+    z3[:] = 0.0
+    _kinematics(geom, X, z3, z3, work)
+    Jv = work[2]
+    g = geom[10]
+    G[:] = 0.0
+    for b in range(N_BODIES):
+        for i in range(3):
+            G[i] += theta[4 * b] * g * Jv[b, 2, i]
 
 
 @njit(cache=True, nogil=True)
 def _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y):
-    Rb, Jv, Jw, dJv, dJw = work[1], work[2], work[3], work[4], work[5]
+    Rb, Jv, Jw, av, aw = work[1], work[2], work[3], work[4], work[5]
     g = geom[10]
     acc, wr, w, vec = work[8][0], work[8][1], work[8][2], work[8][3]
     for b in range(N_BODIES):
-        # mass column: J_v^T (J_v Xr_dd + dJ_v Xr_d) + g J_v[z]^T
+        # mass column: J_v^T (J_v Xr_dd + dJ_v Xr_d) + g dz/dX
         for k in range(3):
-            acc[k] = 0.0
-            for j in range(3):
-                acc[k] += Jv[b, k, j] * Xr_dd[j] + dJv[b, k, j] * Xr_d[j]
+            acc[k] = Jv[b, k, 0] * Xr_dd[0] + Jv[b, k, 1] * Xr_dd[1] + Jv[b, k, 2] * Xr_dd[2]
+            acc[k] += av[b, k]
         for i in range(3):
             Y[i, 4 * b] = (
                 Jv[b, 0, i] * acc[0] + Jv[b, 1, i] * acc[1] + Jv[b, 2, i] * acc[2] + g * Jv[b, 2, i]
@@ -154,11 +172,11 @@ def _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y):
             continue
         # inertia columns: J_w^T (r_k a_k + b_k omega x r_k)
         for k in range(3):
-            acc[k] = 0.0
+            acc[k] = aw[b, k]
             wr[k] = 0.0
             w[k] = 0.0
             for j in range(3):
-                acc[k] += Jw[b, k, j] * Xr_dd[j] + dJw[b, k, j] * Xr_d[j]
+                acc[k] += Jw[b, k, j] * Xr_dd[j]
                 wr[k] += Jw[b, k, j] * Xr_d[j]
                 w[k] += Jw[b, k, j] * Xd[j]
         R = Rb[b]
@@ -178,7 +196,7 @@ def _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y):
 @njit(cache=True, nogil=True)
 def regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, work, Y):
     """Fill the regressor Y (3, 36) with Y Theta = M Xr_dd + C(X, Xd) Xr_d + G (eq. 24)."""
-    _kinematics(geom, X, Xd, work)
+    _kinematics(geom, X, Xd, Xr_d, work)
     _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y)
 
 

@@ -16,8 +16,8 @@ centre of mass from its platform joint, and the gravitational acceleration.
 The body kernel :func:`body_jacobians` returns, for the 9 bodies (0 platform,
 1-4 lower limbs, 5-8 upper limbs), the centre-of-mass position, the body frame
 ``R_b``, the Jacobians ``J_v`` (v = J_v Xdot) and ``J_w`` (omega = J_w Xdot) and their
-time derivatives along ``Xdot``. Everything is closed form; nothing is
-finite-differenced.
+time derivatives along ``Xdot`` applied to a vector. Everything is closed form;
+nothing is finite-differenced.
 """
 
 from __future__ import annotations
@@ -53,55 +53,27 @@ def _cx(a0, a1, a2, b0, b1, b2):
 
 
 @njit(cache=True, nogil=True)
-def _cross(a, b, out):
-    out[0] = a[1] * b[2] - a[2] * b[1]
-    out[1] = a[2] * b[0] - a[0] * b[2]
-    out[2] = a[0] * b[1] - a[1] * b[0]
-
-
-@njit(cache=True, nogil=True)
-def _platform(X, Xd, p, R, Jv, Jw, dJv, dJw):
-    """Platform centre, frame and Jacobians (eq. 1-3), with their time derivatives."""
-    z, a, b = X[0], X[1], X[2]
-    zd, ad = Xd[0], Xd[1]
-    ca, sa, cb, sb = math.cos(a), math.sin(a), math.cos(b), math.sin(b)
-    ta = sa / ca
-    sec2 = 1.0 / (ca * ca)
-    p[0], p[1], p[2] = 0.0, -z * ta, z
-    # R = R_x(alpha) R_y(beta)
-    R[0, 0], R[0, 1], R[0, 2] = cb, 0.0, sb
-    R[1, 0], R[1, 1], R[1, 2] = sa * sb, ca, -sa * cb
-    R[2, 0], R[2, 1], R[2, 2] = -ca * sb, sa, ca * cb
-    Jv[:, :] = 0.0
-    Jw[:, :] = 0.0
-    dJv[:, :] = 0.0
-    dJw[:, :] = 0.0
-    # dp/dz and dp/dalpha
-    Jv[1, 0], Jv[2, 0] = -ta, 1.0
-    Jv[1, 1] = -z * sec2
-    dJv[1, 0] = -sec2 * ad
-    dJv[1, 1] = -(zd * sec2 + 2.0 * z * sec2 * ta * ad)
-    # omega = alpha_dot e_x + beta_dot R_x(alpha) e_y
-    Jw[0, 1] = 1.0
-    Jw[1, 2], Jw[2, 2] = ca, sa
-    dJw[1, 2], dJw[2, 2] = -sa * ad, ca * ad
-
-
-@njit(cache=True, nogil=True)
-def body_jacobians(geom, X, Xd, com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat):
+def body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat):
     """Fill the kinematics of all 9 bodies and of the 4 limbs at (X, Xd).
+
+    Besides the Jacobians, it gives their time derivatives (along Xd) applied to one
+    vector v: ``av = dJ_v v`` and ``aw = dJ_w v``. Every dynamic quantity needs only
+    that product (v = Xdot for the plant, v = Xr_dot for the controllers), which is
+    three times cheaper than the full derivative matrices.
 
     Parameters
     ----------
     geom : ndarray, shape (11,)
-    X, Xd : ndarray, shape (3,)
-        Pose and pose rate.
+    X, Xd, v : ndarray, shape (3,)
+        Pose, pose rate, and the vector the Jacobian derivatives are applied to.
     com : ndarray, shape (9, 3)
         Out: centres of mass in B.
     Rb : ndarray, shape (9, 3, 3)
         Out: body frames (columns are the body axes in B).
-    Jv, Jw, dJv, dJw : ndarray, shape (9, 3, 3)
-        Out: linear and angular velocity Jacobians and their time derivatives.
+    Jv, Jw : ndarray, shape (9, 3, 3)
+        Out: linear and angular velocity Jacobians (v_b = Jv Xd, omega_b = Jw Xd).
+    av, aw : ndarray, shape (9, 3)
+        Out: dJv/dt v and dJw/dt v.
     Jq : ndarray, shape (4, 3)
         Out: the limb Jacobian J = dq/dX (eq. 8).
     q : ndarray, shape (4,)
@@ -110,119 +82,123 @@ def body_jacobians(geom, X, Xd, com, Rb, Jv, Jw, dJv, dJw, Jq, q, vec, mat):
         Scratch space, so that the control loop does not allocate.
     """
     r_a, r_b = geom[0], geom[1]
-    ca, sa = math.cos(X[1]), math.sin(X[1])
-    p = com[0]
-    _platform(X, Xd, p, Rb[0], Jv[0], Jw[0], dJv[0], dJw[0])
+    z, zd, ad, bd = X[0], Xd[0], Xd[1], Xd[2]
+    ca, sa, cb, sb = math.cos(X[1]), math.sin(X[1]), math.cos(X[2]), math.sin(X[2])
+    ta = sa / ca
+    sec2 = 1.0 / (ca * ca)
+    # -- platform (eq. 1-3): p = [0, -z tan a, z], R = R_x(a) R_y(b),
+    #    omega = a_dot e_x + b_dot R_x(a) e_y
+    com[0, 0], com[0, 1], com[0, 2] = 0.0, -z * ta, z
     R = Rb[0]
-    rho, rhod, P, u, ud = vec[0], vec[1], vec[2], vec[3], vec[4]
-    tmp, tmp2, w0 = vec[5], vec[6], vec[8]
-    JP, dJP, Ju, dJu = mat[0], mat[1], mat[2], mat[3]
-    for k in range(3):  # platform angular velocity
-        w0[k] = Jw[0, k, 0] * Xd[0] + Jw[0, k, 1] * Xd[1] + Jw[0, k, 2] * Xd[2]
+    R[0, 0], R[0, 1], R[0, 2] = cb, 0.0, sb
+    R[1, 0], R[1, 1], R[1, 2] = sa * sb, ca, -sa * cb
+    R[2, 0], R[2, 1], R[2, 2] = -ca * sb, sa, ca * cb
+    Jv[0, :, :] = 0.0
+    Jw[0, :, :] = 0.0
+    Jv[0, 1, 0], Jv[0, 2, 0] = -ta, 1.0
+    Jv[0, 1, 1] = -z * sec2
+    Jw[0, 0, 1] = 1.0
+    Jw[0, 1, 2], Jw[0, 2, 2] = ca, sa
+    av[0, 0], av[0, 2] = 0.0, 0.0
+    av[0, 1] = -sec2 * ad * v[0] - (zd * sec2 + 2.0 * z * sec2 * ta * ad) * v[1]
+    aw[0, 0], aw[0, 1], aw[0, 2] = 0.0, -sa * ad * v[2], ca * ad * v[2]
+    w0x, w0y, w0z = ad, ca * bd, sa * bd  # platform angular velocity
+    wv0x, wv0y, wv0z = v[1], ca * v[2], sa * v[2]  # J_w v
+    u, ud, aP, au = vec[0], vec[1], vec[2], vec[3]
+    JP, Ju = mat[0], mat[1]
     for i in range(4):
         cth, sth = _LIMB_DIR[i, 0], _LIMB_DIR[i, 1]
-        for k in range(3):
-            rho[k] = r_a * (R[k, 0] * cth + R[k, 1] * sth)
-        _cross(w0, rho, rhod)
-        for k in range(3):
-            P[k] = p[k] + rho[k]
-        d0, d1, d2 = P[0] - r_b * cth, P[1] - r_b * sth, P[2]
+        rx = r_a * (R[0, 0] * cth + R[0, 1] * sth)  # rho = R a_i
+        ry = r_a * (R[1, 0] * cth + R[1, 1] * sth)
+        rz = r_a * (R[2, 0] * cth + R[2, 1] * sth)
+        rdx, rdy, rdz = _cx(w0x, w0y, w0z, rx, ry, rz)  # rho_dot = omega x rho
+        Px, Py, Pz = com[0, 0] + rx, com[0, 1] + ry, com[0, 2] + rz
+        d0, d1, d2 = Px - r_b * cth, Py - r_b * sth, Pz
         qi = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         q[i] = qi
         iq = 1.0 / qi
         u[0], u[1], u[2] = d0 * iq, d1 * iq, d2 * iq
-        # J_P: velocity of the platform joint point; dJ_P its time derivative
+        # J_P: velocity of the platform joint, columns Jv0[:, j] + Jw0[:, j] x rho
         for j in range(3):
-            wj0, wj1, wj2 = Jw[0, 0, j], Jw[0, 1, j], Jw[0, 2, j]
-            dw0, dw1, dw2 = dJw[0, 0, j], dJw[0, 1, j], dJw[0, 2, j]
-            t0, t1, t2 = _cx(wj0, wj1, wj2, rho[0], rho[1], rho[2])
-            s0, s1, s2 = _cx(dw0, dw1, dw2, rho[0], rho[1], rho[2])
-            c0, c1, c2 = _cx(wj0, wj1, wj2, rhod[0], rhod[1], rhod[2])
+            t0, t1, t2 = _cx(Jw[0, 0, j], Jw[0, 1, j], Jw[0, 2, j], rx, ry, rz)
             JP[0, j] = Jv[0, 0, j] + t0
             JP[1, j] = Jv[0, 1, j] + t1
             JP[2, j] = Jv[0, 2, j] + t2
-            dJP[0, j] = dJv[0, 0, j] + s0 + c0
-            dJP[1, j] = dJv[0, 1, j] + s1 + c1
-            dJP[2, j] = dJv[0, 2, j] + s2 + c2
-        # q_dot = u . P_dot ; u_dot = (I - u u^T) P_dot / q
-        Pd = tmp
-        for k in range(3):
-            Pd[k] = JP[k, 0] * Xd[0] + JP[k, 1] * Xd[1] + JP[k, 2] * Xd[2]
-        qd = u[0] * Pd[0] + u[1] * Pd[1] + u[2] * Pd[2]
-        for k in range(3):
-            ud[k] = (Pd[k] - u[k] * qd) * iq
+        # dJ_P v = av0 + aw0 x rho + (Jw0 v) x rho_dot
+        t0, t1, t2 = _cx(aw[0, 0], aw[0, 1], aw[0, 2], rx, ry, rz)
+        s0, s1, s2 = _cx(wv0x, wv0y, wv0z, rdx, rdy, rdz)
+        aP[0], aP[1], aP[2] = av[0, 0] + t0 + s0, av[0, 1] + t1 + s1, av[0, 2] + t2 + s2
+        # P_dot, q_dot = u . P_dot, u_dot = (I - u u^T) P_dot / q; P_v = J_P v
+        Pd0 = JP[0, 0] * Xd[0] + JP[0, 1] * Xd[1] + JP[0, 2] * Xd[2]
+        Pd1 = JP[1, 0] * Xd[0] + JP[1, 1] * Xd[1] + JP[1, 2] * Xd[2]
+        Pd2 = JP[2, 0] * Xd[0] + JP[2, 1] * Xd[1] + JP[2, 2] * Xd[2]
+        Pv0 = JP[0, 0] * v[0] + JP[0, 1] * v[1] + JP[0, 2] * v[2]
+        Pv1 = JP[1, 0] * v[0] + JP[1, 1] * v[1] + JP[1, 2] * v[2]
+        Pv2 = JP[2, 0] * v[0] + JP[2, 1] * v[1] + JP[2, 2] * v[2]
+        qd = u[0] * Pd0 + u[1] * Pd1 + u[2] * Pd2
+        ud[0], ud[1], ud[2] = (Pd0 - u[0] * qd) * iq, (Pd1 - u[1] * qd) * iq, (Pd2 - u[2] * qd) * iq
+        # J_u = (I - u u^T) J_P / q, so u_dot = J_u Xd; J = u^T J_P (eq. 8)
         for j in range(3):
-            uv = u[0] * JP[0, j] + u[1] * JP[1, j] + u[2] * JP[2, j]
-            udv = ud[0] * JP[0, j] + ud[1] * JP[1, j] + ud[2] * JP[2, j]
-            udP = u[0] * dJP[0, j] + u[1] * dJP[1, j] + u[2] * dJP[2, j]
-            Jq[i, j] = uv
+            uj = u[0] * JP[0, j] + u[1] * JP[1, j] + u[2] * JP[2, j]
+            Jq[i, j] = uj
             for k in range(3):
-                ju = (JP[k, j] - u[k] * uv) * iq
-                Ju[k, j] = ju
-                # d/dt[(I - u u^T)/q] v  +  (I - u u^T)/q  dJ_P v
-                dJu[k, j] = (dJP[k, j] - u[k] * udP - ud[k] * uv - u[k] * udv) * iq - ju * qd * iq
+                Ju[k, j] = (JP[k, j] - u[k] * uj) * iq
+        # dJ_u v = d/dt[(I - u u^T)/q] P_v + (I - u u^T)/q dJ_P v
+        uPv = u[0] * Pv0 + u[1] * Pv1 + u[2] * Pv2
+        udPv = ud[0] * Pv0 + ud[1] * Pv1 + ud[2] * Pv2
+        uaP = u[0] * aP[0] + u[1] * aP[1] + u[2] * aP[2]
+        Juv0, Juv1, Juv2 = (Pv0 - u[0] * uPv) * iq, (Pv1 - u[1] * uPv) * iq, (Pv2 - u[2] * uPv) * iq
+        for k in range(3):
+            au[k] = (aP[k] - u[k] * (uaP + udPv) - ud[k] * uPv) * iq
+        au[0] -= Juv0 * qd * iq
+        au[1] -= Juv1 * qd * iq
+        au[2] -= Juv2 * qd * iq
         lo, up = 1 + i, 5 + i
         l1, l2 = geom[2 + i], geom[6 + i]
+        com[lo, 0], com[lo, 1], com[lo, 2] = r_b * cth + l1 * u[0], r_b * sth + l1 * u[1], l1 * u[2]
+        com[up, 0], com[up, 1], com[up, 2] = Px - l2 * u[0], Py - l2 * u[1], Pz - l2 * u[2]
         for k in range(3):
-            com[lo, k] = r_b * (cth if k == 0 else (sth if k == 1 else 0.0)) + l1 * u[k]
-            com[up, k] = P[k] - l2 * u[k]
             for j in range(3):
                 Jv[lo, k, j] = l1 * Ju[k, j]
-                dJv[lo, k, j] = l1 * dJu[k, j]
                 Jv[up, k, j] = JP[k, j] - l2 * Ju[k, j]
-                dJv[up, k, j] = dJP[k, j] - l2 * dJu[k, j]
+            av[lo, k] = l1 * au[k]
+            av[up, k] = aP[k] - l2 * au[k]
         # Limb frame [x_i, u_i x x_i, u_i]; x_i = e_x (RPU) or w = R_x(alpha) e_y (SPR).
         spr = _SPR[i]
         if spr:
-            tmp[0], tmp[1], tmp[2] = 0.0, ca, sa
+            x0, x1, x2 = 0.0, ca, sa
         else:
-            tmp[0], tmp[1], tmp[2] = 1.0, 0.0, 0.0
-        _cross(u, tmp, tmp2)
-        for k in range(3):
-            Rb[lo, k, 0] = tmp[k]
-            Rb[lo, k, 1] = tmp2[k]
-            Rb[lo, k, 2] = u[k]
-        # omega_i = u x u_dot + spin u; for SPR the spin (x_dot . y) is alpha_dot * u_x.
+            x0, x1, x2 = 1.0, 0.0, 0.0
+        y0, y1, y2 = _cx(u[0], u[1], u[2], x0, x1, x2)
+        Rb[lo, 0, 0], Rb[lo, 1, 0], Rb[lo, 2, 0] = x0, x1, x2
+        Rb[lo, 0, 1], Rb[lo, 1, 1], Rb[lo, 2, 1] = y0, y1, y2
+        Rb[lo, 0, 2], Rb[lo, 1, 2], Rb[lo, 2, 2] = u[0], u[1], u[2]
+        # omega_i = u x u_dot + spin u; for SPR the spin (x_dot . y) is alpha_dot u_x,
+        # so J_w = [u]x J_u (+ u u_x in the alpha column) and
+        # dJ_w v = u_dot x (J_u v) + u x (dJ_u v) (+ v_alpha (u_dot_x u + u_x u_dot)).
         for j in range(3):
             t0, t1, t2 = _cx(u[0], u[1], u[2], Ju[0, j], Ju[1, j], Ju[2, j])
-            s0, s1, s2 = _cx(ud[0], ud[1], ud[2], Ju[0, j], Ju[1, j], Ju[2, j])
-            c0, c1, c2 = _cx(u[0], u[1], u[2], dJu[0, j], dJu[1, j], dJu[2, j])
-            Jw[lo, 0, j] = t0
-            Jw[lo, 1, j] = t1
-            Jw[lo, 2, j] = t2
-            dJw[lo, 0, j] = s0 + c0
-            dJw[lo, 1, j] = s1 + c1
-            dJw[lo, 2, j] = s2 + c2
+            Jw[lo, 0, j], Jw[lo, 1, j], Jw[lo, 2, j] = t0, t1, t2
+        t0, t1, t2 = _cx(ud[0], ud[1], ud[2], Juv0, Juv1, Juv2)
+        s0, s1, s2 = _cx(u[0], u[1], u[2], au[0], au[1], au[2])
+        aw[lo, 0], aw[lo, 1], aw[lo, 2] = t0 + s0, t1 + s1, t2 + s2
         if spr:
             for k in range(3):
                 Jw[lo, k, 1] += u[0] * u[k]
-                dJw[lo, k, 1] += ud[0] * u[k] + u[0] * ud[k]
+                aw[lo, k] += v[1] * (ud[0] * u[k] + u[0] * ud[k])
         Rb[up] = Rb[lo]
         Jw[up] = Jw[lo]
-        dJw[up] = dJw[lo]
+        aw[up] = aw[lo]
 
 
 @njit(cache=True, nogil=True)
 def limb_kinematics(geom, X, Jq, q):
     """Limb lengths ``q`` (4,) and Jacobian ``Jq`` (4, 3) at pose X (eq. 4-8)."""
-    com = np.empty((N_BODIES, 3))
-    Rb = np.empty((N_BODIES, 3, 3))
-    Jv, Jw = np.empty((N_BODIES, 3, 3)), np.empty((N_BODIES, 3, 3))
-    dJv, dJw = np.empty((N_BODIES, 3, 3)), np.empty((N_BODIES, 3, 3))
+    z3 = np.zeros(3)
+    m3 = np.empty((3, N_BODIES, 3, 3))  # Rb, Jv, Jw (must not alias: Jv, Jw are read back)
+    m1 = np.empty((4, N_BODIES, 3))  # com, av, aw, scratch
     body_jacobians(
-        geom,
-        X,
-        np.zeros(3),
-        com,
-        Rb,
-        Jv,
-        Jw,
-        dJv,
-        dJw,
-        Jq,
-        q,
-        np.empty((9, 3)),
-        np.empty((4, 3, 3)),
+        geom, X, z3, z3, m1[0], m3[0], m3[1], m3[2], m1[1], m1[2], Jq, q, m1[3], np.empty((4, 3, 3))
     )
 
 

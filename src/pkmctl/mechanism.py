@@ -319,8 +319,7 @@ class Mechanism:
         Xb, single = _as_batch(X, "X")
         Xdb, Xddb = _like(Xdot, Xb, "Xdot"), _like(Xddot, Xb, "Xddot")
         _check_poses(self._geom, Xb)
-        M, C, G = _dynamics_batch(self._geom, self.theta, Xb, Xdb)
-        F = np.einsum("nij,nj->ni", M, Xddb) + np.einsum("nij,nj->ni", C, Xdb) + G
+        F = _inverse_dynamics_batch(self._geom, self.theta, Xb, Xdb, Xddb)
         return F[0] if single else F
 
     def regressor(self, X, Xdot, Xr_dot, Xr_ddot) -> np.ndarray:
@@ -420,9 +419,29 @@ def _dynamics_batch(geom, theta, Xb, Xdb):
     C = np.empty((n, 3, 3))
     G = np.empty((n, 3))
     work = make_work()
+    e = np.zeros(3)
+    Cv = np.empty(3)
     for k in range(n):
-        dynamics_kernel(geom, theta, Xb[k], Xdb[k], work, M[k], C[k], G[k])
+        for j in range(3):  # C column by column: C e_j
+            e[:] = 0.0
+            e[j] = 1.0
+            dynamics_kernel(geom, theta, Xb[k], Xdb[k], e, work, M[k], Cv, G[k])
+            C[k, :, j] = Cv
     return M, C, G
+
+
+@njit(cache=True, nogil=True)
+def _inverse_dynamics_batch(geom, theta, Xb, Xdb, Xddb):
+    n = Xb.shape[0]
+    F = np.empty((n, 3))
+    work = make_work()
+    M, Cv, G = np.empty((3, 3)), np.empty(3), np.empty(3)
+    for k in range(n):
+        dynamics_kernel(geom, theta, Xb[k], Xdb[k], Xdb[k], work, M, Cv, G)
+        for i in range(3):
+            F[k, i] = M[i, 0] * Xddb[k, 0] + M[i, 1] * Xddb[k, 1] + M[i, 2] * Xddb[k, 2]
+            F[k, i] += Cv[i] + G[i]
+    return F
 
 
 @njit(cache=True, nogil=True)

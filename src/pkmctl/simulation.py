@@ -81,7 +81,7 @@ class Result:
 @njit(cache=True, nogil=True)
 def _plant_accel(geom, theta, X, Xd, tau, dist, work, M, C, G, out):
     """Xddot = M^-1 (J^T tau + tau_d' - C Xdot - G) for the true plant (eq. 24)."""
-    dynamics_kernel(geom, theta, X, Xd, work, M, C, G)
+    dynamics_kernel(geom, theta, X, Xd, Xd, work, M, C, G)  # C holds C Xdot
     Jq = work[6]
     for i in range(3):
         out[i] = (
@@ -90,9 +90,7 @@ def _plant_accel(geom, theta, X, Xd, tau, dist, work, M, C, G, out):
             + Jq[2, i] * tau[2]
             + Jq[3, i] * tau[3]
             + dist[i]
-            - C[i, 0] * Xd[0]
-            - C[i, 1] * Xd[1]
-            - C[i, 2] * Xd[2]
+            - C[i]
             - G[i]
         )
     solve_spd3(M, out)
@@ -152,7 +150,7 @@ def _run_kernel(
     theta_hat = model_theta.copy()
     work = make_work()
     pwork = make_work()
-    M, C, G = np.empty((3, 3)), np.empty((3, 3)), np.empty(3)
+    M, C, G = np.empty((3, 3)), np.empty(3), np.empty(3)
     Y = np.empty((3, model_theta.shape[0]))
     F = np.empty(3)
     tau = np.empty(4)
