@@ -36,8 +36,8 @@ from dataclasses import dataclass, field, fields
 from typing import ClassVar
 
 import numpy as np
-from numba import njit
 
+from ._jit import kernel
 from .dynamics import dynamics_kernel, gravity_kernel, make_work, regressor_kernel
 from .fuzzy import FLC, flc_eval
 from .mechanism import Mechanism
@@ -165,7 +165,7 @@ class ControllerState:
     steps: int
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def sliding_surface(lam, X, Xd, Xdes, Xddes, Xdddes, s, xr_d, xr_dd):
     """Fill s = edot + lam e, Xr_dot = Xdot_d + lam e, Xr_ddot = Xddot_d + lam edot (3,)."""
     for i in range(3):
@@ -176,7 +176,7 @@ def sliding_surface(lam, X, Xd, Xdes, Xddes, Xdddes, s, xr_d, xr_dd):
         xr_dd[i] = Xdddes[i] + lam[i] * ed
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def adapt(theta_hat, Y, s, Tc, gamma_vec, th_min, th_max):
     """One period of dTheta^/dt = Gamma Y^T s (explicit Euler), projected onto the bounds.
 
@@ -190,7 +190,7 @@ def adapt(theta_hat, Y, s, Tc, gamma_vec, th_min, th_max):
         theta_hat[k] = min(th_max[k], max(th_min[k], v))
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def control_step(
     kind,
     geom,

@@ -23,8 +23,8 @@ loop can call them without allocating.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from ._jit import kernel
 from .kinematics import N_BODIES, body_jacobians
 
 __all__ = [
@@ -40,7 +40,7 @@ __all__ = [
 N_THETA = 4 * N_BODIES
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def make_work():
     """Scratch arrays for one pose: (com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat)."""
     return (
@@ -57,76 +57,90 @@ def make_work():
     )
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _kinematics(geom, X, Xd, v, work):
     com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat = work
     body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat)
 
 
-@njit(cache=True, nogil=True)
-def _rotating_inertia(theta, f, R, Iw):
-    """R I R^T of rotating frame f: the platform (f = 0) or limb f (lower + upper body)."""
-    i0, i1, i2 = theta[4 * f + 1], theta[4 * f + 2], theta[4 * f + 3]
-    if f > 0:  # both bodies of a limb turn together: their inertias add
-        i0 += theta[4 * (f + 4) + 1]
-        i1 += theta[4 * (f + 4) + 2]
-        i2 += theta[4 * (f + 4) + 3]
-    for k in range(3):
-        for n in range(k, 3):
-            Iw[k, n] = i0 * R[k, 0] * R[n, 0] + i1 * R[k, 1] * R[n, 1] + i2 * R[k, 2] * R[n, 2]
-            Iw[n, k] = Iw[k, n]
-
-
-@njit(cache=True, nogil=True)
+@kernel
 def _assemble(geom, theta, Xd, v, work, M, Cv, G):
     """M, C(X, Xd) v and G from filled body kinematics (the sums of the module docstring).
 
     The two bodies of a limb share its frame and angular velocity, so their rotational
-    terms are summed once with the summed inertia (5 rotating frames, not 9).
+    terms are summed once with the summed inertia (5 rotating frames, not 9). Sums are
+    kept in scalars so that they stay in registers.
     """
     Rb, Jv, Jw, av, aw = work[1], work[2], work[3], work[4], work[5]
-    g = geom[10]
-    M[:, :] = 0.0
-    Cv[:] = 0.0
-    G[:] = 0.0
-    for b in range(N_BODIES):  # translation: m J_v^T J_v, m J_v^T (dJ_v v), m g dz/dX
+    m00 = m01 = m02 = m11 = m12 = m22 = 0.0
+    c0 = c1 = c2 = 0.0
+    g0 = g1 = g2 = 0.0
+    for b in range(N_BODIES):  # translation: m J_v^T J_v, m J_v^T (dJ_v v), m dz/dX
         m = theta[4 * b]
-        for i in range(3):
-            for j in range(i, 3):
-                M[i, j] += m * (
-                    Jv[b, 0, i] * Jv[b, 0, j]
-                    + Jv[b, 1, i] * Jv[b, 1, j]
-                    + (Jv[b, 2, i] * Jv[b, 2, j])
-                )
-            Cv[i] += m * (Jv[b, 0, i] * av[b, 0] + Jv[b, 1, i] * av[b, 1] + Jv[b, 2, i] * av[b, 2])
-            G[i] += m * g * Jv[b, 2, i]
-    Iw, IJ = work[9][0], work[9][1]  # scratch, free once the kinematics has run
-    t = work[8][0]
-    for f in range(5):  # rotation: J_w^T Iw J_w and J_w^T (Iw dJ_w v + omega x Iw J_w v)
-        _rotating_inertia(theta, f, Rb[f], Iw)
-        for k in range(3):
-            for j in range(3):
-                IJ[k, j] = Iw[k, 0] * Jw[f, 0, j] + Iw[k, 1] * Jw[f, 1, j] + Iw[k, 2] * Jw[f, 2, j]
-        for i in range(3):
-            for j in range(i, 3):
-                M[i, j] += Jw[f, 0, i] * IJ[0, j] + Jw[f, 1, i] * IJ[1, j] + Jw[f, 2, i] * IJ[2, j]
-        w0 = Jw[f, 0, 0] * Xd[0] + Jw[f, 0, 1] * Xd[1] + Jw[f, 0, 2] * Xd[2]
-        w1 = Jw[f, 1, 0] * Xd[0] + Jw[f, 1, 1] * Xd[1] + Jw[f, 1, 2] * Xd[2]
-        w2 = Jw[f, 2, 0] * Xd[0] + Jw[f, 2, 1] * Xd[1] + Jw[f, 2, 2] * Xd[2]
-        h0 = IJ[0, 0] * v[0] + IJ[0, 1] * v[1] + IJ[0, 2] * v[2]  # Iw J_w v
-        h1 = IJ[1, 0] * v[0] + IJ[1, 1] * v[1] + IJ[1, 2] * v[2]
-        h2 = IJ[2, 0] * v[0] + IJ[2, 1] * v[1] + IJ[2, 2] * v[2]
-        for k in range(3):
-            t[k] = Iw[k, 0] * aw[f, 0] + Iw[k, 1] * aw[f, 1] + Iw[k, 2] * aw[f, 2]
-        t[0] += w1 * h2 - w2 * h1
-        t[1] += w2 * h0 - w0 * h2
-        t[2] += w0 * h1 - w1 * h0
-        for i in range(3):
-            Cv[i] += Jw[f, 0, i] * t[0] + Jw[f, 1, i] * t[1] + Jw[f, 2, i] * t[2]
-    M[1, 0], M[2, 0], M[2, 1] = M[0, 1], M[0, 2], M[1, 2]
+        a00, a01, a02 = Jv[b, 0, 0], Jv[b, 0, 1], Jv[b, 0, 2]
+        a10, a11, a12 = Jv[b, 1, 0], Jv[b, 1, 1], Jv[b, 1, 2]
+        a20, a21, a22 = Jv[b, 2, 0], Jv[b, 2, 1], Jv[b, 2, 2]
+        m00 += m * (a00 * a00 + a10 * a10 + a20 * a20)
+        m01 += m * (a00 * a01 + a10 * a11 + a20 * a21)
+        m02 += m * (a00 * a02 + a10 * a12 + a20 * a22)
+        m11 += m * (a01 * a01 + a11 * a11 + a21 * a21)
+        m12 += m * (a01 * a02 + a11 * a12 + a21 * a22)
+        m22 += m * (a02 * a02 + a12 * a12 + a22 * a22)
+        x0, x1, x2 = m * av[b, 0], m * av[b, 1], m * av[b, 2]
+        c0 += a00 * x0 + a10 * x1 + a20 * x2
+        c1 += a01 * x0 + a11 * x1 + a21 * x2
+        c2 += a02 * x0 + a12 * x1 + a22 * x2
+        g0 += m * a20
+        g1 += m * a21
+        g2 += m * a22
+    for f in range(5):  # rotation, in the body frame: Jb = R^T J_w, M += Jb^T I Jb, ...
+        i0, i1, i2 = theta[4 * f + 1], theta[4 * f + 2], theta[4 * f + 3]
+        if f > 0:  # both bodies of a limb turn together: their inertias add
+            i0 += theta[4 * (f + 4) + 1]
+            i1 += theta[4 * (f + 4) + 2]
+            i2 += theta[4 * (f + 4) + 3]
+        R = Rb[f]
+        # rows of Jb = R^T J_w (row n is r_n^T J_w), and body-frame omega, J_w v, dJ_w v
+        b00 = R[0, 0] * Jw[f, 0, 0] + R[1, 0] * Jw[f, 1, 0] + R[2, 0] * Jw[f, 2, 0]
+        b01 = R[0, 0] * Jw[f, 0, 1] + R[1, 0] * Jw[f, 1, 1] + R[2, 0] * Jw[f, 2, 1]
+        b02 = R[0, 0] * Jw[f, 0, 2] + R[1, 0] * Jw[f, 1, 2] + R[2, 0] * Jw[f, 2, 2]
+        b10 = R[0, 1] * Jw[f, 0, 0] + R[1, 1] * Jw[f, 1, 0] + R[2, 1] * Jw[f, 2, 0]
+        b11 = R[0, 1] * Jw[f, 0, 1] + R[1, 1] * Jw[f, 1, 1] + R[2, 1] * Jw[f, 2, 1]
+        b12 = R[0, 1] * Jw[f, 0, 2] + R[1, 1] * Jw[f, 1, 2] + R[2, 1] * Jw[f, 2, 2]
+        b20 = R[0, 2] * Jw[f, 0, 0] + R[1, 2] * Jw[f, 1, 0] + R[2, 2] * Jw[f, 2, 0]
+        b21 = R[0, 2] * Jw[f, 0, 1] + R[1, 2] * Jw[f, 1, 1] + R[2, 2] * Jw[f, 2, 1]
+        b22 = R[0, 2] * Jw[f, 0, 2] + R[1, 2] * Jw[f, 1, 2] + R[2, 2] * Jw[f, 2, 2]
+        m00 += i0 * b00 * b00 + i1 * b10 * b10 + i2 * b20 * b20
+        m01 += i0 * b00 * b01 + i1 * b10 * b11 + i2 * b20 * b21
+        m02 += i0 * b00 * b02 + i1 * b10 * b12 + i2 * b20 * b22
+        m11 += i0 * b01 * b01 + i1 * b11 * b11 + i2 * b21 * b21
+        m12 += i0 * b01 * b02 + i1 * b11 * b12 + i2 * b21 * b22
+        m22 += i0 * b02 * b02 + i1 * b12 * b12 + i2 * b22 * b22
+        w0 = b00 * Xd[0] + b01 * Xd[1] + b02 * Xd[2]  # omega in the body frame
+        w1 = b10 * Xd[0] + b11 * Xd[1] + b12 * Xd[2]
+        w2 = b20 * Xd[0] + b21 * Xd[1] + b22 * Xd[2]
+        h0 = i0 * (b00 * v[0] + b01 * v[1] + b02 * v[2])  # I (R^T J_w v)
+        h1 = i1 * (b10 * v[0] + b11 * v[1] + b12 * v[2])
+        h2 = i2 * (b20 * v[0] + b21 * v[1] + b22 * v[2])
+        # R^T (dJ_w v): the body-frame image of the world-frame dJ_w v
+        e0 = R[0, 0] * aw[f, 0] + R[1, 0] * aw[f, 1] + R[2, 0] * aw[f, 2]
+        e1 = R[0, 1] * aw[f, 0] + R[1, 1] * aw[f, 1] + R[2, 1] * aw[f, 2]
+        e2 = R[0, 2] * aw[f, 0] + R[1, 2] * aw[f, 1] + R[2, 2] * aw[f, 2]
+        t0 = i0 * e0 + w1 * h2 - w2 * h1  # R^T (Iw dJ_w v + omega x Iw J_w v)
+        t1 = i1 * e1 + w2 * h0 - w0 * h2
+        t2 = i2 * e2 + w0 * h1 - w1 * h0
+        c0 += b00 * t0 + b10 * t1 + b20 * t2
+        c1 += b01 * t0 + b11 * t1 + b21 * t2
+        c2 += b02 * t0 + b12 * t1 + b22 * t2
+    g = geom[10]
+    M[0, 0], M[0, 1], M[0, 2] = m00, m01, m02
+    M[1, 0], M[1, 1], M[1, 2] = m01, m11, m12
+    M[2, 0], M[2, 1], M[2, 2] = m02, m12, m22
+    Cv[0], Cv[1], Cv[2] = c0, c1, c2
+    G[0], G[1], G[2] = g * g0, g * g1, g * g2
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def dynamics_kernel(geom, theta, X, Xd, v, work, M, Cv, G):
     """Fill M (3, 3), C(X, Xd) v (3,) and G (3,) (eq. 9-24).
 
@@ -137,7 +151,7 @@ def dynamics_kernel(geom, theta, X, Xd, v, work, M, Cv, G):
     _assemble(geom, theta, Xd, v, work, M, Cv, G)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def gravity_kernel(geom, theta, X, work, G):
     """Fill G (3,) at X: sum of m g dz_b/dX (eq. 24), without the velocity terms."""
     z3 = work[8][4]
@@ -151,7 +165,7 @@ def gravity_kernel(geom, theta, X, work, G):
             G[i] += theta[4 * b] * g * Jv[b, 2, i]
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y):
     Rb, Jv, Jw, av, aw = work[1], work[2], work[3], work[4], work[5]
     g = geom[10]
@@ -193,14 +207,14 @@ def _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y):
                 )
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, work, Y):
     """Fill the regressor Y (3, 36) with Y Theta = M Xr_dd + C(X, Xd) Xr_d + G (eq. 24)."""
     _kinematics(geom, X, Xd, Xr_d, work)
     _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def actuator_forces_kernel(Jq, F, tau):
     """Minimum-norm actuator forces tau (4,) with J^T tau = F: tau = J (J^T J)^-1 F (eq. 22)."""
     a00 = a01 = a02 = a11 = a12 = a22 = 0.0
@@ -216,7 +230,7 @@ def actuator_forces_kernel(Jq, F, tau):
         tau[i] = Jq[i, 0] * y0 + Jq[i, 1] * y1 + Jq[i, 2] * y2
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _cholesky_solve3(a00, a01, a02, a11, a12, a22, b0, b1, b2):
     """x with A x = b for a symmetric positive definite 3x3 A given by its upper triangle."""
     l00 = np.sqrt(a00)
@@ -234,7 +248,7 @@ def _cholesky_solve3(a00, a01, a02, a11, a12, a22, b0, b1, b2):
     return x0, x1, x2
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def solve_spd3(A, b):
     """Solve A x = b in place (b <- x) for a symmetric positive definite 3x3 A."""
     b[0], b[1], b[2] = _cholesky_solve3(

@@ -25,7 +25,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from ._jit import kernel
 
 __all__ = [
     "GEOM_SIZE",
@@ -46,13 +47,13 @@ N_BODIES = 9
 GEOM_SIZE = 11
 
 
-@njit(cache=True, nogil=True, inline="always")
+@kernel(inline="always")
 def _cx(a0, a1, a2, b0, b1, b2):
     """a x b on scalars (no array views in the hot loop)."""
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat):
     """Fill the kinematics of all 9 bodies and of the 4 limbs at (X, Xd).
 
@@ -191,7 +192,7 @@ def body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat):
         aw[up] = aw[lo]
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def limb_kinematics(geom, X, Jq, q):
     """Limb lengths ``q`` (4,) and Jacobian ``Jq`` (4, 3) at pose X (eq. 4-8)."""
     z3 = np.zeros(3)
@@ -202,7 +203,7 @@ def limb_kinematics(geom, X, Jq, q):
     )
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def forward_kinematics_kernel(geom, q_target, guess, tol, max_iter):
     """Levenberg-Marquardt on the four limb lengths, from ``guess``.
 

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numba import njit
 
+from ._jit import kernel
 from .dynamics import (
     N_THETA,
     actuator_forces_kernel,
@@ -402,7 +402,7 @@ def _check_poses(geom: np.ndarray, Xb: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return q, J
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _limbs_batch(geom, Xb):
     n = Xb.shape[0]
     q = np.empty((n, 4))
@@ -412,7 +412,7 @@ def _limbs_batch(geom, Xb):
     return q, J
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _dynamics_batch(geom, theta, Xb, Xdb):
     n = Xb.shape[0]
     M = np.empty((n, 3, 3))
@@ -430,7 +430,7 @@ def _dynamics_batch(geom, theta, Xb, Xdb):
     return M, C, G
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _inverse_dynamics_batch(geom, theta, Xb, Xdb, Xddb):
     n = Xb.shape[0]
     F = np.empty((n, 3))
@@ -444,7 +444,7 @@ def _inverse_dynamics_batch(geom, theta, Xb, Xdb, Xddb):
     return F
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _regressor_batch(geom, Xb, Xdb, Xrdb, Xrddb):
     n = Xb.shape[0]
     Y = np.empty((n, 3, N_THETA))

@@ -19,8 +19,8 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
+from ._jit import kernel
 from .controllers import CONTROLLERS, MEM_SIZE, control_step, make_controller
 from .dynamics import actuator_forces_kernel, dynamics_kernel, make_work, solve_spd3
 from .errors import SimulationDiverged
@@ -78,7 +78,7 @@ class Result:
         )
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _plant_accel(geom, theta, X, Xd, tau, dist, work, M, C, G, out):
     """Xddot = M^-1 (J^T tau + tau_d' - C Xdot - G) for the true plant (eq. 24)."""
     dynamics_kernel(geom, theta, X, Xd, Xd, work, M, C, G)  # C holds C Xdot
@@ -96,7 +96,7 @@ def _plant_accel(geom, theta, X, Xd, tau, dist, work, M, C, G, out):
     solve_spd3(M, out)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _valid(X, Xd):
     for i in range(3):
         if not (math.isfinite(X[i]) and math.isfinite(Xd[i])):
@@ -106,7 +106,7 @@ def _valid(X, Xd):
     return 0
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _run_kernel(
     kind,
     plant_geom,
