@@ -105,91 +105,98 @@ def body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat):
     aw[0, 0], aw[0, 1], aw[0, 2] = 0.0, -sa * ad * v[2], ca * ad * v[2]
     w0x, w0y, w0z = ad, ca * bd, sa * bd  # platform angular velocity
     wv0x, wv0y, wv0z = v[1], ca * v[2], sa * v[2]  # J_w v
-    u, ud, aP, au = vec[0], vec[1], vec[2], vec[3]
-    JP, Ju = mat[0], mat[1]
+    av01, aw01, aw02 = av[0, 1], aw[0, 1], aw[0, 2]
+    zs = z * sec2
     for i in range(4):
         cth, sth = _LIMB_DIR[i, 0], _LIMB_DIR[i, 1]
         rx = r_a * (R[0, 0] * cth + R[0, 1] * sth)  # rho = R a_i
         ry = r_a * (R[1, 0] * cth + R[1, 1] * sth)
         rz = r_a * (R[2, 0] * cth + R[2, 1] * sth)
         rdx, rdy, rdz = _cx(w0x, w0y, w0z, rx, ry, rz)  # rho_dot = omega x rho
-        Px, Py, Pz = com[0, 0] + rx, com[0, 1] + ry, com[0, 2] + rz
+        Px, Py, Pz = rx, -z * ta + ry, z + rz  # P = p + rho
         d0, d1, d2 = Px - r_b * cth, Py - r_b * sth, Pz
         qi = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         q[i] = qi
         iq = 1.0 / qi
-        u[0], u[1], u[2] = d0 * iq, d1 * iq, d2 * iq
-        # J_P: velocity of the platform joint, columns Jv0[:, j] + Jw0[:, j] x rho
-        for j in range(3):
-            t0, t1, t2 = _cx(Jw[0, 0, j], Jw[0, 1, j], Jw[0, 2, j], rx, ry, rz)
-            JP[0, j] = Jv[0, 0, j] + t0
-            JP[1, j] = Jv[0, 1, j] + t1
-            JP[2, j] = Jv[0, 2, j] + t2
+        u0, u1, u2 = d0 * iq, d1 * iq, d2 * iq
+        # J_P = Jv0 + [Jw0 columns] x rho, written out (the z column has no rotation,
+        # the alpha column turns about e_x, the beta column about R_x(alpha) e_y)
+        p02 = ca * rz - sa * ry
+        p10, p11, p12 = -ta, -zs - rz, sa * rx
+        p21, p22 = ry, -ca * rx
         # dJ_P v = av0 + aw0 x rho + (Jw0 v) x rho_dot
-        t0, t1, t2 = _cx(aw[0, 0], aw[0, 1], aw[0, 2], rx, ry, rz)
+        t0, t1, t2 = _cx(0.0, aw01, aw02, rx, ry, rz)
         s0, s1, s2 = _cx(wv0x, wv0y, wv0z, rdx, rdy, rdz)
-        aP[0], aP[1], aP[2] = av[0, 0] + t0 + s0, av[0, 1] + t1 + s1, av[0, 2] + t2 + s2
-        # P_dot, q_dot = u . P_dot, u_dot = (I - u u^T) P_dot / q; P_v = J_P v
-        Pd0 = JP[0, 0] * Xd[0] + JP[0, 1] * Xd[1] + JP[0, 2] * Xd[2]
-        Pd1 = JP[1, 0] * Xd[0] + JP[1, 1] * Xd[1] + JP[1, 2] * Xd[2]
-        Pd2 = JP[2, 0] * Xd[0] + JP[2, 1] * Xd[1] + JP[2, 2] * Xd[2]
-        Pv0 = JP[0, 0] * v[0] + JP[0, 1] * v[1] + JP[0, 2] * v[2]
-        Pv1 = JP[1, 0] * v[0] + JP[1, 1] * v[1] + JP[1, 2] * v[2]
-        Pv2 = JP[2, 0] * v[0] + JP[2, 1] * v[1] + JP[2, 2] * v[2]
-        qd = u[0] * Pd0 + u[1] * Pd1 + u[2] * Pd2
-        ud[0], ud[1], ud[2] = (Pd0 - u[0] * qd) * iq, (Pd1 - u[1] * qd) * iq, (Pd2 - u[2] * qd) * iq
-        # J_u = (I - u u^T) J_P / q, so u_dot = J_u Xd; J = u^T J_P (eq. 8)
-        for j in range(3):
-            uj = u[0] * JP[0, j] + u[1] * JP[1, j] + u[2] * JP[2, j]
-            Jq[i, j] = uj
-            for k in range(3):
-                Ju[k, j] = (JP[k, j] - u[k] * uj) * iq
+        aP0, aP1, aP2 = t0 + s0, av01 + t1 + s1, t2 + s2
+        # P_dot = J_P Xd, P_v = J_P v; q_dot = u . P_dot; u_dot = (I - u u^T) P_dot / q
+        Pd0 = p02 * bd
+        Pd1 = p10 * zd + p11 * ad + p12 * bd
+        Pd2 = zd + p21 * ad + p22 * bd
+        Pv0 = p02 * v[2]
+        Pv1 = p10 * v[0] + p11 * v[1] + p12 * v[2]
+        Pv2 = v[0] + p21 * v[1] + p22 * v[2]
+        qd = u0 * Pd0 + u1 * Pd1 + u2 * Pd2
+        ud0, ud1, ud2 = (Pd0 - u0 * qd) * iq, (Pd1 - u1 * qd) * iq, (Pd2 - u2 * qd) * iq
+        # J = u^T J_P (eq. 8); J_u = (I - u u^T) J_P / q, so u_dot = J_u Xd
+        j0 = u1 * p10 + u2
+        j1 = u1 * p11 + u2 * p21
+        j2 = u0 * p02 + u1 * p12 + u2 * p22
+        Jq[i, 0], Jq[i, 1], Jq[i, 2] = j0, j1, j2
+        k00, k01, k02 = -u0 * j0 * iq, -u0 * j1 * iq, (p02 - u0 * j2) * iq
+        k10, k11, k12 = (p10 - u1 * j0) * iq, (p11 - u1 * j1) * iq, (p12 - u1 * j2) * iq
+        k20, k21, k22 = (1.0 - u2 * j0) * iq, (p21 - u2 * j1) * iq, (p22 - u2 * j2) * iq
         # dJ_u v = d/dt[(I - u u^T)/q] P_v + (I - u u^T)/q dJ_P v
-        uPv = u[0] * Pv0 + u[1] * Pv1 + u[2] * Pv2
-        udPv = ud[0] * Pv0 + ud[1] * Pv1 + ud[2] * Pv2
-        uaP = u[0] * aP[0] + u[1] * aP[1] + u[2] * aP[2]
-        Juv0, Juv1, Juv2 = (Pv0 - u[0] * uPv) * iq, (Pv1 - u[1] * uPv) * iq, (Pv2 - u[2] * uPv) * iq
-        for k in range(3):
-            au[k] = (aP[k] - u[k] * (uaP + udPv) - ud[k] * uPv) * iq
-        au[0] -= Juv0 * qd * iq
-        au[1] -= Juv1 * qd * iq
-        au[2] -= Juv2 * qd * iq
+        uPv = u0 * Pv0 + u1 * Pv1 + u2 * Pv2
+        udPv = ud0 * Pv0 + ud1 * Pv1 + ud2 * Pv2
+        uaP = u0 * aP0 + u1 * aP1 + u2 * aP2
+        Juv0, Juv1, Juv2 = (Pv0 - u0 * uPv) * iq, (Pv1 - u1 * uPv) * iq, (Pv2 - u2 * uPv) * iq
+        cc = uaP + udPv
+        au0 = (aP0 - u0 * cc - ud0 * uPv - Juv0 * qd) * iq
+        au1 = (aP1 - u1 * cc - ud1 * uPv - Juv1 * qd) * iq
+        au2 = (aP2 - u2 * cc - ud2 * uPv - Juv2 * qd) * iq
         lo, up = 1 + i, 5 + i
         l1, l2 = geom[2 + i], geom[6 + i]
-        com[lo, 0], com[lo, 1], com[lo, 2] = r_b * cth + l1 * u[0], r_b * sth + l1 * u[1], l1 * u[2]
-        com[up, 0], com[up, 1], com[up, 2] = Px - l2 * u[0], Py - l2 * u[1], Pz - l2 * u[2]
-        for k in range(3):
-            for j in range(3):
-                Jv[lo, k, j] = l1 * Ju[k, j]
-                Jv[up, k, j] = JP[k, j] - l2 * Ju[k, j]
-            av[lo, k] = l1 * au[k]
-            av[up, k] = aP[k] - l2 * au[k]
+        com[lo, 0], com[lo, 1], com[lo, 2] = r_b * cth + l1 * u0, r_b * sth + l1 * u1, l1 * u2
+        com[up, 0], com[up, 1], com[up, 2] = Px - l2 * u0, Py - l2 * u1, Pz - l2 * u2
+        Jv[lo, 0, 0], Jv[lo, 0, 1], Jv[lo, 0, 2] = l1 * k00, l1 * k01, l1 * k02
+        Jv[lo, 1, 0], Jv[lo, 1, 1], Jv[lo, 1, 2] = l1 * k10, l1 * k11, l1 * k12
+        Jv[lo, 2, 0], Jv[lo, 2, 1], Jv[lo, 2, 2] = l1 * k20, l1 * k21, l1 * k22
+        Jv[up, 0, 0], Jv[up, 0, 1], Jv[up, 0, 2] = -l2 * k00, -l2 * k01, p02 - l2 * k02
+        Jv[up, 1, 0], Jv[up, 1, 1], Jv[up, 1, 2] = p10 - l2 * k10, p11 - l2 * k11, p12 - l2 * k12
+        Jv[up, 2, 0], Jv[up, 2, 1], Jv[up, 2, 2] = 1.0 - l2 * k20, p21 - l2 * k21, p22 - l2 * k22
+        av[lo, 0], av[lo, 1], av[lo, 2] = l1 * au0, l1 * au1, l1 * au2
+        av[up, 0], av[up, 1], av[up, 2] = aP0 - l2 * au0, aP1 - l2 * au1, aP2 - l2 * au2
         # Limb frame [x_i, u_i x x_i, u_i]; x_i = e_x (RPU) or w = R_x(alpha) e_y (SPR).
         spr = _SPR[i]
         if spr:
             x0, x1, x2 = 0.0, ca, sa
         else:
             x0, x1, x2 = 1.0, 0.0, 0.0
-        y0, y1, y2 = _cx(u[0], u[1], u[2], x0, x1, x2)
-        Rb[lo, 0, 0], Rb[lo, 1, 0], Rb[lo, 2, 0] = x0, x1, x2
-        Rb[lo, 0, 1], Rb[lo, 1, 1], Rb[lo, 2, 1] = y0, y1, y2
-        Rb[lo, 0, 2], Rb[lo, 1, 2], Rb[lo, 2, 2] = u[0], u[1], u[2]
+        y0, y1, y2 = _cx(u0, u1, u2, x0, x1, x2)
         # omega_i = u x u_dot + spin u; for SPR the spin (x_dot . y) is alpha_dot u_x,
         # so J_w = [u]x J_u (+ u u_x in the alpha column) and
         # dJ_w v = u_dot x (J_u v) + u x (dJ_u v) (+ v_alpha (u_dot_x u + u_x u_dot)).
-        for j in range(3):
-            t0, t1, t2 = _cx(u[0], u[1], u[2], Ju[0, j], Ju[1, j], Ju[2, j])
-            Jw[lo, 0, j], Jw[lo, 1, j], Jw[lo, 2, j] = t0, t1, t2
-        t0, t1, t2 = _cx(ud[0], ud[1], ud[2], Juv0, Juv1, Juv2)
-        s0, s1, s2 = _cx(u[0], u[1], u[2], au[0], au[1], au[2])
-        aw[lo, 0], aw[lo, 1], aw[lo, 2] = t0 + s0, t1 + s1, t2 + s2
+        w00, w10, w20 = _cx(u0, u1, u2, k00, k10, k20)
+        w01, w11, w21 = _cx(u0, u1, u2, k01, k11, k21)
+        w02, w12, w22 = _cx(u0, u1, u2, k02, k12, k22)
+        t0, t1, t2 = _cx(ud0, ud1, ud2, Juv0, Juv1, Juv2)
+        s0, s1, s2 = _cx(u0, u1, u2, au0, au1, au2)
+        e0, e1, e2 = t0 + s0, t1 + s1, t2 + s2
         if spr:
-            for k in range(3):
-                Jw[lo, k, 1] += u[0] * u[k]
-                aw[lo, k] += v[1] * (ud[0] * u[k] + u[0] * ud[k])
-        Rb[up] = Rb[lo]
-        Jw[up] = Jw[lo]
-        aw[up] = aw[lo]
+            w01 += u0 * u0
+            w11 += u0 * u1
+            w21 += u0 * u2
+            e0 += v[1] * (ud0 * u0 + u0 * ud0)
+            e1 += v[1] * (ud0 * u1 + u0 * ud1)
+            e2 += v[1] * (ud0 * u2 + u0 * ud2)
+        for b in (lo, up):  # both bodies of the limb share its frame and rotation
+            Rb[b, 0, 0], Rb[b, 0, 1], Rb[b, 0, 2] = x0, y0, u0
+            Rb[b, 1, 0], Rb[b, 1, 1], Rb[b, 1, 2] = x1, y1, u1
+            Rb[b, 2, 0], Rb[b, 2, 1], Rb[b, 2, 2] = x2, y2, u2
+            Jw[b, 0, 0], Jw[b, 0, 1], Jw[b, 0, 2] = w00, w01, w02
+            Jw[b, 1, 0], Jw[b, 1, 1], Jw[b, 1, 2] = w10, w11, w12
+            Jw[b, 2, 0], Jw[b, 2, 1], Jw[b, 2, 2] = w20, w21, w22
+            aw[b, 0], aw[b, 1], aw[b, 2] = e0, e1, e2
 
 
 @kernel
