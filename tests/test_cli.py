@@ -49,7 +49,9 @@ def test_scenario_and_simulate_commands(tmp_path):
     assert sc == pkmctl.Scenario.builtin("paper-1khz")
     path = tmp_path / "s.toml"
     path.write_text(sc.replace(**{"timing.duration": 0.05}).to_toml())
-    res = runner.invoke(app, ["simulate", str(path), "--controller", "fsmc", "--out", str(tmp_path)])
+    res = runner.invoke(
+        app, ["simulate", str(path), "--controller", "fsmc", "--out", str(tmp_path)]
+    )
     assert res.exit_code == 0, res.output
     assert load_result(tmp_path / "fsmc.json").t.size == 50
 

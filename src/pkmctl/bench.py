@@ -199,12 +199,14 @@ def render(res: dict) -> str:
             f"(10 s of 20 kHz in {200_000 / v['loop_steps_per_s']:.2f} s)"
         )
     f = res["flc"]
-    lines.append("FLC per evaluation:")
+    lines.append("FLC per evaluation (same rule base everywhere):")
     for key, val in f.items():
         if key.endswith("_us"):
             lines.append(f"  {key[:-3]:34s} {val:12.3f} us")
         elif key.startswith("ratio"):
             lines.append(f"  {key:34s} {val:12,.0f} x")
+        elif key.endswith("_error"):
+            lines.append(f"  {key[:-6]:34s} {val}")
     lines.append("controller step latency from Python:")
     for name, v in res["latency"].items():
         lines.append(f"  {name:6s} p50 {v['p50_us']:.2f} us   p99 {v['p99_us']:.2f} us")

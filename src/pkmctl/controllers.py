@@ -39,7 +39,7 @@ import numpy as np
 
 from ._jit import kernel
 from .dynamics import dynamics_kernel, gravity_kernel, make_work, regressor_kernel
-from .fuzzy import FLC, flc_eval
+from .fuzzy import FLC, MamdaniSystem, flc_eval
 from .mechanism import Mechanism
 
 __all__ = [
@@ -267,7 +267,7 @@ class Controller:
         gains: Gains | None = None,
         *,
         period: float,
-        flc: FLC | None = None,
+        flc: MamdaniSystem | None = None,
     ) -> None:
         if not isinstance(model, Mechanism):
             raise TypeError("model: expected a pkmctl.Mechanism (the controller's own model)")

@@ -152,12 +152,24 @@ class _Counter:
                 return test + max(a, b), None
         if isinstance(st, ast.For):
             it = st.iter
-            if not (isinstance(it, ast.Call) and getattr(it.func, "id", "") == "range"):
-                raise _Unknown(ast.unparse(it))
-            bounds = [self.value(a, env) for a in it.args]
+            if isinstance(it, ast.Call) and getattr(it.func, "id", "") == "range":
+                values = range(*[self.value(a, env) for a in it.args])
+            elif isinstance(it, ast.Tuple):
+                values = []
+                for e in it.elts:
+                    try:
+                        values.append(self.value(e, env))
+                    except _Unknown:
+                        values.append(None)
+            else:
+                values = range(self.value(ast.parse(f"len({ast.unparse(it)})").body[0].value, env))
             total = 0
-            for v in range(*bounds):
-                env[st.target.id] = v
+            for v in values:
+                if isinstance(st.target, ast.Name):
+                    if v is None:
+                        env.pop(st.target.id, None)
+                    else:
+                        env[st.target.id] = v
                 n, flow = self.block(st.body, env)
                 total += n
                 if flow == "break" or flow == "return":

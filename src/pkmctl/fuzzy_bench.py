@@ -1,0 +1,181 @@
+"""Speed of the paper's FLC: pkmctl's compiled and batched paths against scikit-fuzzy and simpful.
+
+Run ``python benchmarks/bench_fuzzy.py [--quick]`` or ``pkmctl bench``; both call :func:`run`.
+All engines evaluate the same rule base (DESIGN.md §3, Table 1) on the same inputs; the
+maximum difference to pkmctl's exact centroid is reported beside each time.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numba
+import numpy as np
+
+from .fuzzy import FLC, PAPER_RULE_TABLE, TERM_NAMES, flc_eval
+
+
+@numba.njit(cache=True)
+def _loop(tables, s, sdot):
+    acc = 0.0
+    for n in range(s.shape[0]):
+        acc += flc_eval(tables, s[n], sdot[n])
+    return acc
+
+
+def _best(fn, repeat: int) -> float:
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def _skfuzzy_flc():
+    """The FLC as a scikit-fuzzy ControlSystemSimulation on fine universes."""
+    import skfuzzy as fuzz
+    from skfuzzy import control as ctrl
+
+    def add_terms(var, lo, hi):
+        c = np.linspace(lo, hi, 7)
+        var["NB"] = fuzz.zmf(var.universe, c[0], c[1])
+        for k in range(1, 6):
+            var[TERM_NAMES[k]] = fuzz.trimf(var.universe, [c[k - 1], c[k], c[k + 1]])
+        var["PB"] = fuzz.smf(var.universe, c[5], c[6])
+
+    s = ctrl.Antecedent(np.linspace(-1, 1, 6001), "s")
+    sdot = ctrl.Antecedent(np.linspace(-10, 10, 6001), "sdot")
+    u = ctrl.Consequent(np.linspace(-1, 1, 18001), "u", defuzzify_method="centroid")
+    for var, lo, hi in ((s, -1, 1), (sdot, -10, 10), (u, -1, 1)):
+        add_terms(var, lo, hi)
+    rules = [
+        ctrl.Rule(s[TERM_NAMES[j]] & sdot[TERM_NAMES[i]], u[PAPER_RULE_TABLE[i][j]])
+        for i in range(7)
+        for j in range(7)
+    ]
+    sim = ctrl.ControlSystemSimulation(ctrl.ControlSystem(rules))
+
+    def evaluate(a: float, b: float) -> float:
+        sim.input["s"] = float(np.clip(a, -1, 1))
+        sim.input["sdot"] = float(np.clip(b, -10, 10))
+        sim.compute()
+        return float(sim.output["u"])
+
+    return evaluate
+
+
+def _simpful_flc():
+    """The FLC in simpful: zmf/smf exactly (as custom membership functions); simpful's
+    Mamdani centroid is a discrete sum over 1000 points of the output universe."""
+    import simpful as sf
+
+    class _Spline(sf.MF_object):
+        def __init__(self, a: float, b: float, rising: bool) -> None:
+            self.a, self.b, self.rising = a, b, rising
+
+        def _execute(self, x: float) -> float:
+            t = min(max((x - self.a) / (self.b - self.a), 0.0), 1.0)
+            up = 2 * t * t if t <= 0.5 else 1 - 2 * (1 - t) ** 2
+            return up if self.rising else 1.0 - up
+
+    def variable(lo: float, hi: float) -> sf.LinguisticVariable:
+        c = np.linspace(lo, hi, 7)
+        sets = [sf.FuzzySet(function=_Spline(c[0], c[1], False), term="NB")]
+        sets += [
+            sf.FuzzySet(function=sf.Triangular_MF(c[k - 1], c[k], c[k + 1]), term=TERM_NAMES[k])
+            for k in range(1, 6)
+        ]
+        sets += [sf.FuzzySet(function=_Spline(c[5], c[6], True), term="PB")]
+        return sf.LinguisticVariable(sets, universe_of_discourse=[lo, hi])
+
+    fs = sf.FuzzySystem(show_banner=False, verbose=False)
+    fs.add_linguistic_variable("s", variable(-1, 1))
+    fs.add_linguistic_variable("sdot", variable(-10, 10))
+    fs.add_linguistic_variable("u", variable(-1, 1))
+    rules = [
+        f"IF (s IS {TERM_NAMES[j]}) AND (sdot IS {TERM_NAMES[i]}) THEN (u IS {row[j]})"
+        for i, row in enumerate(PAPER_RULE_TABLE)
+        for j in range(7)
+    ]
+    fs.add_rules(rules, verbose=False)
+
+    def evaluate(a: float, b: float) -> float:
+        fs.set_variable("s", float(np.clip(a, -1, 1)), verbose=False)
+        fs.set_variable("sdot", float(np.clip(b, -10, 10)), verbose=False)
+        return float(fs.Mamdani_inference(["u"], ignore_warnings=True)["u"])
+
+    return evaluate
+
+
+def run(quick: bool = False, *, echo: bool = False) -> dict:
+    """Measure (and print if ``echo``); return the numbers (times in microseconds per evaluation).
+
+    Returns
+    -------
+    dict
+        ``compiled_us``: one ``flc_eval`` call from an njit loop over 10^6 random inputs
+        (10^5 if quick); ``compiled_smooth_us``: the same on a smooth trajectory, as in the
+        control loop; ``batched_us``: per point of ``flc(s, sdot)`` on 10^5 points;
+        ``python_scalar_us``: one ``flc(s, sdot)`` call from Python; ``skfuzzy_us`` and
+        ``simpful_us`` (if installed) with ``skfuzzy_max_diff``/``simpful_max_diff`` to
+        pkmctl, and the ratios ``ratio_<peer>_over_compiled``, ``ratio_<peer>_over_batched``.
+    """
+    flc = FLC()
+    tables = flc.compiled()
+    rng = np.random.default_rng(0)
+    n_loop = 10**5 if quick else 10**6
+    s = rng.uniform(-1.2, 1.2, n_loop)
+    sdot = rng.uniform(-12.0, 12.0, n_loop)
+    t = np.arange(n_loop) * 50e-6  # 20 kHz
+    s_smooth, sdot_smooth = 0.8 * np.sin(2 * t), 8.0 * np.cos(3 * t)
+    _loop(tables, s[:10], sdot[:10])  # compile
+    out: dict = {}
+    out["compiled_us"] = _best(lambda: _loop(tables, s, sdot), 3) / n_loop * 1e6
+    out["compiled_smooth_us"] = (
+        _best(lambda: _loop(tables, s_smooth, sdot_smooth), 3) / n_loop * 1e6
+    )
+    nb = 10**5
+    flc(s[:nb], sdot[:nb])
+    out["batched_us"] = _best(lambda: flc(s[:nb], sdot[:nb]), 3) / nb * 1e6
+    pairs = list(zip(s[:1000].tolist(), sdot[:1000].tolist(), strict=True))
+    out["python_scalar_us"] = _best(lambda: [flc(a, b) for a, b in pairs], 3) * 1e3
+
+    n_ref = 10 if quick else 40
+    ours = flc(s[:n_ref], sdot[:n_ref])
+    for name, make in (("skfuzzy", _skfuzzy_flc), ("simpful", _simpful_flc)):
+        try:
+            evaluate = make()
+        except ImportError as exc:  # optional dependencies (the "bench" extra)
+            out[f"{name}_error"] = f"not available ({exc})"
+            continue
+        evaluate(0.1, 0.2)
+        t0 = time.perf_counter()
+        ref = np.array([evaluate(a, b) for a, b in zip(s[:n_ref], sdot[:n_ref], strict=True)])
+        out[f"{name}_us"] = (time.perf_counter() - t0) / n_ref * 1e6
+        out[f"{name}_max_diff"] = float(np.max(np.abs(ref - ours)))
+        out[f"ratio_{name}_over_compiled"] = out[f"{name}_us"] / out["compiled_us"]
+        out[f"ratio_{name}_over_batched"] = out[f"{name}_us"] / out["batched_us"]
+
+    lines = [
+        "pkmctl FLC (paper, DESIGN.md §3), exact centroid, per evaluation:",
+        f"  compiled flc_eval in an njit loop : {out['compiled_us'] * 1e3:8.1f} ns (random inputs)",
+        f"                                      {out['compiled_smooth_us'] * 1e3:8.1f} ns (smooth)",
+        f"  batched flc(s, sdot), 1e5 points  : {out['batched_us'] * 1e3:8.1f} ns",
+        f"  flc(s, sdot) from Python, scalar  : {out['python_scalar_us']:8.2f} us",
+    ]
+    for name, what in (
+        ("skfuzzy", "scikit-fuzzy ControlSystemSimulation (universes of 6001/6001/18001 points)"),
+        ("simpful", "simpful Mamdani (zmf/smf exact, as custom functions; its centroid is a "
+         "discrete sum over 1000 points of the output universe, hence the larger difference)"),
+    ):  # fmt: skip
+        if f"{name}_us" in out:
+            lines += [
+                f"  {what}:",
+                f"    {out[f'{name}_us'] / 1e3:.2f} ms, max |diff| {out[f'{name}_max_diff']:.1e}, "
+                f"{out[f'ratio_{name}_over_compiled']:,.0f}x compiled, "
+                f"{out[f'ratio_{name}_over_batched']:,.0f}x batched",
+            ]
+    if echo:
+        print("\n".join(lines))
+    return out

@@ -1,0 +1,236 @@
+"""Tests of pkmctl.fis: MATLAB .fis read/write, round trips and error reporting."""
+
+import os
+from importlib import resources
+
+import numpy as np
+import pytest
+
+from pkmctl import fis
+from pkmctl import fuzzy as fz
+
+
+@pytest.fixture(scope="module")
+def flc():
+    return fz.FLC()
+
+
+def random_inputs(n=2000, seed=0):
+    rng = np.random.default_rng(seed)
+    return rng.uniform(-1.5, 1.5, n), rng.uniform(-15, 15, n)
+
+
+def test_round_trip_through_text_gives_identical_system(flc):
+    text = fis.to_fis_text(flc)
+    back = fis.read_fis(text)
+    assert back == flc  # same variables, terms, parameters (bit for bit) and rules
+    s, sdot = random_inputs()
+    np.testing.assert_allclose(back(s, sdot), flc(s, sdot), rtol=0, atol=1e-12)
+    assert fis.to_fis_text(back) == text
+
+
+def test_shipped_file_is_the_paper_flc(flc):
+    path = resources.files("pkmctl") / "data" / "paper_flc.fis"
+    shipped = fis.read_fis(str(path))
+    s, sdot = random_inputs(seed=1)
+    np.testing.assert_allclose(shipped(s, sdot), flc(s, sdot), rtol=0, atol=1e-12)
+    assert shipped.compiled().ints[4] == 1  # runs on the fast kernel too
+    # regenerate with write_fis(FLC(), ...) if FLC() changes
+    assert path.read_text(encoding="utf-8") == fis.to_fis_text(flc)
+    assert fz.MamdaniSystem.from_fis(str(path)) == shipped
+
+
+def test_matlab_layout(flc):
+    lines = fis.to_fis_text(flc).splitlines()
+    assert lines[:12] == [
+        "[System]", "Name='paper_flc'", "Type='mamdani'", "Version=2.0", "NumInputs=2",
+        "NumOutputs=1", "NumRules=49", "AndMethod='min'", "OrMethod='max'", "ImpMethod='min'",
+        "AggMethod='max'", "DefuzzMethod='centroid'",
+    ]  # fmt: skip
+    assert "MF1='NB':'zmf',[-1 -0.6666666666666666]" in lines
+    assert "MF7='PB':'smf',[6.666666666666667 10]" in lines
+    assert lines[lines.index("[Rules]") + 1] == "1 1, 7 (1) : 1"  # s=NB, ṡ=NB -> PB
+    assert lines[-1] == "7 7, 1 (1) : 1"
+
+
+GENERAL = """\
+[System]
+Name='mixed'
+Type='mamdani'
+Version=2.0
+NumInputs=3
+NumOutputs=1
+NumRules=4
+AndMethod='min'
+OrMethod='probor'
+ImpMethod='min'
+AggMethod='max'
+DefuzzMethod='centroid'
+
+[Input1]
+Name='a'
+Range=[0 10]
+NumMFs=2
+MF1='low':'gaussmf',[2.5 0]
+MF2='high':'trapmf',[3 6 10 12]
+
+[Input2]
+Name='b'
+Range=[-1 1]
+NumMFs=2
+MF1='neg':'zmf',[-1 0.5]
+MF2='pos':'smf',[-0.5 1]
+
+[Input3]
+Name='c'
+Range=[0 1]
+NumMFs=1
+MF1='any':'trimf',[0 0.5 1]
+
+[Output1]
+Name='y'
+Range=[0 30]
+NumMFs=3
+MF1='small':'trimf',[0 5 10]
+MF2='medium':'gaussmf',[3 15]
+MF3='large':'trapmf',[20 25 30 30]
+
+[Rules]
+1 1 0, 1 (1) : 1
+2 0 1, 3 (0.5) : 1
+0 2 0, 2 (0.75) : 1
+2 2 1, 3 (1) : 1
+"""
+
+
+def test_read_general_file_gaussians_dont_care_and_weights(tmp_path):
+    system = fis.read_fis(GENERAL)
+    a, b, c = system.inputs
+    assert a.terms[0] == fz.Term("low", "gaussmf", (0.0, 2.5))  # MATLAB order [sigma mean]
+    assert system.rules[1] == fz.Rule((1, None, 0), 2, 0.5)
+    assert system.compiled().ints[4] == 0  # general kernel
+    x = (np.array([1.0, 7.0, 9.0]), np.array([-0.5, 0.2, 0.9]), np.array([0.5, 0.5, 0.1]))
+    y = np.linspace(0, 30, 300001)
+    for n in range(3):
+        levels = system.clip_levels(*(v[n] for v in x))
+        mu_a = [t(x[0][n]) for t in a.terms]
+        mu_b = [t(x[1][n]) for t in b.terms]
+        mu_c = c.terms[0](x[2][n])
+        expect = [
+            min(mu_a[0], mu_b[0]),
+            max(0.75 * mu_b[1], 0.5 * min(mu_a[1], mu_c), min(mu_a[1], mu_b[1], mu_c)),
+        ]
+        assert levels[0] == pytest.approx(expect[0], abs=1e-15)
+        agg = np.max(
+            [np.minimum(h, t(y)) for h, t in zip(levels, system.output.terms, strict=True)], axis=0
+        )
+        ref = np.trapezoid(y * agg, y) / np.trapezoid(agg, y)
+        assert system(*(v[n] for v in x)) == pytest.approx(ref, abs=1e-6)
+    # round trip through a file
+    path = tmp_path / "mixed.fis"
+    fis.write_fis(system, path)
+    back = fis.read_fis(path)
+    assert back == system
+    assert back(*x).tolist() == system(*x).tolist()
+
+
+def _replace(text, old, new):
+    assert old in text
+    return text.replace(old, new, 1)
+
+
+def _lineno(text, needle):
+    return next(n for n, line in enumerate(text.splitlines(), 1) if needle in line)
+
+
+MALFORMED = [
+    ("MF2='high':'trapmf',[3 6 10 12]", "MF2='high':'pimf',[3 6 10 12]",
+     "unknown membership type 'pimf' (supported: trimf, trapmf, gaussmf, zmf, smf)"),
+    ("Type='mamdani'", "Type='sugeno'", "only Mamdani systems are supported"),
+    ("DefuzzMethod='centroid'", "DefuzzMethod='mom'", "only DefuzzMethod='centroid'"),
+    ("AndMethod='min'", "AndMethod='prod'", "only AndMethod='min'"),
+    ("2 2 1, 3 (1) : 1", "2 2 1, 3 (1) : 2", "only AND rules"),
+    ("2 2 1, 3 (1) : 1", "2 -2 1, 3 (1) : 1", "negated terms"),
+    ("2 2 1, 3 (1) : 1", "2 3 1, 3 (1) : 1", "term index 3 out of range for 'b'"),
+    ("2 2 1, 3 (1) : 1", "2 2, 3 (1) : 1", "expected 3 antecedent(s)"),
+    ("2 2 1, 3 (1) : 1", "2 2 1 3 1 1", "expected a rule"),
+    ("2 2 1, 3 (1) : 1", "2 2 1, 3 (1.5) : 1", "rule weight must be in [0, 1]"),
+    ("MF1='neg':'zmf',[-1 0.5]", "MF1='neg':'zmf',[0.5 -1]", "non-decreasing"),
+    ("MF1='neg':'zmf',[-1 0.5]", "MF1='neg':'zmf',[-1 x]", "not a list of numbers"),
+    ("MF1='neg':'zmf',[-1 0.5]", "MF1='neg':'zmf',[-1 0.5 2]", "zmf takes 2 parameters"),
+    ("MF1='neg':'zmf',[-1 0.5]", "MF1=neg:zmf,[-1 0.5]", "expected MFn='name':'type',[params]"),
+    ("Range=[-1 1]", "Range=[1 -1]", "lo < hi"),
+    ("NumMFs=2\nMF1='neg'", "NumMFs=1\nMF1='neg'", "MF2 beyond NumMFs=1"),
+    ("[Input3]", "[Input 3]", "unknown section"),
+    ("Name='c'", "Name 'c'", "expected Key=Value"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("old", "new", "message"), MALFORMED)
+def test_malformed_files_name_the_line(tmp_path, old, new, message):
+    text = _replace(GENERAL, old, new)
+    path = tmp_path / "bad.fis"
+    path.write_text(text, encoding="utf-8")
+    lineno = _lineno(text, new.splitlines()[-1] if "\n" in new else new)
+    if "beyond NumMFs" in message:
+        lineno = _lineno(text, "MF2='pos'")
+    with pytest.raises(fis.FISError) as info:
+        fis.read_fis(path)
+    err = info.value
+    assert str(err).startswith(f"{path}:{lineno}: "), str(err)
+    assert message in str(err)
+    assert err.lineno == lineno and err.line == text.splitlines()[lineno - 1].strip()
+    assert isinstance(err, ValueError)
+
+
+def test_structural_errors_name_a_line():
+    cases = [
+        (_replace(GENERAL, "NumRules=4", "NumRules=5"), "NumRules=5 but [Rules] has 4 lines", 7),
+        (GENERAL.split("[Rules]")[0], "missing section [Rules]", None),
+        (_replace(GENERAL, "NumInputs=3", "NumInputs=2"), "beyond NumInputs=2", None),
+        (_replace(GENERAL, "Range=[0 1]\n", ""), "[Input3] has no Range", None),
+        ("Name='x'\n[System]\n", "text before the first section", 1),
+        (_replace(GENERAL, "NumOutputs=1", "NumOutputs=2"), "only one output", 6),
+        (GENERAL + "[Rules]\n", "duplicate section [Rules]", None),
+    ]
+    for text, message, lineno in cases:
+        with pytest.raises(fis.FISError, match=r"^<string>:\d+: ") as info:
+            fis.read_fis(text)
+        assert message in str(info.value)
+        if lineno is not None:
+            assert info.value.lineno == lineno, str(info.value)
+
+
+def test_write_is_atomic(tmp_path, monkeypatch, flc):
+    path = tmp_path / "flc.fis"
+    path.write_text("old contents\n")
+    seen = []
+    real_replace = os.replace
+
+    def spy(src, dst):
+        seen.append((os.path.dirname(src), os.path.basename(src)))
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", spy)
+    fis.write_fis(flc, path)
+    assert seen and seen[0][0] == str(tmp_path)  # temporary file in the same directory
+    assert path.read_text() == fis.to_fis_text(flc)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flc.fis"]
+
+    def failing(src, dst):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(os, "replace", failing)
+    system = fis.read_fis(GENERAL)
+    with pytest.raises(OSError, match="disk full"):
+        fis.write_fis(system, path)
+    assert path.read_text() == fis.to_fis_text(flc)  # untouched
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flc.fis"]  # no temporary left
+
+
+def test_to_fis_method_and_unwritable_names(tmp_path, flc):
+    flc.to_fis(tmp_path / "x.fis")
+    assert fis.read_fis(tmp_path / "x.fis") == flc
+    x = fz.Variable("it's", (0.0, 1.0), (fz.Term("a", "trimf", (0, 0.5, 1)),))
+    with pytest.raises(ValueError, match="cannot be written"):
+        fis.to_fis_text(fz.MamdaniSystem((x,), x, [fz.Rule((0,), 0)]))
