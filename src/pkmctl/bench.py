@@ -190,13 +190,13 @@ def render(res: dict) -> str:
         f"NumPy {m['numpy']}, Numba {m['numba']}{' (quick)' if res['quick'] else ''}"
     )
     md = res["model"]
-    lines.append(f"model: M, C, G {md['mcg_us']:.2f} us; regressor {md['regressor_us']:.2f} us")
+    lines.append(f"model: M, C v, G {md['mcg_us']:.2f} us; regressor {md['regressor_us']:.2f} us")
     lines.append("closed loop, one core (paper scenario, 20 kHz):")
     for name, v in res["steps"].items():
         lines.append(
-            f"  {name:6s} loop {v['loop_steps_per_s']:>10,.0f} steps/s   "
-            f"end to end {v['end_to_end_steps_per_s']:>10,.0f} steps/s   "
-            f"(10 s of 20 kHz in {200_000 / v['loop_steps_per_s']:.2f} s)"
+            f"  {name:6s} loop {v['loop_steps_per_s']:>9,.0f}/s  "
+            f"end to end {v['end_to_end_steps_per_s']:>9,.0f}/s  "
+            f"(10 s at 20 kHz: {200_000 / v['end_to_end_steps_per_s']:.2f} s)"
         )
     f = res["flc"]
     lines.append("FLC per evaluation (same rule base everywhere):")
@@ -212,14 +212,16 @@ def render(res: dict) -> str:
         lines.append(f"  {name:6s} p50 {v['p50_us']:.2f} us   p99 {v['p99_us']:.2f} us")
     b = res["batch"]
     lines.append(
-        f"batch: {b['runs']} AFSMC runs on {b['workers']} threads: "
-        f"{b['aggregate_steps_per_s']:,.0f} steps/s aggregate "
-        f"({b['speedup']:.2f}x one worker's {b['one_worker_steps_per_s']:,.0f})"
+        f"batch: {b['runs']} AFSMC runs, {b['workers']} threads: "
+        f"{b['aggregate_steps_per_s']:,.0f} steps/s "
+        f"({b['speedup']:.2f}x one thread's {b['one_worker_steps_per_s']:,.0f})"
     )
     fl = res["flops"]
     lines.append(
-        f"flops: ~{fl['flops_per_step']:,.0f} per AFSMC step -> {fl['gflops']:.2f} GFLOP/s, "
-        f"{100 * fl['fraction_of_peak']:.1f} % of an estimated {fl['peak_gflops']:.0f} GFLOP/s "
-        "scalar-FMA peak per core"
+        f"flops: ~{fl['flops_per_step']:,.0f} per AFSMC step -> {fl['gflops']:.2f} GFLOP/s,"
+    )
+    lines.append(
+        f"       {100 * fl['fraction_of_peak']:.1f} % of a {fl['peak_gflops']:.1f} GFLOP/s "
+        "scalar FMA peak (see docs/performance.md)"
     )
     return "\n".join(lines)

@@ -223,6 +223,20 @@ def desired_forces(plant: Mechanism, Xd, Xdd, Xddd) -> np.ndarray:
     return plant.actuator_forces(Xd, plant.inverse_dynamics(Xd, Xdd, Xddd))
 
 
+@kernel
+def _desired_kernel(geom, theta, Xd, Xdd, Xddd, q_out, tau_out):
+    """q_d and tau_a,d along a desired trajectory already validated by the scenario."""
+    work = make_work()
+    M, Cv, G, F = np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3)
+    for k in range(Xd.shape[0]):
+        dynamics_kernel(geom, theta, Xd[k], Xdd[k], Xdd[k], work, M, Cv, G)
+        for i in range(3):
+            F[i] = M[i, 0] * Xddd[k, 0] + M[i, 1] * Xddd[k, 1] + M[i, 2] * Xddd[k, 2]
+            F[i] += Cv[i] + G[i]
+        actuator_forces_kernel(work[6], F, tau_out[k])
+        q_out[k, :] = work[7]
+
+
 def _disturbance(scenario: Scenario, n: int, Tc: float):
     d = scenario.disturbance
     t_end = n * Tc
@@ -286,8 +300,8 @@ def simulate(
     )  # fmt: skip
     t_kernel = time.perf_counter() - t_kernel
     m = last if status else n
-    q_des = plant.inverse_kinematics(Xdes[:m]) if m else np.empty((0, 4))
-    tau_des = desired_forces(plant, Xdes[:m], Xddes[:m], Xdddes[:m]) if m else np.empty((0, 4))
+    q_des, tau_des = np.empty((m, 4)), np.empty((m, 4))
+    _desired_kernel(plant.geometry, plant.theta, Xdes[:m], Xddes[:m], Xdddes[:m], q_des, tau_des)
     result = Result(
         scenario=scenario,
         controller=controller,

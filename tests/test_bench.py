@@ -1,0 +1,26 @@
+"""`pkmctl bench --quick` runs once as a smoke test. Timing is never asserted here."""
+
+import json
+
+from typer.testing import CliRunner
+
+from pkmctl.cli import app
+from pkmctl.flops import count
+
+
+def test_bench_quick_smoke(tmp_path):
+    out = tmp_path / "bench.json"
+    res = CliRunner().invoke(app, ["bench", "--quick", "--json", str(out)])
+    assert res.exit_code == 0, res.output
+    data = json.loads(out.read_text())
+    assert set(data["steps"]) == {"smc", "fsmc", "afsmc"}
+    assert data["flc"]["compiled_us"] > 0 and data["batch"]["workers"] >= 1
+    assert data["flops"]["flops_per_step"] > data["flops"]["plant_eval_flops"] * 4
+
+
+def test_flop_counter_counts_what_it_should():
+    # The 3x3 Cholesky solve counted by hand, statement by statement:
+    n = count("_cholesky_solve3")
+    # l00 sqrt, l10 /, l20 /, l11 (*, -, sqrt), l21 (*, -, /), l22 (*, *, -, -, sqrt),
+    # y0 /, y1 (*, -, /), y2 (*, *, -, -, /), x2 /, x1 (*, -, /), x0 (*, *, -, -, /)
+    assert n == 1 + 1 + 1 + 3 + 3 + 5 + 1 + 3 + 5 + 1 + 3 + 5
