@@ -107,14 +107,17 @@ def test_force_limit_option(paper):
     assert np.abs(free.tau).max() > 1000.0  # the paper's unbounded actuators ask for kN
 
 
-def test_save_and_load_round_trip(paper, tmp_path):
+@pytest.mark.parametrize("fmt", ["parquet", "csv"])
+def test_save_and_load_round_trip(paper, tmp_path, fmt):
     r = pkmctl.simulate(paper, controller="afsmc", duration=0.02)
-    csv_path, json_path = save_result(r, tmp_path)
+    table_path, json_path = save_result(r, tmp_path, fmt=fmt)
     back = load_result(json_path)
     for name in ("t", "X", "Xdot", "X_desired", "q", "q_desired", "F", "tau", "theta_hat"):
         np.testing.assert_array_equal(getattr(back, name), getattr(r, name), err_msg=name)
     assert back.scenario == r.scenario and back.controller == "afsmc"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["afsmc.csv", "afsmc.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([f"afsmc.{fmt}", "afsmc.json"])
+    with pytest.raises(ValueError, match="fmt = 'xlsx'"):
+        save_result(r, tmp_path, fmt="xlsx")
 
 
 def test_unknown_controller(paper):

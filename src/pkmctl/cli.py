@@ -1,7 +1,7 @@
 """The ``pkmctl`` command (DESIGN.md §5): a thin layer over the library.
 
     pkmctl reproduce [--scenario NAME|FILE] [--out DIR] [--seed N] [--duration S]
-    pkmctl simulate SCENARIO.toml [--controller NAME] [--out DIR]
+    pkmctl simulate SCENARIO.toml [--controller NAME] [--out DIR] [--format parquet|csv]
     pkmctl scenario [NAME]
     pkmctl bench [--quick] [--json PATH]
 
@@ -119,6 +119,7 @@ def simulate(
     out: Annotated[Path, typer.Option(help="Output folder for the time series.")] = Path(
         "pkmctl-out"
     ),
+    fmt: Annotated[str, typer.Option("--format", help="parquet or csv.")] = "parquet",
 ) -> None:
     """Run one controller on a scenario; write its time series (CSV) and metadata (JSON)."""
     from .controllers import CONTROLLERS
@@ -126,6 +127,8 @@ def simulate(
     from .results_io import save_result
     from .simulation import simulate as run
 
+    if fmt not in ("parquet", "csv"):
+        _fail(f"--format = {fmt!r}: must be parquet or csv")
     if controller not in CONTROLLERS:
         _fail(f"--controller = {controller!r}: must be one of {', '.join(CONTROLLERS)}")
     try:
@@ -137,9 +140,9 @@ def simulate(
             result = run(sc, controller=controller)
     except PkmctlError as exc:
         _fail(str(exc), code=1)
-    csv_path, json_path = save_result(result, out)
+    table_path, json_path = save_result(result, out, fmt=fmt)
     console.print(_rmse_table({controller: result}, f"RMSE, scenario {sc.name!r}"))
-    console.print(f"wrote {csv_path} and {json_path}")
+    console.print(f"wrote {table_path} and {json_path}")
 
 
 @app.command()

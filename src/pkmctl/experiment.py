@@ -5,7 +5,8 @@
 - ``table4.csv`` and ``table4.md`` (ours beside the paper's Table 4),
 - ``figures/fig10.png`` ... ``fig26.png``,
 - ``report.md`` (the table, the figures and a discussion computed from the numbers),
-- ``timeseries/<controller>.csv`` and ``.json`` (every control sample, scenario, metrics).
+- ``timeseries/<controller>.parquet`` and ``.json`` (every control sample, scenario,
+  metrics; see :mod:`pkmctl.results_io`).
 
 Every file is written to a temporary name and renamed.
 """

@@ -7,7 +7,17 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["RMSE_KEYS", "chattering_index", "max_error", "peak_forces", "rmse", "summary"]
+__all__ = [
+    "RMSE_KEYS",
+    "chattering_index",
+    "gravity_mismatch",
+    "max_error",
+    "mean_error",
+    "peak_forces",
+    "rmse",
+    "summary",
+    "surface_gain",
+]
 
 RMSE_KEYS = ("z_mm", "alpha_deg", "beta_deg", "q1_m", "q2_m", "q3_m", "q4_m")
 _SCALE = np.array([1e3, 180 / np.pi, 180 / np.pi, 1, 1, 1, 1])
@@ -55,3 +65,32 @@ def summary(result) -> dict:
         "chattering_N_per_s": chattering_index(result).tolist(),
         "peak_force_N": peak_forces(result).tolist(),
     }
+
+
+def surface_gain(scenario, controller: str) -> np.ndarray:
+    """Gain from s to F near s = 0 (N s/m, N m s/rad), shape (3,), at sdot = 0.
+
+    SMC: K + Lambda / eps (inside the boundary layer); FSMC and AFSMC:
+    K + K_u K_s |dFLC/ds*(0, 0)| (slope of the fuzzy surface, by central difference).
+    """
+    from .fuzzy import FLC
+
+    g = scenario.controller_gains()
+    if controller == "smc":
+        return g.K + g.Lam / g.eps
+    flc = FLC()
+    h = 1e-4
+    slope = abs(flc(h, 0.0) - flc(-h, 0.0)) / (2 * h)
+    return g.K + g.Ku * g.Ks * slope
+
+
+def gravity_mismatch(scenario) -> np.ndarray:
+    """G(X) - G^(X) at the trajectory's offset pose: what the controller model misses (3,)."""
+    X = np.asarray(scenario.trajectory.offset, dtype=float)
+    return scenario.plant().gravity(X) - scenario.controller_mechanism().gravity(X)
+
+
+def mean_error(result, *, t_from: float = 0.0) -> dict[str, float]:
+    """Mean (signed) error at t >= t_from, same keys and units as :func:`rmse`."""
+    e = _errors(result, t_from)
+    return dict(zip(RMSE_KEYS, np.mean(e, axis=0).tolist(), strict=True))

