@@ -24,7 +24,8 @@ app = typer.Typer(
     no_args_is_help=True,
     help="Model, control and simulate the 2RPU-2SPR parallel manipulator (SMC, FSMC, AFSMC).",
 )
-console = Console()
+# Tables need ~100 columns; a pipe or a CI log would otherwise get rich's 80.
+console = Console(width=max(Console().width, 110))
 err_console = Console(stderr=True)
 
 
@@ -48,7 +49,7 @@ def _rmse_table(results: dict, title: str) -> Table:
     from .metrics import RMSE_KEYS
 
     table = Table(title=title)
-    table.add_column("RMSE")
+    table.add_column("RMSE", no_wrap=True)
     for k in RMSE_KEYS:
         table.add_column(
             k.replace("_deg", " °").replace("_mm", " mm").replace("_m", " m"),
