@@ -165,7 +165,7 @@ class ControllerState:
     steps: int
 
 
-@kernel
+@kernel(inline="always")
 def sliding_surface(lam, X, Xd, Xdes, Xddes, Xdddes, s, xr_d, xr_dd):
     """Fill s = edot + lam e, Xr_dot = Xdot_d + lam e, Xr_ddot = Xddot_d + lam edot (3,)."""
     for i in range(3):
@@ -176,7 +176,7 @@ def sliding_surface(lam, X, Xd, Xdes, Xddes, Xdddes, s, xr_d, xr_dd):
         xr_dd[i] = Xdddes[i] + lam[i] * ed
 
 
-@kernel
+@kernel(inline="always")
 def adapt(theta_hat, Y, s, Tc, gamma_vec, th_min, th_max):
     """One period of dTheta^/dt = Gamma Y^T s (explicit Euler), projected onto the bounds.
 
@@ -190,7 +190,7 @@ def adapt(theta_hat, Y, s, Tc, gamma_vec, th_min, th_max):
         theta_hat[k] = min(th_max[k], max(th_min[k], v))
 
 
-@kernel
+@kernel(inline="always")
 def control_step(
     kind,
     geom,

@@ -57,13 +57,13 @@ def make_work():
     )
 
 
-@kernel
+@kernel(inline="always")
 def _kinematics(geom, X, Xd, v, work):
     com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat = work
     body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat)
 
 
-@kernel
+@kernel(inline="always")
 def _assemble(geom, theta, Xd, v, work, M, Cv, G):
     """M, C(X, Xd) v and G from filled body kinematics (the sums of the module docstring).
 
@@ -140,7 +140,7 @@ def _assemble(geom, theta, Xd, v, work, M, Cv, G):
     G[0], G[1], G[2] = g * g0, g * g1, g * g2
 
 
-@kernel
+@kernel(inline="always")
 def dynamics_kernel(geom, theta, X, Xd, v, work, M, Cv, G):
     """Fill M (3, 3), C(X, Xd) v (3,) and G (3,) (eq. 9-24).
 
@@ -151,7 +151,7 @@ def dynamics_kernel(geom, theta, X, Xd, v, work, M, Cv, G):
     _assemble(geom, theta, Xd, v, work, M, Cv, G)
 
 
-@kernel
+@kernel(inline="always")
 def gravity_kernel(geom, theta, X, work, G):
     """Fill G (3,) at X: sum of m g dz_b/dX (eq. 24), without the velocity terms."""
     z3 = work[8][4]
@@ -165,7 +165,7 @@ def gravity_kernel(geom, theta, X, work, G):
             G[i] += theta[4 * b] * g * Jv[b, 2, i]
 
 
-@kernel
+@kernel(inline="always")
 def _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y):
     Rb, Jv, Jw, av, aw = work[1], work[2], work[3], work[4], work[5]
     g = geom[10]
@@ -207,14 +207,14 @@ def _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y):
                 )
 
 
-@kernel
+@kernel(inline="always")
 def regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, work, Y):
     """Fill the regressor Y (3, 36) with Y Theta = M Xr_dd + C(X, Xd) Xr_d + G (eq. 24)."""
     _kinematics(geom, X, Xd, Xr_d, work)
     _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y)
 
 
-@kernel
+@kernel(inline="always")
 def actuator_forces_kernel(Jq, F, tau):
     """Minimum-norm actuator forces tau (4,) with J^T tau = F: tau = J (J^T J)^-1 F (eq. 22)."""
     a00 = a01 = a02 = a11 = a12 = a22 = 0.0
@@ -230,7 +230,7 @@ def actuator_forces_kernel(Jq, F, tau):
         tau[i] = Jq[i, 0] * y0 + Jq[i, 1] * y1 + Jq[i, 2] * y2
 
 
-@kernel
+@kernel(inline="always")
 def _cholesky_solve3(a00, a01, a02, a11, a12, a22, b0, b1, b2):
     """x with A x = b for a symmetric positive definite 3x3 A given by its upper triangle."""
     l00 = np.sqrt(a00)
@@ -248,7 +248,7 @@ def _cholesky_solve3(a00, a01, a02, a11, a12, a22, b0, b1, b2):
     return x0, x1, x2
 
 
-@kernel
+@kernel(inline="always")
 def solve_spd3(A, b):
     """Solve A x = b in place (b <- x) for a symmetric positive definite 3x3 A."""
     b[0], b[1], b[2] = _cholesky_solve3(

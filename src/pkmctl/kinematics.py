@@ -53,7 +53,7 @@ def _cx(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@kernel
+@kernel(inline="always")
 def body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat):
     """Fill the kinematics of all 9 bodies and of the 4 limbs at (X, Xd).
 
@@ -70,11 +70,13 @@ def body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat):
     com : ndarray, shape (9, 3)
         Out: centres of mass in B.
     Rb : ndarray, shape (9, 3, 3)
-        Out: body frames (columns are the body axes in B).
+        Out: body frames (columns are the body axes in B); rows 0-4 only, since an upper
+        limb (5-8) shares the frame of its lower limb (1-4).
     Jv, Jw : ndarray, shape (9, 3, 3)
-        Out: linear and angular velocity Jacobians (v_b = Jv Xd, omega_b = Jw Xd).
+        Out: linear and angular velocity Jacobians (v_b = Jv Xd, omega_b = Jw Xd); Jw
+        rows 0-4 only, as for Rb.
     av, aw : ndarray, shape (9, 3)
-        Out: dJv/dt v and dJw/dt v.
+        Out: dJv/dt v and dJw/dt v (aw rows 0-4 only).
     Jq : ndarray, shape (4, 3)
         Out: the limb Jacobian J = dq/dX (eq. 8).
     q : ndarray, shape (4,)
@@ -189,14 +191,15 @@ def body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat):
             e0 += v[1] * (ud0 * u0 + u0 * ud0)
             e1 += v[1] * (ud0 * u1 + u0 * ud1)
             e2 += v[1] * (ud0 * u2 + u0 * ud2)
-        for b in (lo, up):  # both bodies of the limb share its frame and rotation
-            Rb[b, 0, 0], Rb[b, 0, 1], Rb[b, 0, 2] = x0, y0, u0
-            Rb[b, 1, 0], Rb[b, 1, 1], Rb[b, 1, 2] = x1, y1, u1
-            Rb[b, 2, 0], Rb[b, 2, 1], Rb[b, 2, 2] = x2, y2, u2
-            Jw[b, 0, 0], Jw[b, 0, 1], Jw[b, 0, 2] = w00, w01, w02
-            Jw[b, 1, 0], Jw[b, 1, 1], Jw[b, 1, 2] = w10, w11, w12
-            Jw[b, 2, 0], Jw[b, 2, 1], Jw[b, 2, 2] = w20, w21, w22
-            aw[b, 0], aw[b, 1], aw[b, 2] = e0, e1, e2
+        # Both bodies of the limb share its frame and rotation: they are stored once, at
+        # the lower body (index 1 + i); rows 5-8 of Rb, Jw and aw are not written.
+        Rb[lo, 0, 0], Rb[lo, 0, 1], Rb[lo, 0, 2] = x0, y0, u0
+        Rb[lo, 1, 0], Rb[lo, 1, 1], Rb[lo, 1, 2] = x1, y1, u1
+        Rb[lo, 2, 0], Rb[lo, 2, 1], Rb[lo, 2, 2] = x2, y2, u2
+        Jw[lo, 0, 0], Jw[lo, 0, 1], Jw[lo, 0, 2] = w00, w01, w02
+        Jw[lo, 1, 0], Jw[lo, 1, 1], Jw[lo, 1, 2] = w10, w11, w12
+        Jw[lo, 2, 0], Jw[lo, 2, 1], Jw[lo, 2, 2] = w20, w21, w22
+        aw[lo, 0], aw[lo, 1], aw[lo, 2] = e0, e1, e2
 
 
 @kernel

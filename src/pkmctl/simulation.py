@@ -78,7 +78,7 @@ class Result:
         )
 
 
-@kernel
+@kernel(inline="always")
 def _plant_accel(geom, theta, X, Xd, tau, dist, work, M, C, G, out):
     """Xddot = M^-1 (J^T tau + tau_d' - C Xdot - G) for the true plant (eq. 24)."""
     dynamics_kernel(geom, theta, X, Xd, Xd, work, M, C, G)  # C holds C Xdot
@@ -96,7 +96,7 @@ def _plant_accel(geom, theta, X, Xd, tau, dist, work, M, C, G, out):
     solve_spd3(M, out)
 
 
-@kernel
+@kernel(inline="always")
 def _valid(X, Xd):
     for i in range(3):
         if not (math.isfinite(X[i]) and math.isfinite(Xd[i])):
