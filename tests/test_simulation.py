@@ -123,3 +123,15 @@ def test_save_and_load_round_trip(paper, tmp_path, fmt):
 def test_unknown_controller(paper):
     with pytest.raises(ValueError, match="controller = 'pid'"):
         pkmctl.simulate(paper, controller="pid", duration=0.01)
+
+
+def test_simulate_many_equals_simulate_per_seed(paper):
+    from pkmctl.simulation import simulate_many
+
+    runs = simulate_many(paper, "fsmc", seeds=[1, 2, 1], duration=0.05, workers=2)
+    single = pkmctl.simulate(paper, controller="fsmc", duration=0.05, seed=2)
+    np.testing.assert_array_equal(runs[1].X, single.X)
+    np.testing.assert_array_equal(runs[0].tau, runs[2].tau)
+    assert runs[0].scenario.disturbance.seed == 1 and runs[1].scenario.disturbance.seed == 2
+    with pytest.raises(pkmctl.ScenarioError, match="disturbance.seed = -1"):
+        simulate_many(paper, "fsmc", seeds=[3, -1], duration=0.05)

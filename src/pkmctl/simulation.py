@@ -24,6 +24,7 @@ from ._jit import kernel
 from .controllers import CONTROLLERS, MEM_SIZE, control_step, make_controller
 from .dynamics import actuator_forces_kernel, dynamics_kernel, make_work, solve_spd3
 from .errors import SimulationDiverged
+from .fuzzy import FLC, MamdaniSystem
 from .mechanism import Mechanism
 from .metrics import RMSE_KEYS
 from .scenario import Scenario, ScenarioError
@@ -248,6 +249,48 @@ def _disturbance(scenario: Scenario, n: int, Tc: float):
     return values, index
 
 
+@dataclass(frozen=True, eq=False)
+class _Prepared:
+    """What every run of one scenario shares, whatever the seed: built once."""
+
+    scenario: Scenario
+    plant: Mechanism
+    model: Mechanism
+    t: np.ndarray
+    Xdes: np.ndarray
+    Xddes: np.ndarray
+    Xdddes: np.ndarray
+    q_des: np.ndarray
+    tau_des: np.ndarray
+    flc: MamdaniSystem
+
+
+def _prepare(scenario: Scenario | str, duration: float | None) -> _Prepared:
+    if isinstance(scenario, str):
+        scenario = Scenario.builtin(scenario)
+    if duration is not None:
+        scenario = scenario.replace(**{"timing.duration": float(duration)})
+    plant = scenario.plant()
+    Tc = scenario.timing.control_period
+    n = int(round(scenario.timing.duration / Tc))
+    if n < 1:
+        raise ScenarioError("timing.duration: shorter than one control period")
+    t = np.arange(n) * Tc
+    Xdes, Xddes, Xdddes = scenario.trajectory.build().evaluate(t)
+    q_des, tau_des = np.empty((n, 4)), np.empty((n, 4))
+    _desired_kernel(plant.geometry, plant.theta, Xdes, Xddes, Xdddes, q_des, tau_des)
+    model = scenario.controller_mechanism()
+    return _Prepared(scenario, plant, model, t, Xdes, Xddes, Xdddes, q_des, tau_des, FLC())
+
+
+def _with_seed(scenario: Scenario, seed: int) -> Scenario:
+    """The scenario with another disturbance seed (validated here: nothing else changes)."""
+    if not (isinstance(seed, int | np.integer) and 0 <= seed <= 2**63 - 1):
+        raise ScenarioError(f"disturbance.seed = {seed!r}: must be an integer in [0, 2^63 - 1]")
+    dist = scenario.disturbance.model_copy(update={"seed": int(seed)})
+    return scenario.model_copy(update={"disturbance": dist})
+
+
 def simulate(
     scenario: Scenario | str,
     controller: str = "afsmc",
@@ -260,29 +303,24 @@ def simulate(
     Raises :class:`~pkmctl.SimulationDiverged` (with the partial result) if the
     state becomes non-finite or the pose leaves the valid set.
     """
-    if isinstance(scenario, str):
-        scenario = Scenario.builtin(scenario)
     if controller not in CONTROLLERS:
         raise ValueError(f"controller = {controller!r}: must be one of {sorted(CONTROLLERS)}")
-    changes = {}
-    if duration is not None:
-        changes["timing.duration"] = float(duration)
-    if seed is not None:
-        changes["disturbance.seed"] = int(seed)
-    if changes:
-        scenario = scenario.replace(**changes)
-    plant = scenario.plant()
-    model = scenario.controller_mechanism()
+    return _run(_prepare(scenario, duration), controller, seed)
+
+
+def _run(prep: _Prepared, controller: str, seed: int | None) -> Result:
+    scenario = prep.scenario if seed is None else _with_seed(prep.scenario, seed)
+    plant, model = prep.plant, prep.model
     ctrl = make_controller(
-        controller, model, scenario.controller_gains(), period=scenario.timing.control_period
+        controller,
+        model,
+        scenario.controller_gains(),
+        period=scenario.timing.control_period,
+        flc=prep.flc,
     )
     Tc = scenario.timing.control_period
-    n = int(round(scenario.timing.duration / Tc))
-    if n < 1:
-        raise ScenarioError("timing.duration: shorter than one control period")
-    t = np.arange(n) * Tc
-    traj = scenario.trajectory.build()
-    Xdes, Xddes, Xdddes = traj.evaluate(t)
+    t, Xdes, Xddes, Xdddes = prep.t, prep.Xdes, prep.Xddes, prep.Xdddes
+    n = t.size
     dvals, didx = _disturbance(scenario, n, Tc)
     log_X, log_Xd, log_F = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
     log_tau, log_q, log_dist = np.empty((n, 4)), np.empty((n, 4)), np.empty((n, 3))
@@ -300,8 +338,6 @@ def simulate(
     )  # fmt: skip
     t_kernel = time.perf_counter() - t_kernel
     m = last if status else n
-    q_des, tau_des = np.empty((m, 4)), np.empty((m, 4))
-    _desired_kernel(plant.geometry, plant.theta, Xdes[:m], Xddes[:m], Xdddes[:m], q_des, tau_des)
     result = Result(
         scenario=scenario,
         controller=controller,
@@ -311,10 +347,10 @@ def simulate(
         X_desired=Xdes[:m],
         Xdot_desired=Xddes[:m],
         q=log_q[:m],
-        q_desired=q_des,
+        q_desired=prep.q_des[:m],
         F=log_F[:m],
         tau=log_tau[:m],
-        tau_desired=tau_des,
+        tau_desired=prep.tau_des[:m],
         disturbance=log_dist[:m],
         theta_hat=log_theta[:m] if afsmc else None,
         success=status == 0,
@@ -344,18 +380,22 @@ def simulate_many(
 ) -> list[Result]:
     """Run one scenario for several disturbance seeds in parallel threads.
 
-    The compiled loop releases the GIL, so ``workers`` threads (default: the number of
-    cores) run side by side without copying the scenario to other processes. Results
-    come back in the order of ``seeds``; the first failing run's error is raised.
+    The scenario, its desired trajectory and desired forces are prepared once; the
+    compiled loop releases the GIL, so ``workers`` threads (default: the number of
+    cores) run side by side in one process. Results come back in the order of
+    ``seeds``; the first failing run's error is raised.
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    seeds = [int(s) for s in seeds]
-    workers = workers or os.cpu_count() or 1
+    if controller not in CONTROLLERS:
+        raise ValueError(f"controller = {controller!r}: must be one of {sorted(CONTROLLERS)}")
+    seeds = list(seeds)
+    workers = (os.cpu_count() or 1) if workers is None else workers
     if workers < 1:
         raise ValueError(f"workers = {workers}: must be >= 1")
+    prep = _prepare(scenario, duration)
+    for s in seeds:
+        _with_seed(prep.scenario, s)  # fail fast on a bad seed, before any run
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        futures = [
-            pool.submit(simulate, scenario, controller, duration=duration, seed=s) for s in seeds
-        ]
+        futures = [pool.submit(_run, prep, controller, s) for s in seeds]
         return [f.result() for f in futures]
