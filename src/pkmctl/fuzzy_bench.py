@@ -12,6 +12,7 @@ import time
 import numba
 import numpy as np
 
+from .bench import _best
 from .fuzzy import FLC, PAPER_RULE_TABLE, TERM_NAMES, flc_eval
 
 
@@ -21,15 +22,6 @@ def _loop(tables, s, sdot):
     for n in range(s.shape[0]):
         acc += flc_eval(tables, s[n], sdot[n])
     return acc
-
-
-def _best(fn, repeat: int) -> float:
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def _skfuzzy_flc():

@@ -134,6 +134,17 @@ def _next_break(kind, a, b, c, d, h, y):
 
 
 @_jit
+def _next_break_any(kind, prm, levels, act, na, cur, hi):
+    """The first breakpoint after ``cur`` of any active clipped output term (or ``hi``)."""
+    nxt = hi
+    for i in range(na):
+        k = act[i]
+        p = prm[k]
+        nxt = min(nxt, _next_break(kind[k], p[0], p[1], p[2], p[3], levels[k], cur))
+    return nxt
+
+
+@_jit
 def _roots_in(d0, d1, d2, lo, hi):
     """Real roots of d0 + d1 u + d2 u² strictly inside (lo, hi): (count, r1, r2), r1 <= r2."""
     r1 = np.inf
@@ -190,11 +201,7 @@ def _cog_poly(kind, prm, lo, hi, levels, act, na):
     m1 = 0.0
     cur = lo
     while cur < hi:
-        nxt = hi
-        for i in range(na):
-            k = act[i]
-            p = prm[k]
-            nxt = min(nxt, _next_break(kind[k], p[0], p[1], p[2], p[3], levels[k], cur))
+        nxt = _next_break_any(kind, prm, levels, act, na, cur, hi)
         y0 = 0.5 * (cur + nxt)
         r = 0.5 * (nxt - cur)
         for i in range(na):
@@ -296,11 +303,7 @@ def _cog_quad(kind, prm, lo, hi, levels, act, na):
     hmax = (hi - lo) / _QUAD_PANELS
     cur = lo
     while cur < hi:
-        nxt = hi
-        for i in range(na):
-            k = act[i]
-            p = prm[k]
-            nxt = min(nxt, _next_break(kind[k], p[0], p[1], p[2], p[3], levels[k], cur))
+        nxt = _next_break_any(kind, prm, levels, act, na, cur, hi)
         npan = max(1, int(math.ceil((nxt - cur) / hmax)))
         for j in range(npan):
             a = cur + (nxt - cur) * j / npan
