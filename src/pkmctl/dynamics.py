@@ -42,7 +42,7 @@ N_THETA = 4 * N_BODIES
 
 @kernel
 def make_work():
-    """Scratch arrays for one pose: (com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat)."""
+    """Arrays for one pose: (com, Rb, Jv, Jw, av, aw, Jq, q, scratch); see body_jacobians."""
     return (
         np.empty((N_BODIES, 3)),
         np.empty((N_BODIES, 3, 3)),
@@ -52,15 +52,14 @@ def make_work():
         np.empty((N_BODIES, 3)),
         np.empty((4, 3)),
         np.empty(4),
-        np.empty((9, 3)),
-        np.empty((4, 3, 3)),
+        np.empty((5, 3)),
     )
 
 
 @kernel(inline="always")
 def _kinematics(geom, X, Xd, v, work):
-    com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat = work
-    body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat)
+    com, Rb, Jv, Jw, av, aw, Jq, q, _ = work
+    body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q)
 
 
 @kernel(inline="always")

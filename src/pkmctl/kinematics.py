@@ -54,7 +54,7 @@ def _cx(a0, a1, a2, b0, b1, b2):
 
 
 @kernel(inline="always")
-def body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat):
+def body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q):
     """Fill the kinematics of all 9 bodies and of the 4 limbs at (X, Xd).
 
     Besides the Jacobians, it gives their time derivatives (along Xd) applied to one
@@ -81,8 +81,6 @@ def body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q, vec, mat):
         Out: the limb Jacobian J = dq/dX (eq. 8).
     q : ndarray, shape (4,)
         Out: limb lengths.
-    vec, mat : ndarray, shape (9, 3) and (4, 3, 3)
-        Scratch space, so that the control loop does not allocate.
     """
     r_a, r_b = geom[0], geom[1]
     z, zd, ad, bd = X[0], Xd[0], Xd[1], Xd[2]
@@ -207,10 +205,8 @@ def limb_kinematics(geom, X, Jq, q):
     """Limb lengths ``q`` (4,) and Jacobian ``Jq`` (4, 3) at pose X (eq. 4-8)."""
     z3 = np.zeros(3)
     m3 = np.empty((3, N_BODIES, 3, 3))  # Rb, Jv, Jw (must not alias: Jv, Jw are read back)
-    m1 = np.empty((4, N_BODIES, 3))  # com, av, aw, scratch
-    body_jacobians(
-        geom, X, z3, z3, m1[0], m3[0], m3[1], m3[2], m1[1], m1[2], Jq, q, m1[3], np.empty((4, 3, 3))
-    )
+    m1 = np.empty((3, N_BODIES, 3))  # com, av, aw
+    body_jacobians(geom, X, z3, z3, m1[0], m3[0], m3[1], m3[2], m1[1], m1[2], Jq, q)
 
 
 @kernel
