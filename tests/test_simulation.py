@@ -135,3 +135,18 @@ def test_simulate_many_equals_simulate_per_seed(paper):
     assert runs[0].scenario.disturbance.seed == 1 and runs[1].scenario.disturbance.seed == 2
     with pytest.raises(pkmctl.ScenarioError, match="disturbance.seed = -1"):
         simulate_many(paper, "fsmc", seeds=[3, -1], duration=0.05)
+
+
+def test_desired_forces_match_the_mechanism_methods(paper):
+    # Figures 13-16 and 23-26: the compiled pass equals IK and J (J^T J)^-1 (M Xdd + C Xd + G)
+    r = pkmctl.simulate(paper, controller="smc", duration=0.05)
+    plant = paper.plant()
+    k = slice(None, None, 97)
+    Xdd = -4.0 * (
+        r.X_desired[k] - np.asarray(paper.trajectory.offset)
+    )  # eq. 54: X'' = -w^2 (X - c)
+    F = plant.inverse_dynamics(r.X_desired[k], r.Xdot_desired[k], Xdd)
+    np.testing.assert_allclose(
+        r.tau_desired[k], plant.actuator_forces(r.X_desired[k], F), rtol=1e-10
+    )
+    np.testing.assert_allclose(r.q_desired[k], plant.inverse_kinematics(r.X_desired[k]), rtol=1e-13)

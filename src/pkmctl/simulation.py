@@ -219,9 +219,16 @@ def _run_kernel(
     return 0, n, X, Xd
 
 
-def desired_forces(plant: Mechanism, Xd, Xdd, Xddd) -> np.ndarray:
-    """tau_a,d = J (J^T J)^-1 [M Xddot_d + C Xdot_d + G](X_d) from the true model (N, 4)."""
-    return plant.actuator_forces(Xd, plant.inverse_dynamics(Xd, Xdd, Xddd))
+def desired_forces(plant: Mechanism, Xd, Xdd, Xddd) -> tuple[np.ndarray, np.ndarray]:
+    """q_d (N, 4) and tau_a,d = J (J^T J)^-1 [M Xddot_d + C Xdot_d + G](X_d) (N, 4).
+
+    The desired limb lengths and driving forces of Figures 13-16 and 23-26, from the
+    true model, along a trajectory (N, 3) that the scenario has already validated.
+    """
+    Xd, Xdd, Xddd = (np.ascontiguousarray(a, dtype=float) for a in (Xd, Xdd, Xddd))
+    q_des, tau_des = np.empty((Xd.shape[0], 4)), np.empty((Xd.shape[0], 4))
+    _desired_kernel(plant.geometry, plant.theta, Xd, Xdd, Xddd, q_des, tau_des)
+    return q_des, tau_des
 
 
 @kernel
@@ -277,8 +284,7 @@ def _prepare(scenario: Scenario | str, duration: float | None) -> _Prepared:
         raise ScenarioError("timing.duration: shorter than one control period")
     t = np.arange(n) * Tc
     Xdes, Xddes, Xdddes = scenario.trajectory.build().evaluate(t)
-    q_des, tau_des = np.empty((n, 4)), np.empty((n, 4))
-    _desired_kernel(plant.geometry, plant.theta, Xdes, Xddes, Xdddes, q_des, tau_des)
+    q_des, tau_des = desired_forces(plant, Xdes, Xddes, Xdddes)
     model = scenario.controller_mechanism()
     return _Prepared(scenario, plant, model, t, Xdes, Xddes, Xdddes, q_des, tau_des, FLC())
 
