@@ -150,3 +150,18 @@ def test_desired_forces_match_the_mechanism_methods(paper):
         r.tau_desired[k], plant.actuator_forces(r.X_desired[k], F), rtol=1e-10
     )
     np.testing.assert_allclose(r.q_desired[k], plant.inverse_kinematics(r.X_desired[k]), rtol=1e-13)
+
+
+def test_simulate_many_metrics_mode_equals_full_results(paper):
+    from pkmctl.metrics import summary
+    from pkmctl.simulation import simulate_many
+
+    seeds = [4, 5, 6]
+    full = simulate_many(paper, "afsmc", seeds=seeds, duration=0.05, workers=2)
+    light = simulate_many(paper, "afsmc", seeds=seeds, duration=0.05, workers=2, keep="metrics")
+    for s, r, m in zip(seeds, full, light, strict=True):
+        assert m["seed"] == s
+        assert m["rmse"] == summary(r)["rmse"]  # reused buffers change nothing
+        assert m["peak_force_N"] == summary(r)["peak_force_N"]
+    with pytest.raises(ValueError, match="keep = 'all'"):
+        simulate_many(paper, "afsmc", seeds=[1], duration=0.05, keep="all")

@@ -314,7 +314,18 @@ def simulate(
     return _run(_prepare(scenario, duration), controller, seed)
 
 
-def _run(prep: _Prepared, controller: str, seed: int | None) -> Result:
+class _LogBuffers:
+    """The arrays one run logs into, (n, ...) each; reusable from run to run."""
+
+    def __init__(self, n: int, theta: bool = True) -> None:
+        self.X, self.Xd, self.F = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        self.tau, self.q, self.dist = np.empty((n, 4)), np.empty((n, 4)), np.empty((n, 3))
+        self.theta = np.empty((n, 36) if theta else (0, 36))
+
+
+def _run(
+    prep: _Prepared, controller: str, seed: int | None, buffers: _LogBuffers | None = None
+) -> Result:
     scenario = prep.scenario if seed is None else _with_seed(prep.scenario, seed)
     plant, model = prep.plant, prep.model
     ctrl = make_controller(
@@ -328,10 +339,17 @@ def _run(prep: _Prepared, controller: str, seed: int | None) -> Result:
     t, Xdes, Xddes, Xdddes = prep.t, prep.Xdes, prep.Xddes, prep.Xdddes
     n = t.size
     dvals, didx = _disturbance(scenario, n, Tc)
-    log_X, log_Xd, log_F = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
-    log_tau, log_q, log_dist = np.empty((n, 4)), np.empty((n, 4)), np.empty((n, 3))
     afsmc = ctrl.kind == 2
-    log_theta = np.empty((n, 36) if afsmc else (0, 36))
+    logs = _LogBuffers(n, afsmc) if buffers is None else buffers
+    log_X, log_Xd, log_F, log_tau, log_q, log_dist = (
+        logs.X,
+        logs.Xd,
+        logs.F,
+        logs.tau,
+        logs.q,
+        logs.dist,
+    )
+    log_theta = logs.theta if afsmc else np.empty((0, 36))
     limit = scenario.actuators.force_limit
     t_kernel = time.perf_counter()
     status, last, X_end, Xd_end = _run_kernel(
@@ -383,18 +401,30 @@ def simulate_many(
     seeds,
     duration: float | None = None,
     workers: int | None = None,
-) -> list[Result]:
+    keep: str = "results",
+) -> list:
     """Run one scenario for several disturbance seeds in parallel threads.
 
     The scenario, its desired trajectory and desired forces are prepared once; the
     compiled loop releases the GIL, so ``workers`` threads (default: the number of
     cores) run side by side in one process. Results come back in the order of
     ``seeds``; the first failing run's error is raised.
+
+    ``keep="results"`` returns the :class:`Result` of every run. ``keep="metrics"``
+    returns ``{"seed": s, **metrics.summary(result)}`` per run instead, and each
+    worker logs every run into the same buffers: a campaign of many seeds then never
+    touches fresh memory after its first runs (first-touch page faults of ~45 MB per
+    10 s run are what limits thread scaling otherwise; see docs/performance.md).
     """
+    import threading
     from concurrent.futures import ThreadPoolExecutor
+
+    from .metrics import summary
 
     if controller not in CONTROLLERS:
         raise ValueError(f"controller = {controller!r}: must be one of {sorted(CONTROLLERS)}")
+    if keep not in ("results", "metrics"):
+        raise ValueError(f"keep = {keep!r}: must be 'results' or 'metrics'")
     seeds = list(seeds)
     workers = (os.cpu_count() or 1) if workers is None else workers
     if workers < 1:
@@ -402,6 +432,15 @@ def simulate_many(
     prep = _prepare(scenario, duration)
     for s in seeds:
         _with_seed(prep.scenario, s)  # fail fast on a bad seed, before any run
+    local = threading.local()
+
+    def one(seed):
+        if keep == "results":
+            return _run(prep, controller, seed)
+        if not hasattr(local, "buffers"):
+            local.buffers = _LogBuffers(prep.t.size)
+        result = _run(prep, controller, seed, local.buffers)
+        return {"seed": int(seed), **summary(result)}
+
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(_run, prep, controller, s) for s in seeds]
-        return [f.result() for f in futures]
+        return list(pool.map(one, seeds))
