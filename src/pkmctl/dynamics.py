@@ -40,11 +40,18 @@ __all__ = [
 N_THETA = 4 * N_BODIES
 
 
+#: Positions in the workspace tuple of :func:`make_work` (named, not magic numbers).
+RB, JV, JW, AV, AW, JQ, Q, SCRATCH = range(8)
+
+
 @kernel
 def make_work():
-    """Arrays for one pose: (com, Rb, Jv, Jw, av, aw, Jq, q, scratch); see body_jacobians."""
+    """Arrays for one pose, at the indices RB, JV, JW, AV, AW, JQ, Q, SCRATCH.
+
+    Body frames, Jacobians and dJ/dt v of :func:`~pkmctl.kinematics.body_jacobians`,
+    the limb Jacobian and lengths, and a (5, 3) scratch for the dynamics kernels.
+    """
     return (
-        np.empty((N_BODIES, 3)),
         np.empty((N_BODIES, 3, 3)),
         np.empty((N_BODIES, 3, 3)),
         np.empty((N_BODIES, 3, 3)),
@@ -58,8 +65,8 @@ def make_work():
 
 @kernel(inline="always")
 def _kinematics(geom, X, Xd, v, work):
-    com, Rb, Jv, Jw, av, aw, Jq, q, _ = work
-    body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q)
+    Rb, Jv, Jw, av, aw, Jq, q, _ = work
+    body_jacobians(geom, X, Xd, v, Rb, Jv, Jw, av, aw, Jq, q)
 
 
 @kernel(inline="always")
@@ -70,7 +77,7 @@ def _assemble(geom, theta, Xd, v, work, M, Cv, G):
     terms are summed once with the summed inertia (5 rotating frames, not 9). Sums are
     kept in scalars so that they stay in registers.
     """
-    Rb, Jv, Jw, av, aw = work[1], work[2], work[3], work[4], work[5]
+    Rb, Jv, Jw, av, aw = work[RB], work[JV], work[JW], work[AV], work[AW]
     m00 = m01 = m02 = m11 = m12 = m22 = 0.0
     c0 = c1 = c2 = 0.0
     g0 = g1 = g2 = 0.0
@@ -153,10 +160,10 @@ def dynamics_kernel(geom, theta, X, Xd, v, work, M, Cv, G):
 @kernel(inline="always")
 def gravity_kernel(geom, theta, X, work, G):
     """Fill G (3,) at X: sum of m g dz_b/dX (eq. 24), without the velocity terms."""
-    z3 = work[8][4]
+    z3 = work[SCRATCH][4]
     z3[:] = 0.0
     _kinematics(geom, X, z3, z3, work)
-    Jv = work[2]
+    Jv = work[JV]
     g = geom[10]
     G[:] = 0.0
     for b in range(N_BODIES):
@@ -166,9 +173,10 @@ def gravity_kernel(geom, theta, X, work, G):
 
 @kernel(inline="always")
 def _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y):
-    Rb, Jv, Jw, av, aw = work[1], work[2], work[3], work[4], work[5]
+    Rb, Jv, Jw, av, aw = work[RB], work[JV], work[JW], work[AV], work[AW]
     g = geom[10]
-    acc, wr, w, vec = work[8][0], work[8][1], work[8][2], work[8][3]
+    scratch = work[SCRATCH]
+    acc, wr, w, vec = scratch[0], scratch[1], scratch[2], scratch[3]
     for b in range(N_BODIES):
         # mass column: J_v^T (J_v Xr_dd + dJ_v Xr_d) + g dz/dX
         for k in range(3):

@@ -14,10 +14,9 @@ distance of the lower-limb centre of mass from its base joint and of the upper-l
 centre of mass from its platform joint, and the gravitational acceleration.
 
 The body kernel :func:`body_jacobians` returns, for the 9 bodies (0 platform,
-1-4 lower limbs, 5-8 upper limbs), the centre-of-mass position, the body frame
-``R_b``, the Jacobians ``J_v`` (v = J_v Xdot) and ``J_w`` (omega = J_w Xdot) and their
-time derivatives along ``Xdot`` applied to a vector. Everything is closed form;
-nothing is finite-differenced.
+1-4 lower limbs, 5-8 upper limbs), the body frame ``R_b``, the Jacobians ``J_v``
+(v = J_v Xdot) and ``J_w`` (omega = J_w Xdot) and their time derivatives along ``Xdot``
+applied to a vector. Everything is closed form; nothing is finite-differenced.
 """
 
 from __future__ import annotations
@@ -54,7 +53,7 @@ def _cx(a0, a1, a2, b0, b1, b2):
 
 
 @kernel(inline="always")
-def body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q):
+def body_jacobians(geom, X, Xd, v, Rb, Jv, Jw, av, aw, Jq, q):
     """Fill the kinematics of all 9 bodies and of the 4 limbs at (X, Xd).
 
     Besides the Jacobians, it gives their time derivatives (along Xd) applied to one
@@ -67,8 +66,6 @@ def body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q):
     geom : ndarray, shape (11,)
     X, Xd, v : ndarray, shape (3,)
         Pose, pose rate, and the vector the Jacobian derivatives are applied to.
-    com : ndarray, shape (9, 3)
-        Out: centres of mass in B.
     Rb : ndarray, shape (9, 3, 3)
         Out: body frames (columns are the body axes in B); rows 0-4 only, since an upper
         limb (5-8) shares the frame of its lower limb (1-4).
@@ -89,7 +86,6 @@ def body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q):
     sec2 = 1.0 / (ca * ca)
     # -- platform (eq. 1-3): p = [0, -z tan a, z], R = R_x(a) R_y(b),
     #    omega = a_dot e_x + b_dot R_x(a) e_y
-    com[0, 0], com[0, 1], com[0, 2] = 0.0, -z * ta, z
     R = Rb[0]
     R[0, 0], R[0, 1], R[0, 2] = cb, 0.0, sb
     R[1, 0], R[1, 1], R[1, 2] = sa * sb, ca, -sa * cb
@@ -156,8 +152,6 @@ def body_jacobians(geom, X, Xd, v, com, Rb, Jv, Jw, av, aw, Jq, q):
         au2 = (aP2 - u2 * cc - ud2 * uPv - Juv2 * qd) * iq
         lo, up = 1 + i, 5 + i
         l1, l2 = geom[2 + i], geom[6 + i]
-        com[lo, 0], com[lo, 1], com[lo, 2] = r_b * cth + l1 * u0, r_b * sth + l1 * u1, l1 * u2
-        com[up, 0], com[up, 1], com[up, 2] = Px - l2 * u0, Py - l2 * u1, Pz - l2 * u2
         Jv[lo, 0, 0], Jv[lo, 0, 1], Jv[lo, 0, 2] = l1 * k00, l1 * k01, l1 * k02
         Jv[lo, 1, 0], Jv[lo, 1, 1], Jv[lo, 1, 2] = l1 * k10, l1 * k11, l1 * k12
         Jv[lo, 2, 0], Jv[lo, 2, 1], Jv[lo, 2, 2] = l1 * k20, l1 * k21, l1 * k22
@@ -205,8 +199,8 @@ def limb_kinematics(geom, X, Jq, q):
     """Limb lengths ``q`` (4,) and Jacobian ``Jq`` (4, 3) at pose X (eq. 4-8)."""
     z3 = np.zeros(3)
     m3 = np.empty((3, N_BODIES, 3, 3))  # Rb, Jv, Jw (must not alias: Jv, Jw are read back)
-    m1 = np.empty((3, N_BODIES, 3))  # com, av, aw
-    body_jacobians(geom, X, z3, z3, m1[0], m3[0], m3[1], m3[2], m1[1], m1[2], Jq, q)
+    m1 = np.empty((2, N_BODIES, 3))  # av, aw
+    body_jacobians(geom, X, z3, z3, m3[0], m3[1], m3[2], m1[0], m1[1], Jq, q)
 
 
 @kernel

@@ -23,7 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from .controllers import Gains
 from .errors import InvalidPoseError, PkmctlError
 from .mechanism import PAPER_TABLE2, Mechanism
-from .trajectory import Sinusoid, paper_trajectory
+from .trajectory import TRAJECTORIES, Sinusoid, paper_trajectory
 
 __all__ = ["BUILTINS", "Scenario", "ScenarioError"]
 
@@ -118,9 +118,8 @@ class TrajectorySpec(_Model):
     phase: Vec3 = Field(default_factory=lambda: _paper_traj("phase"))
 
     def build(self) -> Sinusoid:
-        return Sinusoid(
-            *(tuple(getattr(self, k)) for k in ("offset", "amplitude", "omega", "phase"))
-        )
+        cls = TRAJECTORIES[self.kind]
+        return cls(*(tuple(getattr(self, k)) for k in ("offset", "amplitude", "omega", "phase")))
 
 
 class InitialSpec(_Model):

@@ -22,7 +22,7 @@ import numpy as np
 
 from ._jit import kernel
 from .controllers import CONTROLLERS, MEM_SIZE, control_step, make_controller
-from .dynamics import actuator_forces_kernel, dynamics_kernel, make_work, solve_spd3
+from .dynamics import JQ, Q, actuator_forces_kernel, dynamics_kernel, make_work, solve_spd3
 from .errors import SimulationDiverged
 from .fuzzy import FLC, MamdaniSystem
 from .mechanism import Mechanism
@@ -83,7 +83,7 @@ class Result:
 def _plant_accel(geom, theta, X, Xd, tau, dist, work, M, C, G, out):
     """Xddot = M^-1 (J^T tau + tau_d' - C Xdot - G) for the true plant (eq. 24)."""
     dynamics_kernel(geom, theta, X, Xd, Xd, work, M, C, G)  # C holds C Xdot
-    Jq = work[6]
+    Jq = work[JQ]
     for i in range(3):
         out[i] = (
             Jq[0, i] * tau[0]
@@ -171,7 +171,7 @@ def _run_kernel(
             X, Xd, Xdes[k], Xddes[k], Xdddes[k], mem, theta_hat, gamma_vec, th_min, th_max,
             work, M, C, G, Y, F,
         )  # fmt: skip
-        actuator_forces_kernel(work[6], F, tau)  # J of the model at X_k (kinematics ran last)
+        actuator_forces_kernel(work[JQ], F, tau)  # J of the model at X_k (kinematics ran last)
         if force_limit > 0.0:
             for i in range(4):
                 tau[i] = min(force_limit, max(-force_limit, tau[i]))
@@ -186,8 +186,8 @@ def _run_kernel(
             _plant_accel(plant_geom, plant_theta, X, Xd, tau, dist, pwork, M, C, G, k1v)
             if _ == 0:
                 for i in range(4):
-                    log_q[k, i] = pwork[7][i]
-                Jq = pwork[6]
+                    log_q[k, i] = pwork[Q][i]
+                Jq = pwork[JQ]
                 for i in range(3):
                     log_F[k, i] = (
                         Jq[0, i] * tau[0]
@@ -241,8 +241,8 @@ def _desired_kernel(geom, theta, Xd, Xdd, Xddd, q_out, tau_out):
         for i in range(3):
             F[i] = M[i, 0] * Xddd[k, 0] + M[i, 1] * Xddd[k, 1] + M[i, 2] * Xddd[k, 2]
             F[i] += Cv[i] + G[i]
-        actuator_forces_kernel(work[6], F, tau_out[k])
-        q_out[k, :] = work[7]
+        actuator_forces_kernel(work[JQ], F, tau_out[k])
+        q_out[k, :] = work[Q]
 
 
 def _disturbance(scenario: Scenario, n: int, Tc: float):
