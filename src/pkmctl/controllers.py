@@ -190,7 +190,7 @@ def adapt(theta_hat, Y, s, Tc, gamma_vec, th_min, th_max):
         theta_hat[k] = min(th_max[k], max(th_min[k], v))
 
 
-@kernel(inline="always")
+@kernel(inline="always", refcount=False)
 def control_step(
     kind,
     geom,

@@ -143,29 +143,81 @@ def _run_kernel(
 
     Returns (status, k, X, Xdot): status 0 when all periods ran, else the code of
     :data:`_STATUS` with k the first period whose state (X, Xdot) is invalid.
+    This shell allocates; :func:`_run_loop` runs without reference counting.
     """
-    n = Xdes.shape[0]
     X = X0.copy()
     Xd = Xd0.copy()
     mem = np.zeros(MEM_SIZE)
     theta_hat = model_theta.copy()
-    work = make_work()
-    pwork = make_work()
-    M, C, G = np.empty((3, 3)), np.empty(3), np.empty(3)
-    Y = np.empty((3, model_theta.shape[0]))
-    F = np.empty(3)
-    tau = np.empty(4)
+    status, k = _run_loop(
+        kind, plant_geom, plant_theta, model_geom, model_theta, gains, eps, flc_tables,
+        Tc, alpha_f, substeps, force_limit, Xdes, Xddes, Xdddes, dist_values, dist_index,
+        gamma_vec, th_min, th_max, log_X, log_Xd, log_F, log_tau, log_q, log_dist, log_theta,
+        X, Xd, mem, theta_hat, make_work(), make_work(), np.empty((3, 3)),
+        np.empty((3, model_theta.shape[0])), np.empty((13, 3)), np.empty(4),
+    )  # fmt: skip
+    return status, k, X, Xd
+
+
+@kernel(refcount=False)
+def _run_loop(
+    kind,
+    plant_geom,
+    plant_theta,
+    model_geom,
+    model_theta,
+    gains,
+    eps,
+    flc_tables,
+    Tc,
+    alpha_f,
+    substeps,
+    force_limit,
+    Xdes,
+    Xddes,
+    Xdddes,
+    dist_values,
+    dist_index,
+    gamma_vec,
+    th_min,
+    th_max,
+    log_X,
+    log_Xd,
+    log_F,
+    log_tau,
+    log_q,
+    log_dist,
+    log_theta,
+    X,
+    Xd,
+    mem,
+    theta_hat,
+    work,
+    pwork,
+    M,
+    Y,
+    vecs,
+    tau,
+):
+    """The loop of :func:`_run_kernel` on its preallocated arrays; returns (status, k).
+
+    X, Xd, mem and theta_hat are the state, advanced in place; ``vecs`` (13, 3) holds
+    C, G, F and the RK4 stage vectors.
+    """
+    n = Xdes.shape[0]
+    C, G, F = vecs[0], vecs[1], vecs[2]
+    k1x, k1v, k2x, k2v = vecs[3], vecs[4], vecs[5], vecs[6]
+    k3x, k3v, k4x, k4v = vecs[7], vecs[8], vecs[9], vecs[10]
+    Xs, Vs = vecs[11], vecs[12]
     h = Tc / substeps
-    k1x, k1v, k2x, k2v = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-    k3x, k3v, k4x, k4v = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-    Xs, Vs = np.empty(3), np.empty(3)
     log_theta_on = log_theta.shape[0] == n
     for k in range(n):
         status = _valid(X, Xd)
         if status != 0:
-            return status, k, X, Xd
+            return status, k
         if log_theta_on:
-            log_theta[k, :] = theta_hat  # the estimate used for F_k
+            for j in range(theta_hat.shape[0]):  # the estimate used for F_k
+                log_theta[k, j] = theta_hat[j]
         control_step(
             kind, model_geom, model_theta, gains, eps, flc_tables, Tc, alpha_f,
             X, Xd, Xdes[k], Xddes[k], Xdddes[k], mem, theta_hat, gamma_vec, th_min, th_max,
@@ -216,7 +268,7 @@ def _run_kernel(
                 Xd[i] += h / 6.0 * (k1v[i] + 2.0 * k2v[i] + 2.0 * k3v[i] + k4v[i])
             if _valid(X, Xd) != 0:
                 break
-    return 0, n, X, Xd
+    return 0, n
 
 
 def desired_forces(plant: Mechanism, Xd, Xdd, Xddd) -> tuple[np.ndarray, np.ndarray]:
