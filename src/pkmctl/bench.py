@@ -14,7 +14,9 @@ from collections.abc import Callable
 import numpy as np
 
 from ._jit import kernel
+from .controllers import control_step
 from .dynamics import dynamics_kernel, make_work, regressor_kernel
+from .simulation import _plant_accel
 
 __all__ = ["render", "run_all"]
 
@@ -45,6 +47,32 @@ def _loop_regressor(geom, X, Xd, Xr, Xrr, n, work, Y):
         X[2] = 0.3 * np.sin(1e-4 * k)
         regressor_kernel(geom, X, Xd, Xr, Xrr, work, Y)
         acc += Y[0, 0]
+    return acc
+
+
+@kernel(refcount=False)
+def _loop_plant(geom, theta, X, Xd, tau, dist, work, M, C, G, out, n):
+    acc = 0.0
+    for k in range(n):
+        X[2] = 0.3 * np.sin(1e-4 * k)
+        _plant_accel(geom, theta, X, Xd, tau, dist, work, M, C, G, out)
+        acc += out[0]
+    return acc
+
+
+@kernel(refcount=False)
+def _loop_control(
+    kind, geom, theta, gains, eps, tables, Tc, alpha_f, X, Xd, Xdes, Xddes, Xdddes,
+    mem, theta_hat, gamma_vec, th_min, th_max, work, M, C, G, Y, F, n,
+):  # fmt: skip
+    acc = 0.0
+    for k in range(n):
+        X[2] = 0.3 * np.sin(1e-4 * k)
+        control_step(
+            kind, geom, theta, gains, eps, tables, Tc, alpha_f, X, Xd, Xdes, Xddes, Xdddes,
+            mem, theta_hat, gamma_vec, th_min, th_max, work, M, C, G, Y, F,
+        )  # fmt: skip
+        acc += F[0]
     return acc
 
 
@@ -90,6 +118,44 @@ def bench_steps(duration: float, repeats: int) -> dict[str, dict[str, float]]:
             loop = min(loop, r.info["kernel_seconds"])
         out[name] = {"loop_steps_per_s": n / loop, "end_to_end_steps_per_s": n / total}
     return out
+
+
+def bench_breakdown(loop_steps_per_s: float, quick: bool = False) -> dict[str, float]:
+    """Where one AFSMC control step of the loop goes, each part timed alone in a compiled loop.
+
+    ``plant_us``: one RK4 stage (M, C Xdot, G, J^T tau and the solve for Xddot), done 4
+    times a step; ``controller_us``: one AFSMC control_step (regressor, 3 FLC calls,
+    adaptation); ``rest_us``: the step time of the loop minus those (force split,
+    logging, RK4 bookkeeping, validity checks).
+    """
+    import pkmctl
+
+    robot = pkmctl.Mechanism.paper()
+    ctrl = pkmctl.make_controller("afsmc", robot.with_theta(0.85 * robot.theta), period=5e-5)
+    g, th = robot.geometry.copy(), robot.theta.copy()
+    n = 20_000 if quick else 200_000
+    X, Xd = np.array([0.71, 0.2, -0.1]), np.array([0.02, 0.5, -0.4])
+    tau, dist = np.array([40.0, 10.0, 35.0, 12.0]), np.array([1.0, 0.2, -0.2])
+    work, M, C, G = make_work(), np.empty((3, 3)), np.empty(3), np.empty(3)
+    out, F, Y = np.empty(3), np.empty(3), np.empty((3, 36))
+    plant_args = (g, th, X.copy(), Xd, tau, dist, work, M, C, G, out)
+    ctrl_args = (
+        ctrl.kind, ctrl.model.geometry, ctrl.model.theta, ctrl._gm, ctrl.gains.eps,
+        ctrl._tables, ctrl.period, ctrl._alpha_f, X.copy(), Xd, X + 0.001, Xd * 0.9,
+        Xd * 0.1, np.zeros(16), ctrl.model.theta.copy(), ctrl.gamma_vec, ctrl.theta_min,
+        ctrl.theta_max, work, M, C, G, Y, F,
+    )  # fmt: skip
+    _loop_plant(*plant_args, 10)
+    _loop_control(*ctrl_args, 10)
+    plant = _best(lambda: _loop_plant(*plant_args, n), 5) / n * 1e6
+    control = _best(lambda: _loop_control(*ctrl_args, n), 5) / n * 1e6
+    step = 1e6 / loop_steps_per_s
+    return {
+        "step_us": step,
+        "plant_us": plant,
+        "controller_us": control,
+        "rest_us": step - 4 * plant - control,
+    }
 
 
 def bench_latency(n: int) -> dict[str, float]:
@@ -180,6 +246,8 @@ def run_all(quick: bool = False, progress: Callable[[str], None] | None = None) 
     res["steps"] = bench_steps(0.2 if quick else 10.0, 1 if quick else 3)
     say("FLC and peers")
     res["flc"] = bench_flc(quick)
+    say("one AFSMC step, part by part")
+    res["breakdown"] = bench_breakdown(res["steps"]["afsmc"]["loop_steps_per_s"], quick)
     say("controller step latency from Python")
     res["latency"] = bench_latency(2000 if quick else 50_000)
     say("batch over all cores")
@@ -206,6 +274,11 @@ def render(res: dict) -> str:
             f"end to end {v['end_to_end_steps_per_s']:>9,.0f}/s  "
             f"(10 s at 20 kHz: {200_000 / v['end_to_end_steps_per_s']:.2f} s)"
         )
+    bd = res["breakdown"]
+    lines.append(
+        f"one AFSMC step {bd['step_us']:.2f} us = 4 RK4 stages x {bd['plant_us']:.2f} us "
+        f"+ controller {bd['controller_us']:.2f} us + the rest {bd['rest_us']:.2f} us"
+    )
     f = res["flc"]
     lines.append("FLC per evaluation (same rule base everywhere):")
     for key, val in f.items():
