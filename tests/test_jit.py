@@ -53,3 +53,28 @@ def test_no_refcount_removes_every_atomic_and_keeps_the_numbers():
     assert "call void @NRT_incref" in ir_counted  # the cost being removed exists ...
     assert "@NRT_incref" not in ir_fast and "@NRT_decref" not in ir_fast  # ... and is gone
     assert out == plain
+
+
+def _all_kernels():
+    import importlib
+    import pkgutil
+
+    from numba.core.registry import CPUDispatcher
+
+    for mod in pkgutil.iter_modules(pkmctl.__path__):
+        if mod.name == "__main__":
+            continue
+        m = importlib.import_module(f"pkmctl.{mod.name}")
+        for name, obj in vars(m).items():
+            if isinstance(obj, CPUDispatcher) and obj.py_func.__module__ == m.__name__:
+                yield f"{m.__name__}.{name}", obj
+
+
+def test_every_kernel_states_its_reference_counting():
+    # A kernel first compiled from inside a refcount-free caller inherits the caller's
+    # flags unless it states _nrt itself; if it allocates, it then fails to compile,
+    # but only on a cold cache (this bit us once). So every kernel states it.
+    kernels = dict(_all_kernels())
+    assert len(kernels) > 30
+    unstated = [name for name, k in kernels.items() if "_nrt" not in k.targetoptions]
+    assert unstated == []

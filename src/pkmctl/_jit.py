@@ -16,14 +16,27 @@ closed loop that is about 40 atomic operations per plant evaluation, 40 % of its
 and must not return arrays. The switch is Numba's ``_nrt`` option, which Numba's own
 library uses; if a Numba version lacks it, the kernels compile with reference
 counting, give the same numbers, and are only slower.
+
+Every other kernel says ``_nrt=True`` explicitly: a function compiled while Numba is
+compiling a refcount-free caller would otherwise inherit its flags and fail to compile
+if it allocates (the general FLC path does). Without the explicit flag that only shows
+on a cold cache, depending on which kernel compiles first.
 """
 
 from numba import njit
 from numba.core.cpu import CPUTargetOptions
 
-JIT_OPTIONS = {"cache": True, "nogil": True, "error_model": "numpy", "fastmath": {"contract"}}
+_CAN_SWITCH = hasattr(CPUTargetOptions, "_nrt")
+#: Reference counting on, said explicitly (see the module docstring).
+REFCOUNT = {"_nrt": True} if _CAN_SWITCH else {}
 #: The options of a kernel without reference counting (empty if Numba cannot do that).
-NO_REFCOUNT = {"_nrt": False} if hasattr(CPUTargetOptions, "_nrt") else {}
+NO_REFCOUNT = {"_nrt": False} if _CAN_SWITCH else {}
+JIT_OPTIONS = {
+    "cache": True,
+    "nogil": True,
+    "error_model": "numpy",
+    "fastmath": {"contract"},
+} | REFCOUNT
 
 
 def kernel(fn=None, *, refcount: bool = True, **extra):
@@ -31,7 +44,7 @@ def kernel(fn=None, *, refcount: bool = True, **extra):
 
     ``refcount=False``: compile without reference counting (see the module docstring).
     """
-    options = JIT_OPTIONS | ({} if refcount else NO_REFCOUNT) | extra
+    options = JIT_OPTIONS | (REFCOUNT if refcount else NO_REFCOUNT) | extra
     if fn is None:
         return lambda f: njit(**options)(f)
     return njit(**options)(fn)

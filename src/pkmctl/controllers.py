@@ -38,8 +38,9 @@ from typing import ClassVar
 import numpy as np
 
 from ._jit import kernel
-from .dynamics import dynamics_kernel, gravity_kernel, make_work, regressor_kernel
+from .dynamics import N_THETA, dynamics_kernel, gravity_kernel, regressor_kernel
 from .fuzzy import FLC, MamdaniSystem, flc_eval
+from .kinematics import GEOM_SIZE, N_BODIES
 from .mechanism import Mechanism
 
 __all__ = [
@@ -255,6 +256,74 @@ def control_step(
         adapt(theta_hat, Y, s, Tc, gamma_vec, th_min, th_max)
 
 
+# A Controller keeps its constants, state and workspace in one flat float64 buffer, so
+# that a call from Python passes 8 arrays (the buffer, the FLC tables and the inputs)
+# instead of 16 arrays and two tuples: Numba's dispatcher takes ~1 us per tuple argument.
+_BUFFER_PARTS = (
+    ("geom", (GEOM_SIZE,)),
+    ("theta", (N_THETA,)),
+    ("gains", (6, 3)),
+    ("gamma_vec", (N_THETA,)),
+    ("theta_min", (N_THETA,)),
+    ("theta_max", (N_THETA,)),
+    ("mem", (MEM_SIZE,)),
+    ("theta_hat", (N_THETA,)),
+    ("M", (3, 3)),
+    ("C", (3,)),
+    ("G", (3,)),
+    ("Y", (3, N_THETA)),
+    ("Rb", (N_BODIES, 3, 3)),  # the workspace of dynamics.make_work, in its order
+    ("Jv", (N_BODIES, 3, 3)),
+    ("Jw", (N_BODIES, 3, 3)),
+    ("av", (N_BODIES, 3)),
+    ("aw", (N_BODIES, 3)),
+    ("Jq", (4, 3)),
+    ("q", (4,)),
+    ("scratch", (5, 3)),
+)
+_O = tuple(
+    int(sum(np.prod(sh) for _, sh in _BUFFER_PARTS[:i])) for i in range(len(_BUFFER_PARTS) + 1)
+)
+_BUFFER_SIZE = _O[-1]
+
+
+def _buffer_views(buf: np.ndarray) -> dict[str, np.ndarray]:
+    return {
+        name: buf[_O[i] : _O[i + 1]].reshape(shape) for i, (name, shape) in enumerate(_BUFFER_PARTS)
+    }
+
+
+@kernel(refcount=False)
+def _step_from_buffer(kind, eps, Tc, alpha_f, ints, reals, buf, X, Xd, Xdes, Xddes, Xdddes, F):
+    """control_step on a Controller's buffer (the views of _BUFFER_PARTS, cut here)."""
+    work = (
+        buf[_O[12] : _O[13]].reshape((N_BODIES, 3, 3)),
+        buf[_O[13] : _O[14]].reshape((N_BODIES, 3, 3)),
+        buf[_O[14] : _O[15]].reshape((N_BODIES, 3, 3)),
+        buf[_O[15] : _O[16]].reshape((N_BODIES, 3)),
+        buf[_O[16] : _O[17]].reshape((N_BODIES, 3)),
+        buf[_O[17] : _O[18]].reshape((4, 3)),
+        buf[_O[18] : _O[19]],
+        buf[_O[19] : _O[20]].reshape((5, 3)),
+    )
+    control_step(
+        kind, buf[_O[0] : _O[1]], buf[_O[1] : _O[2]], buf[_O[2] : _O[3]].reshape((6, 3)), eps,
+        (ints, reals), Tc, alpha_f, X, Xd, Xdes, Xddes, Xdddes, buf[_O[6] : _O[7]],
+        buf[_O[7] : _O[8]], buf[_O[3] : _O[4]], buf[_O[4] : _O[5]], buf[_O[5] : _O[6]], work,
+        buf[_O[8] : _O[9]].reshape((3, 3)), buf[_O[9] : _O[10]], buf[_O[10] : _O[11]],
+        buf[_O[11] : _O[12]].reshape((3, N_THETA)), F,
+    )  # fmt: skip
+
+
+def _as_vec3(a, name: str) -> np.ndarray:
+    if type(a) is np.ndarray and a.dtype == np.float64 and a.shape == (3,):
+        return a if a.flags.c_contiguous else a.copy()
+    a = np.ascontiguousarray(a, dtype=float)
+    if a.shape != (3,):
+        raise ValueError(f"{name}: expected shape (3,), got {a.shape}")
+    return a
+
+
 class Controller:
     """Base class: one small interface for SMC, FSMC and AFSMC (see the module docstring)."""
 
@@ -278,24 +347,30 @@ class Controller:
         self.period = float(period)
         self.flc = FLC() if flc is None else flc
         self._tables = self.flc.compiled()
-        self._gm = self.gains.matrix()
         self._alpha_f = 1.0 / self.gains.filter_periods
         th0 = model.theta
         lo, hi = self.gains.theta_bounds
-        self.theta_min = lo * th0
-        self.theta_max = hi * th0
+        self._buf = np.zeros(_BUFFER_SIZE)
+        views = _buffer_views(self._buf)
+        views["geom"][:] = model.geometry
+        views["theta"][:] = th0
+        views["gains"][:] = self.gains.matrix()
+        views["theta_min"][:] = lo * th0
+        views["theta_max"][:] = hi * th0
         # Gamma = gamma diag(Theta_0^2): every parameter adapts at the same relative rate
         # for the same share of the force (DESIGN.md §4 asks for a per-parameter scaling).
-        self.gamma_vec = self.gains.gamma * th0**2
-        self._work = make_work()
-        self._M, self._C, self._G = np.empty((3, 3)), np.empty(3), np.empty(3)
-        self._Y = np.empty((3, th0.size))
+        views["gamma_vec"][:] = self.gains.gamma * th0**2
+        self._gm = views["gains"]
+        self.theta_min, self.theta_max = views["theta_min"], views["theta_max"]
+        self.gamma_vec = views["gamma_vec"]
+        self._mem, self._theta_hat = views["mem"], views["theta_hat"]
+        self._views = views
         self.reset()
 
     def reset(self) -> None:
         """Restore the initial state (no previous s, sdot = 0, Theta^ = the model's Theta)."""
-        self._mem = np.zeros(MEM_SIZE)
-        self._theta_hat = np.array(self.model.theta, dtype=float)
+        self._mem[:] = 0.0
+        self._theta_hat[:] = self.model.theta
         self._steps = 0
 
     @property
@@ -309,31 +384,20 @@ class Controller:
 
     def step(self, X, Xdot, X_d, Xdot_d, Xddot_d) -> np.ndarray:
         """One control period: the task-space force F (3,) for the measured (X, Xdot)."""
-        args = [np.ascontiguousarray(a, dtype=float) for a in (X, Xdot, X_d, Xdot_d, Xddot_d)]
-        for a, n in zip(args, ("X", "Xdot", "X_d", "Xdot_d", "Xddot_d"), strict=True):
-            if a.shape != (3,):
-                raise ValueError(f"{n}: expected shape (3,), got {a.shape}")
         F = np.empty(3)
-        control_step(
+        _step_from_buffer(
             self.kind,
-            self.model.geometry,
-            self.model.theta,
-            self._gm,
             self.gains.eps,
-            self._tables,
             self.period,
             self._alpha_f,
-            *args,
-            self._mem,
-            self._theta_hat,
-            self.gamma_vec,
-            self.theta_min,
-            self.theta_max,
-            self._work,
-            self._M,
-            self._C,
-            self._G,
-            self._Y,
+            self._tables.ints,
+            self._tables.reals,
+            self._buf,
+            _as_vec3(X, "X"),
+            _as_vec3(Xdot, "Xdot"),
+            _as_vec3(X_d, "X_d"),
+            _as_vec3(Xdot_d, "Xdot_d"),
+            _as_vec3(Xddot_d, "Xddot_d"),
             F,
         )
         self._steps += 1

@@ -9,14 +9,14 @@ from __future__ import annotations
 
 import time
 
-import numba
 import numpy as np
 
+from ._jit import kernel
 from .bench import _best
 from .fuzzy import FLC, PAPER_RULE_TABLE, TERM_NAMES, flc_eval
 
 
-@numba.njit(cache=True)
+@kernel
 def _loop(tables, s, sdot):
     acc = 0.0
     for n in range(s.shape[0]):

@@ -13,11 +13,15 @@ import math
 import numba
 import numpy as np
 
+from ._jit import REFCOUNT
+
 __all__ = ["flc_eval", "mamdani_eval"]
 
 _TRI, _TRAP, _GAUSS, _ZMF, _SMF = 0, 1, 2, 3, 4
 
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+# No FMA contraction here (unlike pkmctl._jit.kernel); reference counting said explicitly,
+# as pkmctl._jit explains, since flc_eval is called from the refcount-free loop.
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy", **REFCOUNT)
 
 # FISTables layout: two flat arrays. ints[:_HEADER] = [n_in, K, R, T, fast] followed by
 # the offsets of the sections _INT_SECTIONS in ints and _REAL_SECTIONS in reals.
