@@ -234,3 +234,17 @@ def test_sdot_filter_prevents_nyquist_limit_cycle(controller):
     alt_raw, std_raw = _alternation(pkmctl.simulate(raw, controller=controller))
     assert alt < 0.3 and std < 2.0, (alt, std)
     assert alt_raw > 0.9 and std_raw > 10 * std, (alt_raw, std_raw)
+
+
+@pytest.mark.parametrize("name", ["smc", "fsmc", "afsmc"])
+def test_step_takes_lists_and_strided_views_alike(robot, name):
+    X, Xd = [0.7, 0.1, -0.05], [0.71, 0.12, -0.04]
+    wide = np.zeros((3, 2))
+    wide[:, 0] = X  # a non-contiguous view
+    plain = make_controller(name, robot, period=1e-3)
+    other = make_controller(name, robot, period=1e-3)
+    for _ in range(3):
+        F1 = plain.step(np.array(X), np.zeros(3), np.array(Xd), np.zeros(3), np.zeros(3))
+        F2 = other.step(wide[:, 0], [0, 0, 0], Xd, (0.0, 0.0, 0.0), np.zeros(3, dtype=np.float32))
+        assert np.array_equal(F1, F2)
+    assert np.array_equal(wide[:, 0], X)  # inputs are never written
