@@ -4,6 +4,7 @@ import json
 
 from typer.testing import CliRunner
 
+from pkmctl.bench import render, rows
 from pkmctl.cli import app
 from pkmctl.flops import count
 
@@ -16,6 +17,19 @@ def test_bench_quick_smoke(tmp_path):
     assert set(data["steps"]) == {"smc", "fsmc", "afsmc"}
     assert data["flc"]["compiled_us"] > 0 and data["batch"]["workers"] >= 1
     assert data["flops"]["flops_per_step"] > data["flops"]["plant_eval_flops"] * 4
+    assert data["reproduce"]["warm_s"] > 0
+    assert "≥ 200,000 steps/s" in res.output  # the table, with its targets
+    # the targets are judged only in full mode: a slow loop is flagged, a fast one passes
+    slow = dict(data, quick=False)
+    slow["steps"] = {k: dict(v, loop_steps_per_s=150_000.0) for k, v in data["steps"].items()}
+    fast = dict(
+        slow, steps={k: dict(v, loop_steps_per_s=250_000.0) for k, v in slow["steps"].items()}
+    )
+    held = {r[0]: r[3] for r in rows(slow)}
+    assert held["closed loop afsmc, one core"] == "NO"
+    assert {r[0]: r[3] for r in rows(fast)}["closed loop afsmc, one core"] == "yes"
+    assert {r[0]: r[3] for r in rows(data)}["closed loop afsmc, one core"] == "-"
+    assert render(slow).splitlines()[1].split() == ["measurement", "result", "target", "held"]
 
 
 def test_flop_counter_counts_what_it_should():

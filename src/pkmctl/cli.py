@@ -166,10 +166,19 @@ def bench(
     json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON.")] = None,
 ) -> None:
     """Measure speed on this machine: steps/s, FLC, latency, batch, and peers in one run."""
-    from .bench import render, run_all
+    from .bench import machine_line, rows, run_all
 
-    results = run_all(quick=quick, progress=lambda m: err_console.print(f"[dim]{m}[/]"))
-    console.print(render(results))
+    try:
+        results = run_all(quick=quick, progress=lambda m: err_console.print(f"[dim]{m}[/]"))
+    except RuntimeError as exc:
+        _fail(str(exc), code=1)
+    table = Table(title=machine_line(results), title_justify="left")
+    for col, justify in (("measurement", "left"), ("result", "right"), ("target", "right")):
+        table.add_column(col, justify=justify, no_wrap=True)
+    table.add_column("held", justify="center", no_wrap=True)
+    for label, text, target, held in rows(results):
+        table.add_row(label, text, target, f"[red]{held}[/]" if held == "NO" else held)
+    console.print(table)
     if json_out is not None:
         import json
 
