@@ -248,3 +248,22 @@ def test_step_takes_lists_and_strided_views_alike(robot, name):
         F2 = other.step(wide[:, 0], [0, 0, 0], Xd, (0.0, 0.0, 0.0), np.zeros(3, dtype=np.float32))
         assert np.array_equal(F1, F2)
     assert np.array_equal(wide[:, 0], X)  # inputs are never written
+
+
+def test_a_copied_controller_carries_on_by_itself(robot):
+    import copy
+    import pickle
+
+    X, Xd, z = np.array([0.7, 0.1, -0.05]), np.array([0.71, 0.12, -0.04]), np.zeros(3)
+    ctrl = make_controller("afsmc", robot, period=1e-3)
+    for _ in range(3):
+        ctrl.step(X, z, Xd, z, z)
+    twins = [copy.deepcopy(ctrl), pickle.loads(pickle.dumps(ctrl))]
+    F = [ctrl.step(X, z, Xd, z, z) for _ in range(3)][-1]
+    for twin in twins:
+        assert twin.state.steps == 3 and not np.array_equal(
+            twin.state.theta_hat, ctrl.state.theta_hat
+        )
+        F_twin = [twin.step(X, z, Xd, z, z) for _ in range(3)][-1]
+        assert np.array_equal(F_twin, F)
+        assert np.array_equal(twin.state.theta_hat, ctrl.state.theta_hat)

@@ -287,10 +287,12 @@ _O = tuple(
 _BUFFER_SIZE = _O[-1]
 
 
-def _buffer_views(buf: np.ndarray) -> dict[str, np.ndarray]:
-    return {
-        name: buf[_O[i] : _O[i + 1]].reshape(shape) for i, (name, shape) in enumerate(_BUFFER_PARTS)
-    }
+_PART_INDEX = {name: i for i, (name, _) in enumerate(_BUFFER_PARTS)}
+
+
+def _buffer_view(buf: np.ndarray, name: str) -> np.ndarray:
+    i = _PART_INDEX[name]
+    return buf[_O[i] : _O[i + 1]].reshape(_BUFFER_PARTS[i][1])
 
 
 @kernel(refcount=False)
@@ -351,21 +353,25 @@ class Controller:
         th0 = model.theta
         lo, hi = self.gains.theta_bounds
         self._buf = np.zeros(_BUFFER_SIZE)
-        views = _buffer_views(self._buf)
-        views["geom"][:] = model.geometry
-        views["theta"][:] = th0
-        views["gains"][:] = self.gains.matrix()
-        views["theta_min"][:] = lo * th0
-        views["theta_max"][:] = hi * th0
+        view = lambda name: _buffer_view(self._buf, name)  # noqa: E731
+        view("geom")[:] = model.geometry
+        view("theta")[:] = th0
+        view("gains")[:] = self.gains.matrix()
+        view("theta_min")[:] = lo * th0
+        view("theta_max")[:] = hi * th0
         # Gamma = gamma diag(Theta_0^2): every parameter adapts at the same relative rate
         # for the same share of the force (DESIGN.md §4 asks for a per-parameter scaling).
-        views["gamma_vec"][:] = self.gains.gamma * th0**2
-        self._gm = views["gains"]
-        self.theta_min, self.theta_max = views["theta_min"], views["theta_max"]
-        self.gamma_vec = views["gamma_vec"]
-        self._mem, self._theta_hat = views["mem"], views["theta_hat"]
-        self._views = views
+        view("gamma_vec")[:] = self.gains.gamma * th0**2
         self.reset()
+
+    # Views into the buffer, made on access, so that copy.deepcopy and pickle (which copy
+    # the buffer) give a controller whose views are its own.
+    theta_min = property(lambda self: _buffer_view(self._buf, "theta_min"))
+    theta_max = property(lambda self: _buffer_view(self._buf, "theta_max"))
+    gamma_vec = property(lambda self: _buffer_view(self._buf, "gamma_vec"))
+    _gm = property(lambda self: _buffer_view(self._buf, "gains"))
+    _mem = property(lambda self: _buffer_view(self._buf, "mem"))
+    _theta_hat = property(lambda self: _buffer_view(self._buf, "theta_hat"))
 
     def reset(self) -> None:
         """Restore the initial state (no previous s, sdot = 0, Theta^ = the model's Theta)."""
