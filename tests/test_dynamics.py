@@ -51,3 +51,9 @@ def test_inverse_dynamics_equals_regressor_at_state(robot):
         robot.regressor(X, Xd, Xd, Xdd) @ robot.theta,
         rtol=1e-12,
     )
+
+
+def test_work_shapes_describe_make_work():
+    from pkmctl.dynamics import WORK_SHAPES, make_work
+
+    assert tuple(a.shape for a in make_work()) == WORK_SHAPES

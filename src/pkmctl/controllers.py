@@ -38,9 +38,9 @@ from typing import ClassVar
 import numpy as np
 
 from ._jit import kernel
-from .dynamics import N_THETA, dynamics_kernel, gravity_kernel, regressor_kernel
+from .dynamics import N_THETA, WORK_SHAPES, dynamics_kernel, gravity_kernel, regressor_kernel
 from .fuzzy import FLC, MamdaniSystem, flc_eval
-from .kinematics import GEOM_SIZE, N_BODIES
+from .kinematics import GEOM_SIZE
 from .mechanism import Mechanism
 
 __all__ = [
@@ -272,22 +272,13 @@ _BUFFER_PARTS = (
     ("C", (3,)),
     ("G", (3,)),
     ("Y", (3, N_THETA)),
-    ("Rb", (N_BODIES, 3, 3)),  # the workspace of dynamics.make_work, in its order
-    ("Jv", (N_BODIES, 3, 3)),
-    ("Jw", (N_BODIES, 3, 3)),
-    ("av", (N_BODIES, 3)),
-    ("aw", (N_BODIES, 3)),
-    ("Jq", (4, 3)),
-    ("q", (4,)),
-    ("scratch", (5, 3)),
-)
+) + tuple((f"work{i}", shape) for i, shape in enumerate(WORK_SHAPES))  # make_work's arrays
+_GEOM, _THETA, _GAINS, _GAMMA, _TH_MIN, _TH_MAX, _MEM, _THETA_HAT, _M, _C, _G, _Y, _WORK = range(13)
+_PART_INDEX = {name: i for i, (name, _) in enumerate(_BUFFER_PARTS)}
 _O = tuple(
     int(sum(np.prod(sh) for _, sh in _BUFFER_PARTS[:i])) for i in range(len(_BUFFER_PARTS) + 1)
 )
 _BUFFER_SIZE = _O[-1]
-
-
-_PART_INDEX = {name: i for i, (name, _) in enumerate(_BUFFER_PARTS)}
 
 
 def _buffer_view(buf: np.ndarray, name: str) -> np.ndarray:
@@ -295,25 +286,31 @@ def _buffer_view(buf: np.ndarray, name: str) -> np.ndarray:
     return buf[_O[i] : _O[i + 1]].reshape(_BUFFER_PARTS[i][1])
 
 
+@kernel(inline="always", refcount=False)
+def _part(buf, i):
+    """Part i of a Controller's buffer, flat (a view)."""
+    return buf[_O[i] : _O[i + 1]]
+
+
 @kernel(refcount=False)
 def _step_from_buffer(kind, eps, Tc, alpha_f, ints, reals, buf, X, Xd, Xdes, Xddes, Xdddes, F):
-    """control_step on a Controller's buffer (the views of _BUFFER_PARTS, cut here)."""
+    """control_step on a Controller's buffer (the parts of _BUFFER_PARTS, as views)."""
     work = (
-        buf[_O[12] : _O[13]].reshape((N_BODIES, 3, 3)),
-        buf[_O[13] : _O[14]].reshape((N_BODIES, 3, 3)),
-        buf[_O[14] : _O[15]].reshape((N_BODIES, 3, 3)),
-        buf[_O[15] : _O[16]].reshape((N_BODIES, 3)),
-        buf[_O[16] : _O[17]].reshape((N_BODIES, 3)),
-        buf[_O[17] : _O[18]].reshape((4, 3)),
-        buf[_O[18] : _O[19]],
-        buf[_O[19] : _O[20]].reshape((5, 3)),
+        _part(buf, _WORK).reshape(WORK_SHAPES[0]),
+        _part(buf, _WORK + 1).reshape(WORK_SHAPES[1]),
+        _part(buf, _WORK + 2).reshape(WORK_SHAPES[2]),
+        _part(buf, _WORK + 3).reshape(WORK_SHAPES[3]),
+        _part(buf, _WORK + 4).reshape(WORK_SHAPES[4]),
+        _part(buf, _WORK + 5).reshape(WORK_SHAPES[5]),
+        _part(buf, _WORK + 6),
+        _part(buf, _WORK + 7).reshape(WORK_SHAPES[7]),
     )
     control_step(
-        kind, buf[_O[0] : _O[1]], buf[_O[1] : _O[2]], buf[_O[2] : _O[3]].reshape((6, 3)), eps,
-        (ints, reals), Tc, alpha_f, X, Xd, Xdes, Xddes, Xdddes, buf[_O[6] : _O[7]],
-        buf[_O[7] : _O[8]], buf[_O[3] : _O[4]], buf[_O[4] : _O[5]], buf[_O[5] : _O[6]], work,
-        buf[_O[8] : _O[9]].reshape((3, 3)), buf[_O[9] : _O[10]], buf[_O[10] : _O[11]],
-        buf[_O[11] : _O[12]].reshape((3, N_THETA)), F,
+        kind, _part(buf, _GEOM), _part(buf, _THETA), _part(buf, _GAINS).reshape((6, 3)), eps,
+        (ints, reals), Tc, alpha_f, X, Xd, Xdes, Xddes, Xdddes, _part(buf, _MEM),
+        _part(buf, _THETA_HAT), _part(buf, _GAMMA), _part(buf, _TH_MIN), _part(buf, _TH_MAX),
+        work, _part(buf, _M).reshape((3, 3)), _part(buf, _C), _part(buf, _G),
+        _part(buf, _Y).reshape((3, N_THETA)), F,
     )  # fmt: skip
 
 

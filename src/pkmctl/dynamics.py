@@ -29,6 +29,7 @@ from .kinematics import N_BODIES, body_jacobians
 
 __all__ = [
     "N_THETA",
+    "WORK_SHAPES",
     "actuator_forces_kernel",
     "dynamics_kernel",
     "gravity_kernel",
@@ -42,6 +43,8 @@ N_THETA = 4 * N_BODIES
 
 #: Positions in the workspace tuple of :func:`make_work` (named, not magic numbers).
 RB, JV, JW, AV, AW, JQ, Q, SCRATCH = range(8)
+#: Shapes of the workspace arrays, at those positions.
+WORK_SHAPES = ((N_BODIES, 3, 3),) * 3 + ((N_BODIES, 3),) * 2 + ((4, 3), (4,), (5, 3))
 
 
 @kernel
