@@ -127,8 +127,8 @@ def bench_breakdown(loop_steps_per_s: float, quick: bool = False) -> dict[str, f
     times a step; ``controller_us``: one AFSMC control_step (regressor, 3 FLC calls,
     adaptation); ``parts_us``: 4 stages + the controller, to compare with ``step_us``,
     the loop's time per step (which adds the force split, logging and RK4 bookkeeping,
-    but overlaps the parts in the out-of-order core; the two differ by a few % either
-    way).
+    but overlaps the parts in the out-of-order core, and is timed in another run: the
+    two differed by -3 % to +20 % in the runs of docs/performance.md).
     """
     import pkmctl
 
