@@ -128,7 +128,7 @@ def bench_breakdown(loop_steps_per_s: float, quick: bool = False) -> dict[str, f
     adaptation); ``parts_us``: 4 stages + the controller, to compare with ``step_us``,
     the loop's time per step (which adds the force split, logging and RK4 bookkeeping,
     but overlaps the parts in the out-of-order core, and is timed in another run: the
-    two differed by -3 % to +20 % in the runs of docs/performance.md).
+    loop was 0-21 % slower than the parts in the four runs of docs/performance.md).
     """
     import pkmctl
 
