@@ -14,7 +14,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ._jit import kernel
-from .controllers import control_step
+from .controllers import _step_from_buffer
 from .dynamics import dynamics_kernel, make_work, regressor_kernel
 from .simulation import _plant_accel
 
@@ -61,17 +61,11 @@ def _loop_plant(geom, theta, X, Xd, tau, dist, work, M, C, G, out, n):
 
 
 @kernel(refcount=False)
-def _loop_control(
-    kind, geom, theta, gains, eps, tables, Tc, alpha_f, X, Xd, Xdes, Xddes, Xdddes,
-    mem, theta_hat, gamma_vec, th_min, th_max, work, M, C, G, Y, F, n,
-):  # fmt: skip
+def _loop_control(kind, eps, Tc, alpha_f, ints, reals, buf, X, Xd, Xdes, Xddes, Xdddes, F, n):
     acc = 0.0
     for k in range(n):
         X[2] = 0.3 * np.sin(1e-4 * k)
-        control_step(
-            kind, geom, theta, gains, eps, tables, Tc, alpha_f, X, Xd, Xdes, Xddes, Xdddes,
-            mem, theta_hat, gamma_vec, th_min, th_max, work, M, C, G, Y, F,
-        )  # fmt: skip
+        _step_from_buffer(kind, eps, Tc, alpha_f, ints, reals, buf, X, Xd, Xdes, Xddes, Xdddes, F)
         acc += F[0]
     return acc
 
@@ -139,13 +133,12 @@ def bench_breakdown(loop_steps_per_s: float, quick: bool = False) -> dict[str, f
     X, Xd = np.array([0.71, 0.2, -0.1]), np.array([0.02, 0.5, -0.4])
     tau, dist = np.array([40.0, 10.0, 35.0, 12.0]), np.array([1.0, 0.2, -0.2])
     work, M, C, G = make_work(), np.empty((3, 3)), np.empty(3), np.empty(3)
-    out, F, Y = np.empty(3), np.empty(3), np.empty((3, 36))
+    out, F = np.empty(3), np.empty(3)
     plant_args = (g, th, X.copy(), Xd, tau, dist, work, M, C, G, out)
+    # the compiled step a Controller runs (Controller.step minus the Python dispatch)
     ctrl_args = (
-        ctrl.kind, ctrl.model.geometry, ctrl.model.theta, ctrl._gm, ctrl.gains.eps,
-        ctrl._tables, ctrl.period, ctrl._alpha_f, X.copy(), Xd, X + 0.001, Xd * 0.9,
-        Xd * 0.1, np.zeros(16), ctrl.model.theta.copy(), ctrl.gamma_vec, ctrl.theta_min,
-        ctrl.theta_max, work, M, C, G, Y, F,
+        ctrl.kind, ctrl.gains.eps, ctrl.period, ctrl._alpha_f, ctrl._tables.ints,
+        ctrl._tables.reals, ctrl._buf, X.copy(), Xd, X + 0.001, Xd * 0.9, Xd * 0.1, F,
     )  # fmt: skip
     _loop_plant(*plant_args, 10)
     _loop_control(*ctrl_args, 10)
