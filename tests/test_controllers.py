@@ -261,6 +261,8 @@ def test_a_copied_controller_carries_on_by_itself(robot):
     twins = [copy.deepcopy(ctrl), pickle.loads(pickle.dumps(ctrl))]
     F = [ctrl.step(X, z, Xd, z, z) for _ in range(3)][-1]
     for twin in twins:
+        # read-only like the original's: a writable copy would be a new type to Numba
+        assert not (twin._tables.ints.flags.writeable or twin._tables.reals.flags.writeable)
         assert twin.state.steps == 3 and not np.array_equal(
             twin.state.theta_hat, ctrl.state.theta_hat
         )

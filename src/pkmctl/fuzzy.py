@@ -257,6 +257,11 @@ class FISTables(NamedTuple):
     ints: np.ndarray
     reals: np.ndarray
 
+    def __reduce__(self):
+        # Copies (pickle, copy.deepcopy) stay read-only: a writable copy is another type
+        # to Numba, and every kernel that takes the tables would compile once more for it.
+        return (_frozen_tables, (self.ints, self.reals))
+
     def unpack(self) -> dict[str, np.ndarray]:
         """Named views of the sections, with the shapes above."""
         n_in, K, R, T, fast = (int(v) for v in self.ints[:5])
@@ -403,10 +408,15 @@ def _compile(inputs: tuple[Variable, ...], output: Variable, rules: tuple[Rule, 
         for n, name in enumerate(_INT_SECTIONS if dtype is np.int64 else _REAL_SECTIONS):
             ints[0][first + n] = sum(p.size for p in parts)
             parts.append(np.asarray(sections[name], dtype=dtype).reshape(-1))
-    tables = FISTables(np.concatenate(ints), np.concatenate(reals))
-    for arr in tables:
-        arr.setflags(write=False)
-    return tables
+    return _frozen_tables(np.concatenate(ints), np.concatenate(reals))
+
+
+def _frozen_tables(ints: np.ndarray, reals: np.ndarray) -> FISTables:
+    """FISTables over the two arrays, made read-only (contiguous copies if they are not)."""
+    ints, reals = np.ascontiguousarray(ints), np.ascontiguousarray(reals)
+    ints.setflags(write=False)
+    reals.setflags(write=False)
+    return FISTables(ints, reals)
 
 
 @dataclass(frozen=True)
