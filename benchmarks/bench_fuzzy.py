@@ -5,7 +5,7 @@ python benchmarks/bench_fuzzy.py [--quick]
 
 import argparse
 
-from pkmctl.fuzzy_bench import run
+from benchmarks.fuzzy_bench import run
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

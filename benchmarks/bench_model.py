@@ -6,7 +6,7 @@ Prints microseconds per evaluation of M, C and G together, and of the regressor,
 called in an njit loop as the closed loop calls them. Same code as ``pkmctl bench``.
 """
 
-from pkmctl.bench import bench_model
+from benchmarks.bench import bench_model
 
 if __name__ == "__main__":
     r = bench_model()

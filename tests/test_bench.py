@@ -4,9 +4,9 @@ import json
 
 from typer.testing import CliRunner
 
-from pkmctl.bench import render, rows
+from benchmarks.bench import render, rows
+from benchmarks.flops import count
 from pkmctl.cli import app
-from pkmctl.flops import count
 
 
 def test_bench_quick_smoke(tmp_path):
@@ -14,7 +14,11 @@ def test_bench_quick_smoke(tmp_path):
     res = CliRunner().invoke(app, ["bench", "--quick", "--json", str(out)])
     assert res.exit_code == 0, res.output
     data = json.loads(out.read_text())
-    assert set(data["steps"]) == {"smc", "fsmc", "afsmc"}
+    assert set(data["steps"]) == {"smc", "fsmc", "afsmc", "pd", "ctc", "my-law"}
+    assert data["mujoco"]["steps_per_s"] > 0  # the test command installs MuJoCo
+    labels = [r[0] for r in rows(data)]
+    assert "  AFSMC closed loop / MuJoCo open loop" in labels
+    assert "  user's my-law / built-in pd" in labels
     assert data["flc"]["compiled_us"] > 0 and data["batch"]["workers"] >= 1
     assert data["flops"]["flops_per_step"] > data["flops"]["plant_eval_flops"] * 4
     assert data["reproduce"]["warm_s"] > 0

@@ -11,8 +11,8 @@ from typer.testing import CliRunner
 
 import pkmctl
 from pkmctl.cli import app
-from pkmctl.metrics import RMSE_KEYS
-from pkmctl.results_io import load_result
+from pkmctl.io.results import load_result
+from pkmctl.sim.metrics import RMSE_KEYS
 
 runner = CliRunner()
 
@@ -23,11 +23,12 @@ def test_reproduce_end_to_end(tmp_path):
     assert res.exit_code == 0, res.output
     with open(out / "table4.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
-    assert [r["controller"] for r in rows] == ["smc", "fsmc", "afsmc"]
+    assert [r["controller"] for r in rows] == ["smc", "fsmc", "afsmc", "pd", "ctc"]
     assert list(rows[0]) == ["controller", *RMSE_KEYS]
     assert all(float(r[k]) > 0 for r in rows for k in RMSE_KEYS)
     md = (out / "table4.md").read_text()
     assert "6.12032" in md  # the paper's SMC beta RMSE beside ours
+    assert "| PD | ours |" in md and "| PD | paper |" not in md  # ours gain two rows
     report = (out / "report.md").read_text()
     figs = sorted(p.name for p in (out / "figures").iterdir())
     assert figs == [f"fig{n}.png" for n in range(10, 27)]

@@ -5,7 +5,7 @@ import pytest
 from conftest import random_poses
 
 import pkmctl
-from pkmctl.controllers import AFSMC, CONTROLLERS, FSMC, SMC, Gains, adapt, make_controller
+from pkmctl.control import AFSMC, CONTROLLERS, FSMC, SMC, Gains, adapt, make_controller
 from pkmctl.fuzzy import FLC
 
 TC = 5e-5
@@ -147,7 +147,7 @@ def test_projection_keeps_bounds_under_adversarial_inputs():
 
 
 def test_registry_and_errors(robot):
-    assert set(CONTROLLERS) == {"smc", "fsmc", "afsmc"}
+    assert set(CONTROLLERS) == {"smc", "fsmc", "afsmc", "pd", "ctc"}
     assert isinstance(make_controller("AFSMC", robot, period=1e-3), AFSMC)
     with pytest.raises(ValueError, match="controller = 'pid'"):
         make_controller("pid", robot, period=1e-3)
@@ -262,7 +262,8 @@ def test_a_copied_controller_carries_on_by_itself(robot):
     F = [ctrl.step(X, z, Xd, z, z) for _ in range(3)][-1]
     for twin in twins:
         # read-only like the original's: a writable copy would be a new type to Numba
-        assert not (twin._tables.ints.flags.writeable or twin._tables.reals.flags.writeable)
+        flc = twin.params.flc
+        assert not (flc.ints.flags.writeable or flc.reals.flags.writeable)
         assert twin.state.steps == 3 and not np.array_equal(
             twin.state.theta_hat, ctrl.state.theta_hat
         )

@@ -54,6 +54,6 @@ def test_inverse_dynamics_equals_regressor_at_state(robot):
 
 
 def test_work_shapes_describe_make_work():
-    from pkmctl.dynamics import WORK_SHAPES, make_work
+    from pkmctl.model.dynamics import WORK_SHAPES, make_work
 
     assert tuple(a.shape for a in make_work()) == WORK_SHAPES

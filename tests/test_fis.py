@@ -1,4 +1,4 @@
-"""Tests of pkmctl.fis: MATLAB .fis read/write, round trips and error reporting."""
+"""Tests of pkmctl.fuzzy.fis: MATLAB .fis read/write, round trips and error reporting."""
 
 import os
 from importlib import resources
@@ -6,8 +6,8 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from pkmctl import fis
 from pkmctl import fuzzy as fz
+from pkmctl.fuzzy import fis
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,7 @@ def test_round_trip_through_text_gives_identical_system(flc):
 
 
 def test_shipped_file_is_the_paper_flc(flc):
-    path = resources.files("pkmctl") / "data" / "paper_flc.fis"
+    path = resources.files("pkmctl") / "fuzzy" / "data" / "paper_flc.fis"
     shipped = fis.read_fis(str(path))
     s, sdot = random_inputs(seed=1)
     np.testing.assert_allclose(shipped(s, sdot), flc(s, sdot), rtol=0, atol=1e-12)

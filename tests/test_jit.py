@@ -1,15 +1,25 @@
-"""The compile options of the hot loops (pkmctl._jit)."""
+"""How pkmctl compiles (pkmctl._jit): no reference counting in the hot loop, a disk cache
+that hits in a new process, and compiled code that never goes stale."""
+
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
 
 import numpy as np
 from numba import njit
+from numba.core.registry import CPUDispatcher
 
 import pkmctl
-from pkmctl._jit import JIT_OPTIONS, NO_REFCOUNT
-from pkmctl.controllers import control_step
-from pkmctl.dynamics import dynamics_kernel, make_work
-from pkmctl.simulation import _run_loop
+from pkmctl._jit import JIT_OPTIONS, NO_REFCOUNT, cache_dir, source_stamp
+from pkmctl.model.dynamics import dynamics_kernel, make_work
+from pkmctl.parts import get_part
+from pkmctl.sim.loop import loop_for
 
 _OPTS = JIT_OPTIONS | {"cache": False}
+SRC = Path(pkmctl.__file__).resolve().parent
 
 
 def _inner(geom, theta, X, Xd, n, work, M, Cv, G):
@@ -36,9 +46,15 @@ def test_this_numba_can_drop_reference_counting():
     assert NO_REFCOUNT == {"_nrt": False}
 
 
-def test_hot_loops_are_compiled_without_reference_counting():
-    assert _run_loop.targetoptions.get("_nrt") is False
-    assert control_step.targetoptions.get("_nrt") is False
+def test_hot_loops_and_parts_are_compiled_without_reference_counting():
+    parts = {
+        "plant": get_part("plant", "rigid"),
+        "sensor": get_part("sensor", "ideal"),
+        "controller": get_part("controller", "afsmc"),
+        "actuator": get_part("actuator", "ideal"),
+    }
+    assert loop_for(parts).targetoptions.get("_nrt") is False
+    assert dynamics_kernel.targetoptions.get("_nrt") is False
 
 
 def test_no_refcount_removes_every_atomic_and_keeps_the_numbers():
@@ -59,22 +75,78 @@ def _all_kernels():
     import importlib
     import pkgutil
 
-    from numba.core.registry import CPUDispatcher
-
-    for mod in pkgutil.iter_modules(pkmctl.__path__):
-        if mod.name == "__main__":
+    for mod in pkgutil.walk_packages(pkmctl.__path__, "pkmctl."):
+        if mod.name.endswith("__main__"):
             continue
-        m = importlib.import_module(f"pkmctl.{mod.name}")
+        m = importlib.import_module(mod.name)
         for name, obj in vars(m).items():
             if isinstance(obj, CPUDispatcher) and obj.py_func.__module__ == m.__name__:
                 yield f"{m.__name__}.{name}", obj
 
 
-def test_every_kernel_states_its_reference_counting():
+def test_every_kernel_states_its_reference_counting_and_uses_our_cache():
     # A kernel first compiled from inside a refcount-free caller inherits the caller's
     # flags unless it states _nrt itself; if it allocates, it then fails to compile,
-    # but only on a cold cache (this bit us once). So every kernel states it.
+    # but only on a cold cache (this bit us once). So every kernel states it. And every
+    # kernel keeps its compiled code in the folder of the current sources' hash.
     kernels = dict(_all_kernels())
     assert len(kernels) > 30
     unstated = [name for name, k in kernels.items() if "_nrt" not in k.targetoptions]
     assert unstated == []
+    elsewhere = [n for n, k in kernels.items() if k._cache.cache_path != str(cache_dir())]
+    assert elsewhere == []
+
+
+def _run(code: str, *, path: Path | None = None, env: dict | None = None) -> str:
+    full_env = os.environ | (env or {})
+    if path is not None:
+        full_env["PYTHONPATH"] = str(path)
+    done = subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)],
+        capture_output=True,
+        text=True,
+        env=full_env,
+        timeout=600,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    return done.stdout.strip().splitlines()[-1]
+
+
+_COUNT_COMPILES = """
+    import numba.core.event as ev
+    import numpy as np
+    import pkmctl
+    with ev.install_recorder("numba:compile") as rec:
+        r = pkmctl.simulate("paper", controller="smc", duration=0.002)
+    compiles = sum(1 for _, e in rec.buffer if e.is_start)
+    print(compiles, repr(float(np.sum(r.X))), pkmctl._jit.source_stamp())
+"""
+
+
+def test_the_cache_hits_in_a_new_process():
+    _run(_COUNT_COMPILES)  # compiles whatever this machine's cache lacks
+    compiles, _, stamp = _run(_COUNT_COMPILES).split()
+    assert stamp == source_stamp()
+    assert compiles == "0"  # a fresh interpreter loads everything from disk
+
+
+def test_an_edited_kernel_is_never_run_stale(tmp_path):
+    # Copy the package, change a constant in the dynamics (a kernel the loop calls from
+    # another file), run in a fresh interpreter: the numbers change; revert: they return.
+    pkg = tmp_path / "pkmctl"
+    shutil.copytree(SRC, pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    before = _run(_COUNT_COMPILES, path=tmp_path).split()
+    dyn = pkg / "model" / "dynamics.py"
+    original = dyn.read_text()
+    old, new = "    g = geom[10]\n    M[0, 0]", "    g = 1.01 * geom[10]\n    M[0, 0]"
+    edited = original.replace(old, new)
+    assert edited != original
+    dyn.write_text(edited)
+    after_edit = _run(_COUNT_COMPILES, path=tmp_path).split()
+    dyn.write_text(original)
+    reverted = _run(_COUNT_COMPILES, path=tmp_path).split()
+    assert after_edit[2] != before[2] and int(after_edit[0]) > 0  # new sources: compiled anew
+    assert after_edit[1] != before[1]  # ... and the new code ran
+    assert reverted[1:] == before[1:]  # the old numbers, bit for bit, from the old cache
+    assert reverted[0] == "0"

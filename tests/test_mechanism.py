@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import pkmctl
-from pkmctl.mechanism import Body
+from pkmctl.model.mechanism import Body
 
 
 def test_paper_theta_order_and_values(robot):

@@ -13,7 +13,6 @@ from pathlib import Path
 import pytest
 
 import pkmctl
-from pkmctl.metrics import RMSE_KEYS
 from pkmctl.report import (
     FIGURES,
     PAPER_TABLE4,
@@ -22,7 +21,8 @@ from pkmctl.report import (
     table4_csv,
     table4_markdown,
 )
-from pkmctl.simulation import Result
+from pkmctl.sim.metrics import RMSE_KEYS
+from pkmctl.sim.result import Result
 
 CONTROLLERS = ("smc", "fsmc", "afsmc")
 EXPECTED_FIGURES = [f"fig{n}.png" for n in range(10, 27)]

@@ -5,7 +5,7 @@ import math
 import pytest
 
 import pkmctl
-from pkmctl.scenario import BUILTINS, Scenario, ScenarioError
+from pkmctl.sim.scenario import BUILTINS, Scenario, ScenarioError
 
 
 def test_builtins_hold_the_paper_numbers():

@@ -7,7 +7,7 @@ import pytest
 
 import pkmctl
 from pkmctl import metrics
-from pkmctl.results_io import load_result, save_result
+from pkmctl.io.results import load_result, save_result
 
 FULL = os.environ.get("PKMCTL_FULL") == "1"
 SHORT = 0.3
@@ -126,7 +126,7 @@ def test_unknown_controller(paper):
 
 
 def test_simulate_many_equals_simulate_per_seed(paper):
-    from pkmctl.simulation import simulate_many
+    from pkmctl.sim.simulate import simulate_many
 
     runs = simulate_many(paper, "fsmc", seeds=[1, 2, 1], duration=0.05, workers=2)
     single = pkmctl.simulate(paper, controller="fsmc", duration=0.05, seed=2)
@@ -153,8 +153,8 @@ def test_desired_forces_match_the_mechanism_methods(paper):
 
 
 def test_simulate_many_metrics_mode_equals_full_results(paper):
-    from pkmctl.metrics import summary
-    from pkmctl.simulation import simulate_many
+    from pkmctl.sim.metrics import summary
+    from pkmctl.sim.simulate import simulate_many
 
     seeds = [4, 5, 6]
     full = simulate_many(paper, "afsmc", seeds=seeds, duration=0.05, workers=2)

@@ -1,24 +1,49 @@
 """pkmctl: model, control and simulate the 2RPU-2SPR redundantly actuated parallel manipulator.
 
-The public interface of DESIGN.md §5::
+The public interface of DESIGN.md §5 and §11::
 
     robot = pkmctl.Mechanism.paper()
     scenario = pkmctl.Scenario.builtin("paper")
-    result = pkmctl.simulate(scenario, controller="afsmc")
+    result = pkmctl.simulate(scenario, controller="afsmc")   # or smc, fsmc, pd, ctc, yours
     flc = pkmctl.fuzzy.FLC()
+
+Parts of the loop (controllers, sensors, actuators, plants) are added with
+:func:`register_controller` and its siblings (docs/parts.md).
 """
 
-from . import fuzzy, metrics
-from .controllers import AFSMC, CONTROLLERS, FSMC, SMC, Controller, Gains, make_controller
-from .errors import ConvergenceError, InvalidPoseError, PkmctlError, SimulationDiverged
-from .mechanism import Body, Mechanism
-from .scenario import Scenario, ScenarioError
-from .simulation import Result, simulate
+from pkmctl import fuzzy
+from pkmctl.control import (
+    AFSMC,
+    CONTROLLERS,
+    CTC,
+    FSMC,
+    PD,
+    SMC,
+    Controller,
+    Gains,
+    make_controller,
+)
+from pkmctl.errors import ConvergenceError, InvalidPoseError, PkmctlError, SimulationDiverged
+from pkmctl.model.mechanism import Body, Mechanism
+from pkmctl.parts import (
+    PartContext,
+    PartError,
+    register_actuator,
+    register_controller,
+    register_plant,
+    register_sensor,
+)
+from pkmctl.sim import actuators, metrics, plants, sensors  # noqa: F401  (registers parts)
+from pkmctl.sim.result import Result
+from pkmctl.sim.scenario import Scenario, ScenarioError
+from pkmctl.sim.simulate import simulate, simulate_many
 
 __all__ = [
     "AFSMC",
     "CONTROLLERS",
+    "CTC",
     "FSMC",
+    "PD",
     "SMC",
     "Body",
     "Controller",
@@ -26,6 +51,8 @@ __all__ = [
     "Gains",
     "InvalidPoseError",
     "Mechanism",
+    "PartContext",
+    "PartError",
     "PkmctlError",
     "Result",
     "Scenario",
@@ -34,6 +61,11 @@ __all__ = [
     "fuzzy",
     "make_controller",
     "metrics",
+    "register_actuator",
+    "register_controller",
+    "register_plant",
+    "register_sensor",
     "simulate",
+    "simulate_many",
 ]
 __version__ = "0.1.0"

@@ -1,3 +1,3 @@
-from .cli import app
+from pkmctl.cli import app
 
 app(prog_name="pkmctl")

@@ -1,30 +1,68 @@
-"""The one place that says how pkmctl compiles its numerical kernels.
+"""The one place that says how pkmctl compiles its numerical kernels, and where it keeps them.
 
-- ``cache=True``: compiled code is kept on disk, not recompiled per run.
+Options of every kernel:
+
 - ``nogil=True``: kernels release the GIL, so runs can share a process's cores.
 - ``error_model="numpy"``: a division by zero gives inf/nan (caught by the loop's
   finiteness check) instead of a Python exception, so no branch guards each division.
 - ``fastmath={"contract"}``: lets LLVM fuse a*b + c into one FMA (one rounding instead
   of two). No other fast-math flag: NaN and inf keep their meaning, and no
-  reassociation changes results.
+  reassociation changes results. ``kernel(fastmath=False)`` turns even that off.
 
-``@kernel(refcount=False)`` is for the hot loops, which only work on arrays their
-caller allocated: Numba then emits no reference counting. With it on, every array an
-(inlined) kernel receives or slices costs an atomic increment and decrement; in the
-closed loop that is about 40 atomic operations per plant evaluation, 40 % of its time
+``@kernel(refcount=False)`` is for the hot kernels, which only work on arrays their
+caller allocated: Numba then emits no reference counting. With it on, every array a
+kernel receives or slices costs an atomic increment and decrement; in the closed loop
+that was about 40 atomic operations per plant evaluation, 40 % of its time
 (docs/performance.md). Such a kernel must not allocate (no ``np.empty``, no copies)
 and must not return arrays. The switch is Numba's ``_nrt`` option, which Numba's own
 library uses; if a Numba version lacks it, the kernels compile with reference
-counting, give the same numbers, and are only slower.
+counting, give the same numbers, and are only slower. Every other kernel says
+``_nrt=True`` explicitly: a function compiled while Numba is compiling a refcount-free
+caller would otherwise inherit its flags and fail to compile if it allocates.
 
-Every other kernel says ``_nrt=True`` explicitly: a function compiled while Numba is
-compiling a refcount-free caller would otherwise inherit its flags and fail to compile
-if it allocates (the general FLC path does). Without the explicit flag that only shows
-on a cold cache, depending on which kernel compiles first.
+The disk cache, and why it is not Numba's own (DESIGN.md §6). Numba keys a function's
+cache on the modification time of *its own* file: a cached caller does not notice an
+edit to a kernel it calls from another file and runs the old code. Here every kernel is
+cached in one folder per *content hash of all kernel sources* (every module of pkmctl
+that imports this one or Numba), ``<cache root>/<hash>/``: after any edit the hash
+changes and everything compiles anew; after a revert the old folder hits again. A loop
+specialised for a user's parts (:func:`specialise`) goes into a folder whose hash also
+covers the source files of those parts. The cache root is ``$PKMCTL_CACHE_DIR``, else
+``$XDG_CACHE_HOME/pkmctl``, else ``~/.cache/pkmctl``; an installed and an editable copy
+of the same sources therefore share one cache. If the root cannot be written, kernels
+compile in memory on every run (slower, never wrong).
+
+Compilation is announced: inside :func:`announce`, a callback hears when a compilation
+starts and ends (the CLI shows "compiling the control loop (once per machine)…" with
+the elapsed time, on a terminal and as plain lines in a log).
 """
 
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+
+import numba
 from numba import njit
 from numba.core.cpu import CPUTargetOptions
+
+__all__ = [
+    "JIT_OPTIONS",
+    "NO_REFCOUNT",
+    "REFCOUNT",
+    "announce",
+    "cache_dir",
+    "kernel",
+    "source_stamp",
+    "specialise",
+]
 
 _CAN_SWITCH = hasattr(CPUTargetOptions, "_nrt")
 #: Reference counting on, said explicitly (see the module docstring).
@@ -32,19 +70,254 @@ REFCOUNT = {"_nrt": True} if _CAN_SWITCH else {}
 #: The options of a kernel without reference counting (empty if Numba cannot do that).
 NO_REFCOUNT = {"_nrt": False} if _CAN_SWITCH else {}
 JIT_OPTIONS = {
-    "cache": True,
     "nogil": True,
     "error_model": "numpy",
     "fastmath": {"contract"},
 } | REFCOUNT
 
+_PACKAGE = Path(__file__).resolve().parent
 
-def kernel(fn=None, *, refcount: bool = True, **extra):
-    """``@kernel`` = ``@numba.njit(**JIT_OPTIONS)``; keyword arguments add options.
 
-    ``refcount=False``: compile without reference counting (see the module docstring).
+def _hash_files(paths: Iterable[Path], h: hashlib._Hash, root: Path | None = None) -> None:
+    for p in sorted(set(paths)):
+        h.update(str(p.relative_to(root) if root else p.name).encode())
+        h.update(b"\0")
+        h.update(p.read_bytes())
+        h.update(b"\0")
+
+
+def _kernel_sources() -> list[Path]:
+    """Every module of pkmctl that can hold compiled code (imports this module or Numba)."""
+    out = []
+    for p in _PACKAGE.rglob("*.py"):
+        text = p.read_text(encoding="utf-8", errors="replace")
+        if "pkmctl._jit" in text or "import numba" in text or "from numba" in text:
+            out.append(p)
+    return out
+
+
+def _compute_stamp() -> str:
+    h = hashlib.sha256()
+    h.update(f"numba {numba.__version__} python {sys.version_info[:3]}\0".encode())
+    _hash_files(_kernel_sources(), h, _PACKAGE)
+    return h.hexdigest()[:20]
+
+
+_STAMP = _compute_stamp()
+
+
+def source_stamp() -> str:
+    """The content hash of pkmctl's kernel sources (and of Numba's and Python's versions)."""
+    return _STAMP
+
+
+def _cache_root() -> Path:
+    env = os.environ.get("PKMCTL_CACHE_DIR")
+    if env:
+        return Path(env)
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    return (Path(xdg) if xdg else Path.home() / ".cache") / "pkmctl"
+
+
+def cache_dir(extra_sources: Iterable[str | os.PathLike[str]] = ()) -> Path:
+    """The folder of compiled code for pkmctl's sources (and ``extra_sources``)."""
+    extra = [Path(p).resolve() for p in extra_sources]
+    if not extra:
+        return _cache_root() / _STAMP
+    h = hashlib.sha256(_STAMP.encode())
+    _hash_files(extra, h)
+    return _cache_root() / f"{_STAMP}-{h.hexdigest()[:12]}"
+
+
+# ---------------------------------------------------------------- the disk cache
+try:  # Numba's cache classes (stable since 0.50; checked by tests/test_jit.py)
+    from numba.core.caching import (
+        CompileResultCacheImpl,
+        FunctionCache,
+        IndexDataCacheFile,
+        _CacheLocator,
+    )
+
+    _HAVE_CACHE = True
+except ImportError:  # pragma: no cover - a Numba without them: compile in memory
+    _HAVE_CACHE = False
+
+
+if _HAVE_CACHE:
+
+    class _Locator(_CacheLocator):
+        """Cache files in one given folder, stamped with the source hash."""
+
+        def __init__(self, path: Path, stamp: str, lineno: int) -> None:
+            self._path = str(path)
+            self._stamp = stamp
+            self._lineno = lineno
+
+        def ensure_cache_path(self) -> None:
+            os.makedirs(self._path, exist_ok=True)
+            tempfile.TemporaryFile(dir=self._path).close()  # raises if not writable
+
+        def get_cache_path(self) -> str:
+            return self._path
+
+        def get_source_stamp(self) -> str:
+            return self._stamp
+
+        def get_disambiguator(self) -> str:
+            return str(self._lineno)
+
+        @classmethod
+        def from_function(cls, py_func, py_file):  # never chosen by Numba's own search
+            return None
+
+    class _Impl(CompileResultCacheImpl):
+        def __init__(self, py_func, locator: _Locator) -> None:  # no locator search
+            self._lineno = py_func.__code__.co_firstlineno
+            self._locator = locator
+            fullname = f"{py_func.__module__}.{py_func.__qualname__}"
+            self._filename_base = self.get_filename_base(fullname, getattr(sys, "abiflags", ""))
+
+    class _Cache(FunctionCache):
+        """Numba's function cache with our folder and stamp (see the module docstring)."""
+
+        def __init__(self, py_func, path: Path, stamp: str) -> None:
+            self._name = repr(py_func)
+            self._py_func = py_func
+            self._impl = _Impl(py_func, _Locator(path, stamp, py_func.__code__.co_firstlineno))
+            self._cache_path = str(path)
+            self._cache_file = IndexDataCacheFile(
+                cache_path=self._cache_path,
+                filename_base=self._impl.filename_base,
+                source_stamp=stamp,
+            )
+            self.enable()
+
+        def save_overload(self, sig, data):
+            if getattr(self._py_func, "__pkmctl_llvm_inline__", False):
+                _mark_alwaysinline(data)
+            try:
+                super().save_overload(sig, data)
+            except OSError:  # an unwritable cache: keep the compiled code in memory only
+                self.disable()
+
+
+def _mark_alwaysinline(cres) -> None:
+    """Ask LLVM to inline this compiled function into every compiled caller.
+
+    Numba links a callee's LLVM module into each caller's before optimising it; the
+    attribute set here travels with that module (and with the disk cache), so LLVM's
+    inliner puts the body in the caller, where Numba itself would only emit a call.
+    """
+    fn = cres.library._final_module.get_function(cres.fndesc.llvm_func_name)
+    if "noinline" not in str(fn.attributes):
+        fn.add_function_attribute("alwaysinline")
+
+
+def _writable(path: Path) -> bool:
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=path).close()
+    except OSError:
+        return False
+    return True
+
+
+def _attach_cache(disp, path: Path, stamp: str):
+    if _HAVE_CACHE:
+        disp._cache = _Cache(disp.py_func, path, stamp)
+        if not _writable(path):  # compile in memory; _Cache still marks LLVM inlining
+            disp._cache.disable()
+    return disp
+
+
+def kernel(
+    fn=None, *, refcount: bool = True, fastmath: bool = True, llvm_inline: bool = False, **extra
+):
+    """``@kernel`` = ``@numba.njit`` with :data:`JIT_OPTIONS`, cached as the module says.
+
+    ``refcount=False``: compile without reference counting; ``fastmath=False``: no FMA
+    contraction; ``llvm_inline=True``: compiled once, but inlined by LLVM into its
+    compiled callers (the heavy model kernels: Numba's own ``inline="always"`` would
+    type-infer their large bodies again in every caller, minutes of compile time, while
+    a plain call passes every array of the work tuple as separate scalars, a fifth of the
+    loop's speed); other keyword arguments are passed to ``njit``.
     """
     options = JIT_OPTIONS | (REFCOUNT if refcount else NO_REFCOUNT) | extra
-    if fn is None:
-        return lambda f: njit(**options)(f)
-    return njit(**options)(fn)
+    if not fastmath:
+        options = options | {"fastmath": False}
+
+    def wrap(f):
+        if llvm_inline:
+            f.__pkmctl_llvm_inline__ = True
+        return _attach_cache(njit(**options)(f), cache_dir(), _STAMP)
+
+    return wrap if fn is None else wrap(fn)
+
+
+_SPECIALISED: dict[tuple, object] = {}
+_SPECIALISED_LOCK = threading.Lock()
+
+
+def specialise(py_func: Callable, key: tuple, sources: Iterable[str], *, refcount: bool = True):
+    """A dispatcher of ``py_func`` of its own for ``key`` (e.g. a combination of part types).
+
+    Its cache folder's hash covers pkmctl's kernel sources and ``sources`` (the files
+    that define the parts in ``key``), so an edit to a user's part is never run stale.
+    One dispatcher per key and process.
+    """
+    with _SPECIALISED_LOCK:
+        disp = _SPECIALISED.get((py_func, key))
+        if disp is None:
+            sources = sorted({str(Path(s).resolve()) for s in sources if s} - _builtin())
+            options = JIT_OPTIONS | (REFCOUNT if refcount else NO_REFCOUNT)
+            disp = njit(**options)(py_func)
+            stamp = cache_dir(sources).name
+            disp = _attach_cache(disp, cache_dir(sources), stamp)
+            disp.__pkmctl_key__ = key  # for messages
+            _SPECIALISED[(py_func, key)] = disp
+        return disp
+
+
+def _builtin() -> set[str]:
+    return {str(p) for p in _kernel_sources()}
+
+
+# ---------------------------------------------------------------- compile announcements
+_LOOP_NAMES = {"_run_loop": "the control loop", "_entry": "a controller step"}
+
+
+class _Announcer(numba.core.event.Listener):
+    """Hears Numba's compile events; reports the outermost compilation of each thread."""
+
+    def __init__(self, callback: Callable[[str, str, float], None]) -> None:
+        self._callback = callback
+        self._local = threading.local()
+
+    def _what(self, event) -> str:
+        disp = event.data.get("dispatcher")
+        name = getattr(getattr(disp, "py_func", None), "__name__", "kernels")
+        return _LOOP_NAMES.get(name, "the model kernels")
+
+    def on_start(self, event) -> None:
+        depth = getattr(self._local, "depth", 0)
+        self._local.depth = depth + 1
+        if depth == 0:
+            self._local.t0 = time.perf_counter()
+            self._callback("start", self._what(event), 0.0)
+
+    def on_end(self, event) -> None:
+        self._local.depth -= 1
+        if self._local.depth == 0:
+            self._callback("end", self._what(event), time.perf_counter() - self._local.t0)
+
+
+@contextlib.contextmanager
+def announce(callback: Callable[[str, str, float], None]) -> Iterator[None]:
+    """Call ``callback(event, what, seconds)`` when a compilation starts ("start") and
+    ends ("end") inside this block, in any thread; ``what`` is e.g. "the control loop".
+
+    A cache hit compiles nothing and says nothing. The CLI shows "compiling the control
+    loop (once per machine)…" with the elapsed time from it.
+    """
+    with numba.core.event.install_listener("numba:compile", _Announcer(callback)):
+        yield

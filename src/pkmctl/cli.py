@@ -22,7 +22,8 @@ from rich.table import Table
 app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
-    help="Model, control and simulate the 2RPU-2SPR parallel manipulator (SMC, FSMC, AFSMC).",
+    help="Model, control and simulate the 2RPU-2SPR parallel manipulator "
+    "(SMC, FSMC, AFSMC, PD, CTC).",
 )
 # Tables need ~100 columns; a pipe or a CI log would otherwise get rich's 80.
 console = Console(width=max(Console().width, 110))
@@ -35,7 +36,7 @@ def _fail(message: str, code: int = 2) -> None:
 
 
 def _load_scenario(spec: str):
-    from .scenario import BUILTINS, Scenario
+    from pkmctl.sim.scenario import BUILTINS, Scenario
 
     if spec in BUILTINS:
         return Scenario.builtin(spec)
@@ -45,8 +46,26 @@ def _load_scenario(spec: str):
     return Scenario.builtin(spec)  # raises: unknown built-in, with the list
 
 
+def _announce_compiles(bar: Progress | None = None, task=None):
+    """Say what compiles while it compiles: in the progress bar on a terminal (with the
+    elapsed time), as plain lines otherwise (a log, CI)."""
+    from pkmctl._jit import announce
+
+    def say(event: str, what: str, seconds: float) -> None:
+        if event == "start":
+            msg = f"compiling {what} (once per machine)…"
+        else:
+            msg = f"compiled {what} in {seconds:.1f} s"
+        if bar is not None and err_console.is_terminal:
+            bar.update(task, description=msg)
+        else:
+            err_console.print(msg, highlight=False)
+
+    return announce(say)
+
+
 def _rmse_table(results: dict, title: str) -> Table:
-    from .metrics import RMSE_KEYS
+    from pkmctl.sim.metrics import RMSE_KEYS
 
     table = Table(title=title)
     table.add_column("RMSE", no_wrap=True)
@@ -71,9 +90,9 @@ def reproduce(
     seed: Annotated[int | None, typer.Option(help="Disturbance seed (overrides).")] = None,
     duration: Annotated[float | None, typer.Option(help="Duration in s (overrides).")] = None,
 ) -> None:
-    """Run SMC, FSMC and AFSMC; write Table 4, Figures 10-26, report.md and the time series."""
-    from .errors import PkmctlError
-    from .experiment import reproduce as run
+    """Run SMC, FSMC, AFSMC, PD and CTC; write Table 4, Figures 10-26, report.md, time series."""
+    from pkmctl.errors import PkmctlError
+    from pkmctl.experiment import reproduce as run
 
     try:
         sc = _load_scenario(scenario)
@@ -86,7 +105,9 @@ def reproduce(
             sc = sc.replace(**changes)
     except (PkmctlError, ValueError) as exc:
         _fail(str(exc))
-    steps = ["smc", "fsmc", "afsmc", "series", "table", "figures", "report"]
+    from pkmctl.experiment import CONTROLLER_ORDER
+
+    steps = [*CONTROLLER_ORDER, "series", "table", "figures", "report"]
     with Progress(
         SpinnerColumn(),
         TextColumn("{task.description}"),
@@ -96,15 +117,18 @@ def reproduce(
         console=err_console,
         transient=False,
     ) as bar:
-        task = bar.add_task("starting (first run compiles, ~1-2 min)", total=len(steps))
+        task = bar.add_task("starting", total=len(steps))
         count = {"n": -1}
 
         def progress(msg: str) -> None:
             count["n"] += 1
             bar.update(task, completed=count["n"], description=msg)
+            if not err_console.is_terminal:
+                err_console.print(msg, highlight=False)
 
         try:
-            output = run(sc, out, progress=progress)
+            with _announce_compiles(bar, task):
+                output = run(sc, out, progress=progress)
         except (PkmctlError, ValueError) as exc:
             _fail(str(exc), code=1)
         bar.update(task, completed=len(steps), description="done")
@@ -116,28 +140,31 @@ def reproduce(
 @app.command()
 def simulate(
     scenario_file: Annotated[str, typer.Argument(help="Scenario TOML file or built-in name.")],
-    controller: Annotated[str, typer.Option(help="smc, fsmc or afsmc.")] = "afsmc",
+    controller: Annotated[
+        str, typer.Option(help="A registered controller: smc, fsmc, afsmc, pd, ctc.")
+    ] = "afsmc",
     out: Annotated[Path, typer.Option(help="Output folder for the time series.")] = Path(
         "pkmctl-out"
     ),
     fmt: Annotated[str, typer.Option("--format", help="parquet or csv.")] = "parquet",
 ) -> None:
-    """Run one controller on a scenario; write its time series (CSV) and metadata (JSON)."""
-    from .controllers import CONTROLLERS
-    from .errors import PkmctlError
-    from .results_io import save_result
-    from .simulation import simulate as run
+    """Run one controller on a scenario; write its time series (Parquet or CSV) and metadata
+    (JSON)."""
+    from pkmctl.errors import PkmctlError
+    from pkmctl.io.results import save_result
+    from pkmctl.parts import names
+    from pkmctl.sim.simulate import simulate as run
 
     if fmt not in ("parquet", "csv"):
         _fail(f"--format = {fmt!r}: must be parquet or csv")
-    if controller not in CONTROLLERS:
-        _fail(f"--controller = {controller!r}: must be one of {', '.join(CONTROLLERS)}")
+    if controller not in names("controller"):
+        _fail(f"--controller = {controller!r}: must be one of {', '.join(names('controller'))}")
     try:
         sc = _load_scenario(scenario_file)
     except (PkmctlError, ValueError) as exc:
         _fail(str(exc))
     try:
-        with console.status(f"simulating {controller} on {sc.name!r}"):
+        with console.status(f"simulating {controller} on {sc.name!r}"), _announce_compiles():
             result = run(sc, controller=controller)
     except PkmctlError as exc:
         _fail(str(exc), code=1)
@@ -151,8 +178,8 @@ def scenario(
     name: Annotated[str, typer.Argument(help="Built-in scenario name.")] = "paper",
 ) -> None:
     """Print a built-in scenario as TOML (edit it and pass it to reproduce or simulate)."""
-    from .errors import PkmctlError
-    from .scenario import Scenario
+    from pkmctl.errors import PkmctlError
+    from pkmctl.sim.scenario import Scenario
 
     try:
         sys.stdout.write(Scenario.builtin(name).to_toml())
@@ -165,8 +192,14 @@ def bench(
     quick: Annotated[bool, typer.Option(help="Short runs (a smoke test).")] = False,
     json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON.")] = None,
 ) -> None:
-    """Measure speed on this machine: steps/s, FLC, latency, batch, and peers in one run."""
-    from .bench import machine_line, rows, run_all
+    """Measure speed on this machine: steps/s, FLC, latency, batch, and peers in one run.
+
+    The measuring code is not installed with pkmctl: it lives in the checkout's
+    ``benchmarks/`` folder, which this command finds from the current directory or
+    beside an editable install.
+    """
+    _import_benchmarks()
+    from benchmarks.bench import machine_line, rows, run_all
 
     try:
         results = run_all(quick=quick, progress=lambda m: err_console.print(f"[dim]{m}[/]"))
@@ -182,11 +215,25 @@ def bench(
     if json_out is not None:
         import json
 
-        from .results_io import atomic_write
+        from pkmctl.io.atomic import atomic_write
 
         with atomic_write(json_out) as fh:
             json.dump(results, fh, indent=2)
         console.print(f"wrote {json_out}")
+
+
+def _import_benchmarks() -> None:
+    """Make the checkout's ``benchmarks`` package importable, or fail in one line."""
+    import importlib.util
+
+    if importlib.util.find_spec("benchmarks.bench") is not None:
+        return
+    here = Path(__file__).resolve().parents[2]  # src/pkmctl/cli.py -> the checkout
+    for root in (Path.cwd(), here):
+        if (root / "benchmarks" / "bench.py").is_file():
+            sys.path.insert(0, str(root))
+            return
+    _fail("pkmctl bench runs from a source checkout: no benchmarks/bench.py here or beside pkmctl")
 
 
 def main() -> None:  # pragma: no cover - console entry

@@ -6,7 +6,7 @@
 - ``figures/fig10.png`` ... ``fig26.png``,
 - ``report.md`` (the table, the figures and a discussion computed from the numbers),
 - ``timeseries/<controller>.parquet`` and ``.json`` (every control sample, scenario,
-  metrics; see :mod:`pkmctl.results_io`).
+  metrics; see :mod:`pkmctl.io.results`).
 
 Every file is written to a temporary name and renamed.
 """
@@ -20,13 +20,16 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from .results_io import atomic_write, save_result
-from .scenario import Scenario
-from .simulation import Result, simulate
+from pkmctl.io.atomic import atomic_write
+from pkmctl.io.results import save_result
+from pkmctl.sim.result import Result
+from pkmctl.sim.scenario import Scenario
+from pkmctl.sim.simulate import simulate
 
 __all__ = ["CONTROLLER_ORDER", "ReproduceOutput", "reproduce"]
 
-CONTROLLER_ORDER = ("smc", "fsmc", "afsmc")
+#: The controllers ``pkmctl reproduce`` runs: the paper's three and the two baselines.
+CONTROLLER_ORDER = ("smc", "fsmc", "afsmc", "pd", "ctc")
 
 
 @dataclass(frozen=True)
@@ -46,8 +49,10 @@ def reproduce(
     duration: float | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> ReproduceOutput:
-    """Run SMC, FSMC and AFSMC on ``scenario`` and write the table, figures and report."""
-    from .report import figures, tables
+    """Run SMC, FSMC, AFSMC and the baselines PD and CTC on ``scenario``; write the tables,
+    figures and report."""
+    from pkmctl.report import figures, tables
+
     from .report.document import render_report
 
     say = progress or (lambda _msg: None)
@@ -84,7 +89,7 @@ def reproduce(
     report = render_report(
         results,
         figures=[f.relative_to(out) for f in figs],
-        scenario_name=results["smc"].scenario.name,
+        scenario_name=next(iter(results.values())).scenario.name,
         wall_time_s=wall,
     )
     with atomic_write(out / "report.md") as fh:

@@ -1,6 +1,6 @@
 """Reports of a reproduction run: Table 4, figures 10-26 and report.md (DESIGN.md §4).
 
-Renders only; the numbers come from :mod:`pkmctl.metrics`::
+Renders only; the numbers come from :mod:`pkmctl.sim.metrics`::
 
     from pkmctl.report import make_figures, render_report, table4_csv, table4_markdown
 """

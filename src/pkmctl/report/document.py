@@ -2,7 +2,7 @@
 
 Every claim of the discussion is computed from the numbers it is about (rankings,
 ratios, shares), so the text stays true when the numbers change. Renders only: the
-numbers come from :mod:`pkmctl.metrics` and :data:`~pkmctl.report.tables.PAPER_TABLE4`.
+numbers come from :mod:`pkmctl.sim.metrics` and :data:`~pkmctl.report.tables.PAPER_TABLE4`.
 """
 
 from __future__ import annotations
@@ -14,20 +14,22 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..metrics import RMSE_KEYS, chattering_index, peak_forces, rmse
+from pkmctl.sim.metrics import RMSE_KEYS, chattering_index, peak_forces, rmse
+
 from .figures import FIGURES
 from .tables import (
-    CONTROLLER_LABELS,
+    CONTROLLER_ORDER,
     PAPER_DURATION_S,
     PAPER_TABLE4,
     RMSE_AFTER_S,
+    controller_label,
     ordered,
     rmse_after,
     table4_markdown,
 )
 
 if TYPE_CHECKING:
-    from ..simulation import Result
+    from pkmctl.sim.result import Result
 
 __all__ = ["render_report"]
 
@@ -62,7 +64,7 @@ def _ranking(values: Mapping[str, float]) -> list[str]:
 
 
 def _chain(names: Sequence[str]) -> str:
-    return " < ".join(CONTROLLER_LABELS[c] for c in names)
+    return " < ".join(controller_label(c) for c in names)
 
 
 def _words(items: Sequence[str]) -> str:
@@ -78,7 +80,13 @@ def _span(lo: float, hi: float, spec: str) -> str:
     return a if a == b else f"{a}–{b}"
 
 
+def _paper_pairs(pairs: list[tuple[str, Result]]) -> list[tuple[str, Result]]:
+    """The runs of the controllers that the paper's Table 4 has a row for."""
+    return [(c, r) for c, r in pairs if c in PAPER_TABLE4]
+
+
 def _ranking_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
+    pairs = _paper_pairs(pairs)
     names = [c for c, _ in pairs]
     if len(names) < 2:
         return ["- Rankings: only one controller was run, so there is nothing to rank."]
@@ -138,17 +146,21 @@ def _transient_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
     estimate = e0 / math.sqrt(2.0 * lam * T)
     paper_estimate = e0 / math.sqrt(2.0 * lam * PAPER_DURATION_S)
     ours = [r.rmse()["beta_deg"] for _, r in pairs]
-    paper = [PAPER_TABLE4[c]["beta_deg"] for c, _ in pairs]
+    paper = [PAPER_TABLE4[c]["beta_deg"] for c, _ in _paper_pairs(pairs)]
     line = (
         f"- **The first instants dominate**: β starts {e0:.3g}° off its trajectory. A "
         f"controller that reaches the sliding surface quickly then lets the error decay as "
         f"e^(−λ_β t), whose RMSE over T = {T:.3g} s is ≈ {e0:.3g}°/√(2·{lam:g}·{T:.3g}) = "
         f"{estimate:.3g}°. Our whole-run β RMSEs are "
         f"{_words([f'{v:.4g}°' for v in ours])} "
-        f"({_span(min(ours) / estimate, max(ours) / estimate, '.2f')} × the estimate); "
-        f"the paper's are {_words([f'{v:.3g}°' for v in paper])} "
-        f"({_span(min(paper) / paper_estimate, max(paper) / paper_estimate, '.2f')} × "
-        f"the same estimate for their {PAPER_DURATION_S:g} s, {paper_estimate:.3g}°)."
+        f"({_span(min(ours) / estimate, max(ours) / estimate, '.2f')} × the estimate)"
+        + (
+            f"; the paper's are {_words([f'{v:.3g}°' for v in paper])} "
+            f"({_span(min(paper) / paper_estimate, max(paper) / paper_estimate, '.2f')} × "
+            f"the same estimate for their {PAPER_DURATION_S:g} s, {paper_estimate:.3g}°)."
+            if paper
+            else "."
+        )
     )
     shares = []
     for c, r in pairs:
@@ -159,7 +171,7 @@ def _transient_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
         sse_all = n_all * rmse(r)["beta_deg"] ** 2
         sse_after = n_after * rmse(r, t_from=_T_TRANSIENT)["beta_deg"] ** 2
         if sse_all > 0:
-            shares.append(f"{100 * (1 - sse_after / sse_all):.4g} % ({CONTROLLER_LABELS[c]})")
+            shares.append(f"{100 * (1 - sse_after / sse_all):.4g} % ({controller_label(c)})")
     if shares:
         line += (
             f" The first {_T_TRANSIENT:g} s hold {_words(shares)} of the squared β error, "
@@ -180,7 +192,7 @@ def _after_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
     for k in RMSE_KEYS:
         best[_ranking({c: after[c][k] for c in after})[0]].append(_QUANTITY[k])
     parts = [
-        f"{CONTROLLER_LABELS[c]} for {_words(q)}" for c, q in best.items() if q
+        f"{controller_label(c)} for {_words(q)}" for c, q in best.items() if q
     ]  # fmt: skip
     spread = {
         k: max(v[k] for v in after.values()) / min(v[k] for v in after.values())
@@ -209,7 +221,7 @@ def _force_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
         i = int(np.argmax(p))
         k = int(np.argmax(np.abs(r.tau[:, i])))
         peaks.append(
-            f"{p[i]:.4g} N ({CONTROLLER_LABELS[c]}, τ{i + 1} at t = {_seconds(float(r.t[k]))})"
+            f"{p[i]:.4g} N ({controller_label(c)}, τ{i + 1} at t = {_seconds(float(r.t[k]))})"
         )
     desired = float(np.max(np.abs(ref.tau_desired)))
     bound = (
@@ -218,7 +230,7 @@ def _force_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
         else f"limited to ±{limit:g} N in this scenario"
     )
     chat = [
-        f"{float(np.mean(chattering_index(r))):.3g} N/s ({CONTROLLER_LABELS[c]})" for c, r in pairs
+        f"{float(np.mean(chattering_index(r))):.3g} N/s ({controller_label(c)})" for c, r in pairs
     ]
     return [
         f"- **Forces**: the peak |τ_i| is {_words(peaks)}, against at most {desired:.3g} N for "
@@ -239,7 +251,8 @@ def _sampling_sentence(pairs: list[tuple[str, Result]]) -> list[str]:
 
 def _why_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
     """Why the steady z errors differ: gravity the model misses over the surface gain."""
-    from ..metrics import gravity_mismatch, mean_error, surface_gain
+    from pkmctl.parts import get_part
+    from pkmctl.sim.metrics import gravity_mismatch, mean_error, surface_gain
 
     sc = pairs[0][1].scenario
     dG = float(gravity_mismatch(sc)[0])
@@ -247,31 +260,36 @@ def _why_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
     if abs(dG) < 1e-9 or pairs[0][1].t[-1] < 1.0:
         return []
     parts = []
+    predicted: dict[str, float] = {}
     steady = {c: abs(mean_error(r, t_from=1.0)["z_mm"]) for c, r in pairs}
     for c, r in pairs:
-        gain = float(surface_gain(sc, c)[0])
-        predicted = 1e3 * dG / (gain * lam)
         measured = mean_error(r, t_from=1.0)["z_mm"]
-        label = CONTROLLER_LABELS[c]
-        if c == "afsmc":
+        label = controller_label(c)
+        if get_part("controller", c).adaptive:
             parts.append(
                 f"{label} adapts the masses, and its mean z error after 1 s is {measured:.3g} mm"
             )
-        else:
-            parts.append(
-                f"{label} (gain near s = 0: {gain:.4g} N·s/m) predicts {predicted:.3g} mm "
-                f"and shows {measured:.3g} mm"
-            )
+            continue
+        sg = surface_gain(sc, c)
+        if sg is None:
+            parts.append(f"{label} shows {measured:.3g} mm")
+            continue
+        gain = float(sg[0])
+        predicted[c] = 1e3 * dG / (gain * lam)
+        parts.append(
+            f"{label} (gain near s = 0: {gain:.4g} N·s/m) predicts {predicted[c]:.3g} mm "
+            f"and shows {measured:.3g} mm"
+        )
     tail = ""
-    if "smc" in steady and "fsmc" in steady:
-        if steady["fsmc"] > steady["smc"]:
-            tail = (
-                " The SMC's boundary layer (Λ/ε) is stiffer than the slope of the fuzzy "
-                "surface (K_u K_s dFLC/ds*), which is why our FSMC trails our SMC on z in "
-                "steady state, while the paper's Table 4 has FSMC ahead on z."
-            )
-        else:
-            tail = " Here FSMC holds z at least as well as SMC, as in the paper's Table 4."
+    if len(predicted) >= 2:
+        stiff = min(predicted, key=lambda c: abs(predicted[c]))
+        best = min(predicted, key=lambda c: steady[c])
+        tail = f" The stiffest surface ({controller_label(stiff)}) " + (
+            "holds z best among these, as predicted."
+            if stiff == best
+            else f"does not hold z best ({controller_label(best)} does): the prediction "
+            "misses something here."
+        )
     return [
         f"- **Why the z errors differ**: the controllers' model is "
         f"{100 * (1 - sc.controller_model.theta_scale):.0f} % light, so at the mean pose it "
@@ -318,7 +336,7 @@ def render_report(
     if not pairs:
         raise ValueError(
             f"results: no known controller among {sorted(results)} "
-            f"(expected some of {list(CONTROLLER_LABELS)})"
+            f"(expected some of {list(CONTROLLER_ORDER)})"
         )
     sc = pairs[0][1].scenario
     lines = [f"# pkmctl — the paper's experiment, scenario “{scenario_name}”", ""]
@@ -329,14 +347,14 @@ def render_report(
         f"Scenario **{scenario_name}**: T_c = {_seconds(sc.timing.control_period)}, "
         f"duration {sc.timing.duration:g} s, disturbance seed {sc.disturbance.seed}, "
         f"actuators {'unbounded' if limit is None else f'limited to ±{limit:g} N'}; "
-        f"controllers {_words([CONTROLLER_LABELS[c] for c, _ in pairs])}."
+        f"controllers {_words([controller_label(c) for c, _ in pairs])}."
     )
     if wall_time_s is not None:
         run += f" Wall time {wall_time_s:.1f} s."
     lines += [run, ""]
     for c, r in pairs:
         if not r.success:
-            lines += [f"**Warning**: the {CONTROLLER_LABELS[c]} run failed: {r.message}.", ""]
+            lines += [f"**Warning**: the {controller_label(c)} run failed: {r.message}.", ""]
 
     lines += ["## Table 4", "", table4_markdown(results).rstrip("\n"), ""]
 

@@ -23,10 +23,7 @@ budget so the transient stays resolved.
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
-import tempfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,12 +34,14 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.cbook import boxplot_stats
 from matplotlib.figure import Figure
 
-from .tables import CONTROLLER_LABELS, RMSE_AFTER_S, ordered
+from pkmctl.io.atomic import atomic_write
+
+from .tables import CONTROLLER_ORDER, RMSE_AFTER_S, controller_label, ordered
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
 
-    from ..simulation import Result
+    from pkmctl.sim.result import Result
 
 __all__ = ["FIGURES", "FigureSpec", "make_figures"]
 
@@ -59,7 +58,13 @@ _FIGSIZE = {"force": (8.0, 8.0)}  # inches; the others are 8 x 6
 _GRID_V = {"left": 0.1, "right": 0.98, "bottom": 0.08, "top": 0.9, "hspace": 0.5}
 _GRID_H = {"left": 0.1, "right": 0.98, "bottom": 0.08, "top": 0.88, "wspace": 0.3}
 
-_COLORS = {"smc": "tab:blue", "fsmc": "tab:orange", "afsmc": "tab:green"}
+
+def _color(name: str) -> str:
+    """A controller's colour: the same in every figure (tab10, in CONTROLLER_ORDER)."""
+    i = CONTROLLER_ORDER.index(name) if name in CONTROLLER_ORDER else len(CONTROLLER_ORDER)
+    return f"C{i % 10}"
+
+
 _DESIRED_STYLE = {"color": "black", "linestyle": "--", "linewidth": 1.2, "label": "desired"}
 _RAD2DEG = 180.0 / math.pi
 
@@ -221,7 +226,7 @@ def _plot_lines(
 ) -> None:
     for name, t, y in curves:
         tw, yw = _thin(*_window(t, y, lo, hi))
-        ax.plot(tw, yw, color=_COLORS[name], linewidth=1.0, label=CONTROLLER_LABELS[name])
+        ax.plot(tw, yw, color=_color(name), linewidth=1.0, label=controller_label(name))
     if desired is not None:
         tw, yw = _thin(*_window(*desired, lo, hi))
         ax.plot(tw, yw, **_DESIRED_STYLE)
@@ -295,7 +300,7 @@ def _box_stats(name: str, data: np.ndarray) -> dict:
     if fliers.size > _MAX_FLIERS:  # evenly spaced in rank, extremes kept
         fliers = fliers[np.linspace(0, fliers.size - 1, _MAX_FLIERS).round().astype(int)]
     stats["fliers"] = fliers
-    stats["label"] = CONTROLLER_LABELS[name]
+    stats["label"] = controller_label(name)
     return stats
 
 
@@ -312,7 +317,7 @@ def _draw_box(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) ->
             _, ew = _window(t, e, lo)
             if ew.size:
                 stats.append(_box_stats(name, ew))
-                colors.append(_COLORS[name])
+                colors.append(_color(name))
         if stats:
             art = ax.bxp(
                 stats,
@@ -383,17 +388,9 @@ _DRAW = {"tracking": _draw_tracking, "error": _draw_error, "box": _draw_box, "fo
 
 
 def _save_atomic(fig: Figure, path: Path, dpi: float) -> None:
-    """Write ``fig`` as PNG to a temporary file beside ``path``, then rename it over."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png.tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fig.savefig(fh, format="png", dpi=dpi)
-        os.chmod(tmp, 0o644)  # mkstemp makes it private; the figure is a normal file
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    """Write ``fig`` as PNG through the one atomic writer."""
+    with atomic_write(path, "wb") as fh:
+        fig.savefig(fh, format="png", dpi=dpi)
 
 
 def make_figures(
@@ -426,7 +423,7 @@ def make_figures(
     if not pairs:
         raise ValueError(
             f"results: no known controller among {sorted(results)} "
-            f"(expected some of {list(CONTROLLER_LABELS)})"
+            f"(expected some of {list(CONTROLLER_ORDER)})"
         )
     for name, r in pairs:
         if r.t.size < 2:

@@ -1,6 +1,6 @@
 """Table 4 of the paper, side by side with ours, as CSV and markdown (DESIGN.md §4).
 
-Renders only: every number comes from :mod:`pkmctl.metrics` or from
+Renders only: every number comes from :mod:`pkmctl.sim.metrics` or from
 :data:`PAPER_TABLE4`; this module formats them.
 """
 
@@ -12,14 +12,14 @@ import math
 from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
-from ..metrics import RMSE_KEYS, chattering_index, peak_forces, rmse
+from pkmctl.sim.metrics import RMSE_KEYS, chattering_index, peak_forces, rmse
 
 if TYPE_CHECKING:
-    from ..simulation import Result
+    from pkmctl.sim.result import Result
 
 __all__ = [
-    "CONTROLLER_LABELS",
     "CONTROLLER_ORDER",
+    "controller_label",
     "PAPER_DURATION_S",
     "PAPER_TABLE4",
     "RMSE_AFTER_S",
@@ -29,10 +29,21 @@ __all__ = [
     "table4_markdown",
 ]
 
-#: The order of the controllers in every table and figure.
-CONTROLLER_ORDER: tuple[str, ...] = ("smc", "fsmc", "afsmc")
-#: How the controllers are named in reports.
-CONTROLLER_LABELS: dict[str, str] = {"smc": "SMC", "fsmc": "FSMC", "afsmc": "AFSMC"}
+#: The order of the controllers in every table and figure: the paper's three, then the
+#: baselines; any other controller follows in the order it was given.
+CONTROLLER_ORDER: tuple[str, ...] = ("smc", "fsmc", "afsmc", "pd", "ctc")
+
+
+def controller_label(name: str) -> str:
+    """How a controller is named in reports: its part's label (e.g. "AFSMC")."""
+    from pkmctl.parts import PartError, get_part
+
+    try:
+        return get_part("controller", name).label
+    except PartError:
+        return name
+
+
 #: The "RMSE after the first second" of DESIGN.md §4 starts here (s).
 RMSE_AFTER_S = 1.0
 
@@ -71,7 +82,7 @@ PAPER_TABLE4: dict[str, dict[str, float]] = {
 #: Length of the paper's run over which Table 4 is taken (s; DESIGN.md §4).
 PAPER_DURATION_S = 10.0
 
-#: Column headers with units, one per key of :data:`~pkmctl.metrics.RMSE_KEYS`.
+#: Column headers with units, one per key of :data:`~pkmctl.sim.metrics.RMSE_KEYS`.
 _HEADERS: dict[str, str] = {
     "z_mm": "z (mm)",
     "alpha_deg": "α (°)",
@@ -84,7 +95,7 @@ _HEADERS: dict[str, str] = {
 
 
 def ordered(results: Mapping[str, Result]) -> list[tuple[str, Result]]:
-    """The (name, result) pairs of the known controllers present, in SMC, FSMC, AFSMC order.
+    """The (name, result) pairs in :data:`CONTROLLER_ORDER`, then any others as given.
 
     Parameters
     ----------
@@ -95,11 +106,13 @@ def ordered(results: Mapping[str, Result]) -> list[tuple[str, Result]]:
     -------
     list of (str, Result)
     """
-    return [(c, results[c]) for c in CONTROLLER_ORDER if c in results]
+    present = [c for c in results if results[c] is not None]
+    known = [c for c in CONTROLLER_ORDER if c in present]
+    return [(c, results[c]) for c in known + [c for c in present if c not in known]]
 
 
 def rmse_after(result: Result, t_from: float = RMSE_AFTER_S) -> dict[str, float] | None:
-    """RMSE from ``t_from`` on (:func:`pkmctl.metrics.rmse`), or None if the run ends before.
+    """RMSE from ``t_from`` on (:func:`pkmctl.sim.metrics.rmse`), or None if the run ends before.
 
     Parameters
     ----------
@@ -110,7 +123,7 @@ def rmse_after(result: Result, t_from: float = RMSE_AFTER_S) -> dict[str, float]
     Returns
     -------
     dict of str to float, or None
-        Keys of :data:`~pkmctl.metrics.RMSE_KEYS`.
+        Keys of :data:`~pkmctl.sim.metrics.RMSE_KEYS`.
     """
     if result.t.size == 0 or result.t[-1] < t_from:
         return None
@@ -123,8 +136,8 @@ def table4_csv(results: Mapping[str, Result]) -> str:
     Parameters
     ----------
     results : mapping of str to Result
-        Keyed by controller name; rows appear for ``smc``, ``fsmc``, ``afsmc`` in
-        that order, only for those present.
+        Keyed by controller name; rows appear in :data:`CONTROLLER_ORDER`, then any
+        others, only for those present.
 
     Returns
     -------
@@ -166,18 +179,20 @@ def table4_markdown(results: Mapping[str, Result]) -> str:
     Returns
     -------
     str
-        Markdown: (1) for each controller the rows "ours", "paper" (Table 4) and
-        "ours / paper"; (2) our RMSE after the first second (the paper gives none);
-        (3) our peak actuator forces |τ_i| (N) and chattering index (N/s).
+        Markdown: (1) for each controller the row "ours" and, for the paper's three,
+        "paper" (Table 4) and "ours / paper"; (2) our RMSE after the first second (the
+        paper gives none); (3) our peak actuator forces |τ_i| (N) and chattering index (N/s).
     """
     pairs = ordered(results)
     lines = ["**Table 4 — RMSE over the whole run (eq. 55-57), ours and the paper's**", ""]
     lines += _header(["controller", "source", *(_HEADERS[k] for k in RMSE_KEYS)])
     for name, result in pairs:
-        label = CONTROLLER_LABELS[name]
+        label = controller_label(name)
         ours = result.rmse()
-        paper = PAPER_TABLE4[name]
         lines.append(_row([label, "ours", *(_fmt(ours[k]) for k in RMSE_KEYS)]))
+        paper = PAPER_TABLE4.get(name)
+        if paper is None:  # a baseline: the paper has no row for it
+            continue
         lines.append(_row([label, "paper", *(repr(paper[k]) for k in RMSE_KEYS)]))
         ratio = [_fmt(ours[k] / paper[k], ".2f") for k in RMSE_KEYS]
         lines.append(_row([label, "ours / paper", *ratio]))
@@ -187,7 +202,7 @@ def table4_markdown(results: Mapping[str, Result]) -> str:
     for name, result in pairs:
         after = rmse_after(result)
         cells = [_fmt(None if after is None else after[k]) for k in RMSE_KEYS]
-        lines.append(_row([CONTROLLER_LABELS[name], *cells]))
+        lines.append(_row([controller_label(name), *cells]))
 
     lines += ["", "**Actuator forces (ours): peak |τ_i| and chattering index**", ""]
     lines += _header(
@@ -200,5 +215,5 @@ def table4_markdown(results: Mapping[str, Result]) -> str:
     for name, result in pairs:
         peaks = [_fmt(float(v), ".4g") for v in peak_forces(result)]
         chat = [_fmt(float(v), ".3g") for v in chattering_index(result)]
-        lines.append(_row([CONTROLLER_LABELS[name], *peaks, *chat]))
+        lines.append(_row([controller_label(name), *peaks, *chat]))
     return "\n".join(lines) + "\n"

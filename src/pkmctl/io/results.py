@@ -5,7 +5,7 @@
 q_desired, F, tau, tau_desired, disturbance and, for AFSMC, theta_hat; and ``<stem>.json``
 (the scenario as TOML text, the controller, the metrics, the column names and the
 table's file name). ``load_result`` reads them back into a
-:class:`~pkmctl.simulation.Result`, bit for bit.
+:class:`~pkmctl.Result`, bit for bit.
 
 Parquet is the default: a 10 s run at 20 kHz has 200,000 rows and up to 83 columns,
 which takes ~8 s to print as CSV with round-trip precision and ~0.2 s as Parquet
@@ -17,16 +17,14 @@ in the same folder and renamed, so an interrupted run leaves no half-written fil
 from __future__ import annotations
 
 import json
-import os
-import tempfile
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
-from . import metrics
-from .scenario import Scenario
-from .simulation import Result
+from pkmctl.io.atomic import atomic_write
+from pkmctl.sim import metrics
+from pkmctl.sim.result import Result
+from pkmctl.sim.scenario import Scenario
 
 __all__ = ["atomic_write", "load_result", "save_result"]
 
@@ -44,21 +42,6 @@ _FIELDS = (
     ("tau_desired", 4, ("tau1_d", "tau2_d", "tau3_d", "tau4_d")),
     ("disturbance", 3, ("d_z", "d_alpha", "d_beta")),
 )
-
-
-@contextmanager
-def atomic_write(path: Path, mode: str = "w"):
-    """Open a temporary file beside ``path``; rename it onto ``path`` only on success."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, mode, encoding=None if "b" in mode else "utf-8") as fh:
-            yield fh
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _columns(result: Result) -> tuple[list[str], list[np.ndarray]]:

@@ -10,10 +10,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
-from ._jit import NO_REFCOUNT, REFCOUNT
+from pkmctl._jit import kernel
 
 __all__ = ["flc_eval", "mamdani_eval"]
 
@@ -21,10 +20,10 @@ _TRI, _TRAP, _GAUSS, _ZMF, _SMF = 0, 1, 2, 3, 4
 
 # No FMA contraction here (unlike pkmctl._jit.kernel); reference counting said explicitly,
 # as pkmctl._jit explains, since flc_eval is called from the refcount-free loop.
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy", **REFCOUNT)
+_jit = kernel(fastmath=False)
 # The scalar path the control loop takes (flc_eval -> _grid_eval2) never allocates: it is
 # compiled without reference counting, which saves ~4 atomic operations per call.
-_jit_free = numba.njit(cache=True, nogil=True, error_model="numpy", **NO_REFCOUNT)
+_jit_free = kernel(fastmath=False, refcount=False)
 
 # FISTables layout: two flat arrays. ints[:_HEADER] = [n_in, K, R, T, fast] followed by
 # the offsets of the sections _INT_SECTIONS in ints and _REAL_SECTIONS in reals.

@@ -2,7 +2,7 @@
 
     M(X) Xddot + C(X, Xdot) Xdot + G(X) = F + tau_d',      F = J^T tau_a
 
-Every term is a sum over the 9 bodies of :func:`pkmctl.kinematics.body_jacobians`:
+Every term is a sum over the 9 bodies of :func:`pkmctl.model.kinematics.body_jacobians`:
 
     M = sum  m J_v^T J_v + J_w^T (R I R^T) J_w
     C = sum  m J_v^T dJ_v + J_w^T ((R I R^T) dJ_w + [omega]x (R I R^T) J_w)
@@ -24,18 +24,25 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import kernel
-from .kinematics import N_BODIES, body_jacobians
+from pkmctl._jit import kernel
+from pkmctl.model.kinematics import N_BODIES, body_jacobians
 
 __all__ = [
+    "JQ",
     "N_THETA",
+    "Q",
     "WORK_SHAPES",
+    "WORK_SIZE",
     "actuator_forces_kernel",
     "dynamics_kernel",
+    "forward_dynamics",
     "gravity_kernel",
+    "inverse_dynamics",
     "make_work",
     "regressor_kernel",
     "solve_spd3",
+    "task_force",
+    "work_views",
 ]
 
 N_THETA = 4 * N_BODIES
@@ -45,13 +52,17 @@ N_THETA = 4 * N_BODIES
 RB, JV, JW, AV, AW, JQ, Q, SCRATCH = range(8)
 #: Shapes of the workspace arrays, at those positions.
 WORK_SHAPES = ((N_BODIES, 3, 3),) * 3 + ((N_BODIES, 3),) * 2 + ((4, 3), (4,), (5, 3))
+_SIZES = tuple(int(np.prod(shape)) for shape in WORK_SHAPES)
+_OFFSETS = tuple(int(sum(_SIZES[:i])) for i in range(len(_SIZES) + 1))
+#: Length of a flat float64 buffer that holds one workspace (:func:`work_views`).
+WORK_SIZE = _OFFSETS[-1]
 
 
 @kernel
 def make_work():
     """Arrays for one pose, at the indices RB, JV, JW, AV, AW, JQ, Q, SCRATCH.
 
-    Body frames, Jacobians and dJ/dt v of :func:`~pkmctl.kinematics.body_jacobians`,
+    Body frames, Jacobians and dJ/dt v of :func:`~pkmctl.model.kinematics.body_jacobians`,
     the limb Jacobian and lengths, and a (5, 3) scratch for the dynamics kernels.
     """
     return (
@@ -64,6 +75,48 @@ def make_work():
         np.empty(4),
         np.empty((5, 3)),
     )
+
+
+@kernel(inline="always", refcount=False)
+def work_views(buf):
+    """The workspace of :func:`make_work` as views into a flat buffer of WORK_SIZE floats."""
+    o = _OFFSETS
+    return (
+        buf[o[0] : o[1]].reshape((N_BODIES, 3, 3)),
+        buf[o[1] : o[2]].reshape((N_BODIES, 3, 3)),
+        buf[o[2] : o[3]].reshape((N_BODIES, 3, 3)),
+        buf[o[3] : o[4]].reshape((N_BODIES, 3)),
+        buf[o[4] : o[5]].reshape((N_BODIES, 3)),
+        buf[o[5] : o[6]].reshape((4, 3)),
+        buf[o[6] : o[7]],
+        buf[o[7] : o[8]].reshape((5, 3)),
+    )
+
+
+@kernel(inline="always", refcount=False)
+def inverse_dynamics(M, Cv, G, a, out):
+    """out = M a + C v + G (3,) from filled M, C v and G: eq. 24 solved for the force.
+
+    The one place this sum is written: the controllers' model terms, computed torque
+    and the desired forces all call it.
+    """
+    for i in range(3):
+        out[i] = G[i] + (M[i, 0] * a[0] + M[i, 1] * a[1] + M[i, 2] * a[2] + Cv[i])
+
+
+@kernel(inline="always", refcount=False)
+def forward_dynamics(M, Cv, G, f, out):
+    """out = M^-1 (f - C Xdot - G) (3,): eq. 24 solved for Xddot, f the task-space force."""
+    for i in range(3):
+        out[i] = f[i] - Cv[i] - G[i]
+    solve_spd3(M, out)
+
+
+@kernel(inline="always", refcount=False)
+def task_force(Jq, tau, out):
+    """out = J^T tau (3,): the task-space force of limb forces tau (4,) (eq. 22)."""
+    for i in range(3):
+        out[i] = Jq[0, i] * tau[0] + Jq[1, i] * tau[1] + Jq[2, i] * tau[2] + (Jq[3, i] * tau[3])
 
 
 @kernel(inline="always")
@@ -148,7 +201,7 @@ def _assemble(geom, theta, Xd, v, work, M, Cv, G):
     G[0], G[1], G[2] = g * g0, g * g1, g * g2
 
 
-@kernel(inline="always")
+@kernel(refcount=False, llvm_inline=True)
 def dynamics_kernel(geom, theta, X, Xd, v, work, M, Cv, G):
     """Fill M (3, 3), C(X, Xd) v (3,) and G (3,) (eq. 9-24).
 
@@ -159,7 +212,7 @@ def dynamics_kernel(geom, theta, X, Xd, v, work, M, Cv, G):
     _assemble(geom, theta, Xd, v, work, M, Cv, G)
 
 
-@kernel(inline="always")
+@kernel(refcount=False, llvm_inline=True)
 def gravity_kernel(geom, theta, X, work, G):
     """Fill G (3,) at X: sum of m g dz_b/dX (eq. 24), without the velocity terms."""
     z3 = work[SCRATCH][4]
@@ -216,7 +269,7 @@ def _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y):
                 )
 
 
-@kernel(inline="always")
+@kernel(refcount=False, llvm_inline=True)
 def regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, work, Y):
     """Fill the regressor Y (3, 36) with Y Theta = M Xr_dd + C(X, Xd) Xr_d + G (eq. 24)."""
     _kinematics(geom, X, Xd, Xr_d, work)

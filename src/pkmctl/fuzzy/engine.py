@@ -26,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .fuzzy_kernels import (
+from pkmctl.fuzzy.kernels import (
     _HEADER,
     _INT_SECTIONS,
     _O_NT,
@@ -533,14 +533,15 @@ class MamdaniSystem:
 
     @classmethod
     def from_fis(cls, source: str | os.PathLike[str]) -> MamdaniSystem:
-        """Read a MATLAB .fis file (a path, or the text itself); see :func:`pkmctl.fis.read_fis`."""
-        from pkmctl.fis import read_fis
+        """Read a MATLAB .fis file (a path, or the text itself); see
+        :func:`pkmctl.fuzzy.fis.read_fis`."""
+        from pkmctl.fuzzy.fis import read_fis
 
         return read_fis(source)
 
     def to_fis(self, path: str | os.PathLike[str]) -> None:
-        """Write this system as a MATLAB .fis file (atomically); see :mod:`pkmctl.fis`."""
-        from pkmctl.fis import write_fis
+        """Write this system as a MATLAB .fis file (atomically); see :mod:`pkmctl.fuzzy.fis`."""
+        from pkmctl.fuzzy.fis import write_fis
 
         write_fis(self, path)
 

@@ -1,4 +1,4 @@
-"""Metrics of a closed-loop :class:`~pkmctl.simulation.Result` (DESIGN.md §4, eq. 55-57).
+"""Metrics of a closed-loop :class:`~pkmctl.Result` (DESIGN.md §4, eq. 55-57).
 
 Pure functions: a result in, numbers out. Errors are desired minus actual.
 """
@@ -67,21 +67,21 @@ def summary(result) -> dict:
     }
 
 
-def surface_gain(scenario, controller: str) -> np.ndarray:
-    """Gain from s to F near s = 0 (N s/m, N m s/rad), shape (3,), at sdot = 0.
+def surface_gain(scenario, controller: str) -> np.ndarray | None:
+    """Gain from s to F near s = 0 (N s/m, N m s/rad), shape (3,), at sdot = 0, as the
+    controller part states it (None if it states none); a constant force error dG then
+    leaves a steady error of about dG / (gain lambda).
 
     SMC: K + Lambda / eps (inside the boundary layer); FSMC and AFSMC:
-    K + K_u K_s |dFLC/ds*(0, 0)| (slope of the fuzzy surface, by central difference).
+    K + K_u K_s |dFLC/ds*(0, 0)| (slope of the fuzzy surface); PD: K_p / lambda.
     """
-    from .fuzzy import FLC
+    from pkmctl.fuzzy import FLC
+    from pkmctl.parts import get_part
 
-    g = scenario.controller_gains()
-    if controller == "smc":
-        return g.K + g.Lam / g.eps
-    flc = FLC()
-    h = 1e-4
-    slope = abs(flc(h, 0.0) - flc(-h, 0.0)) / (2 * h)
-    return g.K + g.Ku * g.Ks * slope
+    part = get_part("controller", controller)
+    if part.surface_gain is None:
+        return None
+    return np.asarray(part.surface_gain(scenario.controller_gains(), FLC()), dtype=float)
 
 
 def gravity_mismatch(scenario) -> np.ndarray:

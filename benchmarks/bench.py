@@ -13,10 +13,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ._jit import kernel
-from .controllers import _step_from_buffer
-from .dynamics import dynamics_kernel, make_work, regressor_kernel
-from .simulation import _plant_accel
+from pkmctl._jit import kernel
+from pkmctl.model.dynamics import dynamics_kernel, make_work, regressor_kernel
+from pkmctl.parts import controller_step, plant_derivative
 
 __all__ = ["render", "run_all"]
 
@@ -51,21 +50,21 @@ def _loop_regressor(geom, X, Xd, Xr, Xrr, n, work, Y):
 
 
 @kernel(refcount=False)
-def _loop_plant(geom, theta, X, Xd, tau, dist, work, M, C, G, out, n):
+def _loop_plant(p, x, tau, dist, work, dx, n):
     acc = 0.0
     for k in range(n):
-        X[2] = 0.3 * np.sin(1e-4 * k)
-        _plant_accel(geom, theta, X, Xd, tau, dist, work, M, C, G, out)
-        acc += out[0]
+        x[2] = 0.3 * np.sin(1e-4 * k)
+        plant_derivative(p, x, tau, dist, work, dx)
+        acc += dx[3]
     return acc
 
 
 @kernel(refcount=False)
-def _loop_control(kind, eps, Tc, alpha_f, ints, reals, buf, X, Xd, Xdes, Xddes, Xdddes, F, n):
+def _loop_control(p, state, work, y, ref, F, n):
     acc = 0.0
     for k in range(n):
-        X[2] = 0.3 * np.sin(1e-4 * k)
-        _step_from_buffer(kind, eps, Tc, alpha_f, ints, reals, buf, X, Xd, Xdes, Xddes, Xdddes, F)
+        y[2] = 0.3 * np.sin(1e-4 * k)
+        controller_step(p, state, work, y, ref, F)
         acc += F[0]
     return acc
 
@@ -89,8 +88,36 @@ def bench_model(quick: bool = False) -> dict[str, float]:
     return {"mcg_us": mcg * 1e6, "regressor_us": reg * 1e6}
 
 
+#: The controllers ``pkmctl bench`` times: the built-ins and the user's law of docs/parts.md.
+BENCH_CONTROLLERS = ("smc", "fsmc", "afsmc", "pd", "ctc", "my-law")
+
+
+def load_user_law() -> str:
+    """Register docs/parts.md's ``my-law`` as a user would: its block saved as a file of
+    their own (in a temporary folder) and imported. Returns the controller's name."""
+    import importlib
+    import re
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    from pkmctl.parts import names
+
+    if "my-law" in names("controller"):
+        return "my-law"
+    doc = Path(__file__).resolve().parents[1] / "docs" / "parts.md"
+    blocks = re.findall(r"```python\n(.*?)```", doc.read_text(encoding="utf-8"), flags=re.S)
+    code = next(b for b in blocks if b.startswith("# my_law.py"))
+    folder = Path(tempfile.mkdtemp(prefix="pkmctl-bench-"))
+    (folder / "my_law.py").write_text(code, encoding="utf-8")
+    sys.path.insert(0, str(folder))
+    importlib.import_module("my_law")
+    return "my-law"
+
+
 def bench_steps(duration: float, repeats: int) -> dict[str, dict[str, float]]:
-    """Control steps per second of one run on one core, per controller (paper scenario).
+    """Control steps per second of one run on one core, per controller (paper scenario);
+    ``my-law`` is a user's controller from its own file (docs/parts.md).
 
     ``loop``: the compiled closed loop alone (controller + RK4 plant + logging);
     ``end_to_end``: :func:`pkmctl.simulate` as a user calls it (also builds the desired
@@ -100,8 +127,9 @@ def bench_steps(duration: float, repeats: int) -> dict[str, dict[str, float]]:
 
     sc = pkmctl.Scenario.builtin("paper").replace(**{"timing.duration": duration})
     n = int(round(duration / sc.timing.control_period))
+    load_user_law()
     out = {}
-    for name in ("smc", "fsmc", "afsmc"):
+    for name in BENCH_CONTROLLERS:
         pkmctl.simulate(sc, controller=name, duration=0.01)  # warm (compile cache)
         loop = np.inf
         total = np.inf
@@ -125,21 +153,20 @@ def bench_breakdown(loop_steps_per_s: float, quick: bool = False) -> dict[str, f
     loop was 0-21 % slower than the parts in the four runs of docs/performance.md).
     """
     import pkmctl
+    from pkmctl.fuzzy import FLC
+    from pkmctl.parts import PartContext, get_part
 
-    robot = pkmctl.Mechanism.paper()
-    ctrl = pkmctl.make_controller("afsmc", robot.with_theta(0.85 * robot.theta), period=5e-5)
-    g, th = robot.geometry.copy(), robot.theta.copy()
+    sc = pkmctl.Scenario.builtin("paper")
+    ctx = PartContext(sc.plant(), sc.controller_mechanism(), sc.controller_gains(),
+                      sc.timing.control_period, FLC(), sc)  # fmt: skip
     n = 20_000 if quick else 200_000
-    X, Xd = np.array([0.71, 0.2, -0.1]), np.array([0.02, 0.5, -0.4])
-    tau, dist = np.array([40.0, 10.0, 35.0, 12.0]), np.array([1.0, 0.2, -0.2])
-    work, M, C, G = make_work(), np.empty((3, 3)), np.empty(3), np.empty(3)
-    out, F = np.empty(3), np.empty(3)
-    plant_args = (g, th, X.copy(), Xd, tau, dist, work, M, C, G, out)
-    # the compiled step a Controller runs (Controller.step minus the Python dispatch)
-    ctrl_args = (
-        ctrl.kind, ctrl.gains.eps, ctrl.period, ctrl._alpha_f, ctrl._tables.ints,
-        ctrl._tables.reals, ctrl._buf, X.copy(), Xd, X + 0.001, Xd * 0.9, Xd * 0.1, F,
-    )  # fmt: skip
+    plant_p, x, pw = get_part("plant", "rigid").make(ctx)
+    ctrl_p, cs, cw = get_part("controller", "afsmc").make(ctx)
+    x[:] = [0.71, 0.2, -0.1, 0.02, 0.5, -0.4]
+    tau, dist, dx = np.array([40.0, 10.0, 35.0, 12.0]), np.array([1.0, 0.2, -0.2]), np.empty(6)
+    ref = np.concatenate([x[:3] + 0.001, x[3:] * 0.9, x[3:] * 0.1])
+    plant_args = (plant_p, x, tau, dist, pw, dx)
+    ctrl_args = (ctrl_p, cs, cw, x.copy(), ref, np.empty(3))
     _loop_plant(*plant_args, 10)
     _loop_control(*ctrl_args, 10)
     plant = _best(lambda: _loop_plant(*plant_args, n), 5) / n * 1e6
@@ -159,7 +186,7 @@ def bench_latency(n: int) -> dict[str, float]:
 
     robot = pkmctl.Mechanism.paper()
     out = {}
-    for name in ("smc", "fsmc", "afsmc"):
+    for name in ("smc", "fsmc", "afsmc", "pd", "ctc"):
         ctrl = pkmctl.make_controller(name, robot.with_theta(0.85 * robot.theta), period=5e-5)
         X = np.array([0.7, 0.1, 0.1])
         Xd = np.array([0.7, 0.12, 0.08])
@@ -186,7 +213,7 @@ def bench_batch(duration: float, runs: int) -> dict[str, float]:
     campaign once more on one thread, for the speed-up.
     """
     import pkmctl
-    from pkmctl.simulation import simulate_many
+    from pkmctl.sim.simulate import simulate_many
 
     sc = pkmctl.Scenario.builtin("paper").replace(**{"timing.duration": duration})
     n = int(round(duration / sc.timing.control_period))
@@ -213,9 +240,20 @@ def bench_batch(duration: float, runs: int) -> dict[str, float]:
 
 def bench_flc(quick: bool) -> dict[str, float]:
     """FLC: compiled in-loop scalar, batched, and peers (scikit-fuzzy, simpful) per evaluation."""
-    from pkmctl.fuzzy_bench import run as run_fuzzy
+    from benchmarks.fuzzy_bench import run as run_fuzzy
 
     return run_fuzzy(quick=quick)
+
+
+def bench_mujoco(quick: bool) -> dict[str, float] | None:
+    """MuJoCo stepping the same machine (benchmarks/mujoco_peer.py) open loop with RK4 at
+    the same 50 us step, if MuJoCo is installed (``pip install "pkmctl[mujoco]"``)."""
+    try:
+        from benchmarks.mujoco_peer import steps_per_second
+    except ImportError as exc:
+        return {"error": f"not run: {exc}"}
+    r = steps_per_second(0.1 if quick else 1.0, 1 if quick else 3)
+    return {k: float(v) for k, v in r.items() if isinstance(v, int | float)}
 
 
 def bench_reproduce(quick: bool) -> dict[str, float]:
@@ -256,11 +294,13 @@ def run_all(quick: bool = False, progress: Callable[[str], None] | None = None) 
 
     res["machine"]["numba"] = numba.__version__
     say("model kernels")
-    from pkmctl.flops import estimate as flop_estimate
+    from benchmarks.flops import estimate as flop_estimate
 
     res["model"] = bench_model(quick=quick)
     say("closed-loop steps per second, one core")
     res["steps"] = bench_steps(0.2 if quick else 10.0, 1 if quick else 3)
+    say("MuJoCo, the same machine, open loop")
+    res["mujoco"] = bench_mujoco(quick)
     say("FLC and peers")
     res["flc"] = bench_flc(quick)
     say("one AFSMC step, part by part")
@@ -319,6 +359,23 @@ def rows(res: dict) -> list[tuple[str, str, str, str]]:
             row(f"closed loop {name}, one core", text, "afsmc_loop", loop)
         else:
             row(f"closed loop {name}, one core", text)
+    mj = res.get("mujoco") or {}
+    if "steps_per_s" in mj:
+        afsmc = res["steps"]["afsmc"]["loop_steps_per_s"]
+        row("MuJoCo RK4, same machine, open loop", f"{mj['steps_per_s']:,.0f} steps/s")
+        row("  AFSMC closed loop / MuJoCo open loop", f"{afsmc / mj['steps_per_s']:.1f}x")
+        if "steps_per_s_python_control" in mj:
+            row(
+                "  MuJoCo with a Python control step",
+                f"{mj['steps_per_s_python_control']:,.0f} steps/s",
+            )
+    else:
+        row("MuJoCo", str(mj.get("error", "not run")))
+    if "my-law" in res["steps"] and "pd" in res["steps"]:
+        user = res["steps"]["my-law"]["loop_steps_per_s"]
+        row(
+            "  user's my-law / built-in pd", f"{user / res['steps']['pd']['loop_steps_per_s']:.2f}x"
+        )
     for name, v in res["steps"].items():
         e2e = v["end_to_end_steps_per_s"]
         row(f"simulate() {name}: 10 s at 20 kHz", f"{200_000 / e2e:.2f} s ({e2e:,.0f} steps/s)")

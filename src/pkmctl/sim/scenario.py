@@ -18,12 +18,12 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import tomli_w
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from .controllers import Gains
-from .errors import InvalidPoseError, PkmctlError
-from .mechanism import PAPER_TABLE2, Mechanism
-from .trajectory import TRAJECTORIES, Sinusoid, paper_trajectory
+from pkmctl.control.gains import BASELINE_GAINS, TABLE3, Gains
+from pkmctl.errors import InvalidPoseError, PkmctlError
+from pkmctl.model.mechanism import PAPER_TABLE2, Mechanism
+from pkmctl.sim.trajectory import TRAJECTORIES, Sinusoid, paper_trajectory
 
 __all__ = ["BUILTINS", "Scenario", "ScenarioError"]
 
@@ -42,7 +42,7 @@ NonNegVec3 = Annotated[list[Annotated[float, Field(ge=0)]], Field(min_length=3, 
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True, populate_by_name=True)
 
 
 def _paper_theta() -> list[float]:
@@ -78,18 +78,23 @@ class ControllerModelSpec(_Model):
 
 
 class GainsSpec(_Model):
-    """Table 3 (diagonals over [z, alpha, beta]) plus the adaptation gain and sdot filter."""
+    """Table 3 (diagonals over [z, alpha, beta]), the adaptation gain and sdot filter, and
+    the baselines' gains (defaults: :data:`~pkmctl.control.gains.BASELINE_GAINS`)."""
 
-    lam: PosVec3 = [50.0, 20.0, 20.0]
-    K: NonNegVec3 = [1000.0, 200.0, 200.0]
-    Lam: NonNegVec3 = [150.0, 40.0, 40.0]
-    eps: float = Field(0.01, gt=0, le=1e3)
-    Ks: PosVec3 = [10.0, 10.0, 10.0]
-    Ksd: PosVec3 = [0.5, 0.5, 0.5]
-    Ku: NonNegVec3 = [50.0, 30.0, 30.0]
+    lam: PosVec3 = Field(default_factory=lambda: list(TABLE3["lam"]))
+    K: NonNegVec3 = Field(default_factory=lambda: list(TABLE3["K"]))
+    Lam: NonNegVec3 = Field(default_factory=lambda: list(TABLE3["Lam"]))
+    eps: float = Field(TABLE3["eps"], gt=0, le=1e3)
+    Ks: PosVec3 = Field(default_factory=lambda: list(TABLE3["Ks"]))
+    Ksd: PosVec3 = Field(default_factory=lambda: list(TABLE3["Ksd"]))
+    Ku: NonNegVec3 = Field(default_factory=lambda: list(TABLE3["Ku"]))
     gamma: float = Field(Gains().gamma, ge=0, le=1e6)
-    filter_periods: float = Field(20.0, ge=1, le=1e6)
+    filter_periods: float = Field(Gains().filter_periods, ge=1, le=1e6)
     theta_bounds: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.1, 10.0]
+    pd_kp: NonNegVec3 = Field(default_factory=lambda: list(BASELINE_GAINS["pd_kp"]))
+    pd_kd: NonNegVec3 = Field(default_factory=lambda: list(BASELINE_GAINS["pd_kd"]))
+    ctc_kp: NonNegVec3 = Field(default_factory=lambda: list(BASELINE_GAINS["ctc_kp"]))
+    ctc_kd: NonNegVec3 = Field(default_factory=lambda: list(BASELINE_GAINS["ctc_kd"]))
 
     @model_validator(mode="after")
     def _bounds(self) -> GainsSpec:
@@ -145,10 +150,48 @@ class TimingSpec(_Model):
     duration: float = Field(10.0, gt=0, le=3600)
 
 
-class ActuatorSpec(_Model):
-    """Actuator force limit (N) per limb; none (unbounded) in the paper."""
+def _check_kind(kind: str, name: str) -> str:
+    from pkmctl.parts import names
 
+    known = names(kind)
+    if name not in known:
+        raise ValueError(f"{name!r}: unknown {kind} (registered: {', '.join(known)})")
+    return name
+
+
+class PlantSpec(_Model):
+    """The plant part (DESIGN.md §6): ``rigid``, the closed form of §2, or a registered one."""
+
+    kind: str = "rigid"
+
+    @field_validator("kind")
+    @classmethod
+    def _kind(cls, v: str) -> str:
+        return _check_kind("plant", v)
+
+
+class SensorSpec(_Model):
+    """The sensor part: ``ideal`` (exact X, Xdot at the sample) or a registered one."""
+
+    kind: str = "ideal"
+
+    @field_validator("kind")
+    @classmethod
+    def _kind(cls, v: str) -> str:
+        return _check_kind("sensor", v)
+
+
+class ActuatorSpec(_Model):
+    """The actuator part (``ideal``: the minimum-norm split at the measured pose) and the
+    force limit (N) per limb; none (unbounded) in the paper."""
+
+    kind: str = "ideal"
     force_limit: float | None = Field(None, gt=0)
+
+    @field_validator("kind")
+    @classmethod
+    def _kind(cls, v: str) -> str:
+        return _check_kind("actuator", v)
 
 
 class Scenario(_Model):
@@ -164,6 +207,8 @@ class Scenario(_Model):
     disturbance: DisturbanceSpec = DisturbanceSpec()
     timing: TimingSpec = TimingSpec()
     actuators: ActuatorSpec = ActuatorSpec()
+    plant_spec: PlantSpec = Field(PlantSpec(), alias="plant")
+    sensor: SensorSpec = SensorSpec()
 
     @model_validator(mode="after")
     def _physics(self) -> Scenario:
@@ -239,7 +284,7 @@ class Scenario(_Model):
 
     def to_toml(self) -> str:
         """The scenario as TOML; :meth:`from_toml` reads it back to an equal scenario."""
-        data = self.model_dump(exclude_none=True)
+        data = self.model_dump(exclude_none=True, by_alias=True)
         return tomli_w.dumps(data)
 
     def replace(self, **changes: Any) -> Scenario:
@@ -247,7 +292,7 @@ class Scenario(_Model):
 
         ``scenario.replace(**{"timing.duration": 2.0, "disturbance.seed": 7})``
         """
-        data = self.model_dump()
+        data = self.model_dump(by_alias=True)
         for key, value in changes.items():
             *path, last = key.split(".")
             node = data

@@ -1,7 +1,7 @@
 """The mechanism: geometry and the 9 bodies of the 2RPU-2SPR manipulator (DESIGN.md §1).
 
 :class:`Mechanism` is frozen data plus methods that call the compiled kernels of
-:mod:`pkmctl.kinematics` and :mod:`pkmctl.dynamics`. Every method takes one pose
+:mod:`pkmctl.model.kinematics` and :mod:`pkmctl.model.dynamics`. Every method takes one pose
 ``X`` of shape (3,) or a batch of shape (N, 3) and returns the matching shape:
 ``(...)`` for one pose, ``(N, ...)`` for a batch.
 """
@@ -14,16 +14,16 @@ from typing import Any
 
 import numpy as np
 
-from ._jit import kernel
-from .dynamics import (
+from pkmctl._jit import kernel
+from pkmctl.errors import ConvergenceError, InvalidPoseError
+from pkmctl.model.dynamics import (
     N_THETA,
     actuator_forces_kernel,
     dynamics_kernel,
     make_work,
     regressor_kernel,
 )
-from .errors import ConvergenceError, InvalidPoseError
-from .kinematics import GEOM_SIZE, N_BODIES, forward_kinematics_kernel, limb_kinematics
+from pkmctl.model.kinematics import GEOM_SIZE, N_BODIES, forward_kinematics_kernel, limb_kinematics
 
 __all__ = ["BODY_NAMES", "Body", "Mechanism", "PAPER_TABLE2"]
 

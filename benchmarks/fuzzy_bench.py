@@ -11,9 +11,9 @@ import time
 
 import numpy as np
 
-from ._jit import kernel
-from .bench import _best
-from .fuzzy import FLC, PAPER_RULE_TABLE, TERM_NAMES, flc_eval
+from benchmarks.bench import _best
+from pkmctl._jit import kernel
+from pkmctl.fuzzy import FLC, PAPER_RULE_TABLE, TERM_NAMES, flc_eval
 
 
 @kernel

@@ -29,14 +29,13 @@ gaussmf parameters are [sigma mean]; pkmctl's ``Term`` keeps (mean, sigma).
 
 from __future__ import annotations
 
-import contextlib
 import os
 import re
-import tempfile
 from pathlib import Path
 from typing import NoReturn
 
-from pkmctl.fuzzy import MF_KINDS, MamdaniSystem, Rule, Term, Variable
+from pkmctl.fuzzy.engine import MF_KINDS, MamdaniSystem, Rule, Term, Variable
+from pkmctl.io.atomic import atomic_write
 
 __all__ = ["FISError", "read_fis", "to_fis_text", "write_fis"]
 
@@ -299,17 +298,5 @@ def write_fis(system: MamdaniSystem, path: str | os.PathLike[str]) -> None:
     The text goes to a temporary file in the same directory, which then replaces ``path``
     (``os.replace``), so readers never see a partly written file.
     """
-    path = Path(path)
-    text = to_fis_text(system)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+    with atomic_write(path) as f:
+        f.write(to_fis_text(system))

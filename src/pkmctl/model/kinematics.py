@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from ._jit import kernel
+from pkmctl._jit import kernel
 
 __all__ = [
     "GEOM_SIZE",
@@ -33,6 +33,7 @@ __all__ = [
     "N_BODIES",
     "body_jacobians",
     "forward_kinematics_kernel",
+    "limb_jacobian",
     "limb_kinematics",
 ]
 
@@ -50,6 +51,51 @@ GEOM_SIZE = 11
 def _cx(a0, a1, a2, b0, b1, b2):
     """a x b on scalars (no array views in the hot loop)."""
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@kernel(inline="always", refcount=False)
+def _limb(r_a, r_b, z, ta, zs, ca, sa, R, i):
+    """Limb i at the platform pose: rho = R a_i, the length q, 1/q, the unit vector u and
+    the non-trivial entries of J_P = dP/dX (eq. 4-8)."""
+    cth, sth = _LIMB_DIR[i, 0], _LIMB_DIR[i, 1]
+    rx = r_a * (R[0, 0] * cth + R[0, 1] * sth)  # rho = R a_i
+    ry = r_a * (R[1, 0] * cth + R[1, 1] * sth)
+    rz = r_a * (R[2, 0] * cth + R[2, 1] * sth)
+    Px, Py, Pz = rx, -z * ta + ry, z + rz  # P = p + rho
+    d0, d1, d2 = Px - r_b * cth, Py - r_b * sth, Pz
+    qi = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    iq = 1.0 / qi
+    # J_P = Jv0 + [Jw0 columns] x rho, written out (the z column has no rotation,
+    # the alpha column turns about e_x, the beta column about R_x(alpha) e_y)
+    p02 = ca * rz - sa * ry
+    p10, p11, p12 = -ta, -zs - rz, sa * rx
+    p21, p22 = ry, -ca * rx
+    return rx, ry, rz, qi, iq, d0 * iq, d1 * iq, d2 * iq, p02, p10, p11, p12, p21, p22
+
+
+@kernel(inline="always", refcount=False)
+def _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22):
+    """The row J_i = u^T J_P of the limb Jacobian (eq. 8)."""
+    return u1 * p10 + u2, u1 * p11 + u2 * p21, u0 * p02 + u1 * p12 + u2 * p22
+
+
+@kernel(refcount=False)
+def limb_jacobian(geom, X, R, Jq, q):
+    """Limb lengths ``q`` (4,) and Jacobian ``Jq`` (4, 3) at pose X (eq. 4-8), without the
+    body kinematics; ``R`` (3, 3) receives the platform orientation. Allocates nothing."""
+    r_a, r_b, z = geom[0], geom[1], X[0]
+    ca, sa, cb, sb = math.cos(X[1]), math.sin(X[1]), math.cos(X[2]), math.sin(X[2])
+    ta = sa / ca
+    zs = z * (1.0 / (ca * ca))  # as body_jacobians rounds it
+    R[0, 0], R[0, 1], R[0, 2] = cb, 0.0, sb
+    R[1, 0], R[1, 1], R[1, 2] = sa * sb, ca, -sa * cb
+    R[2, 0], R[2, 1], R[2, 2] = -ca * sb, sa, ca * cb
+    for i in range(4):
+        _, _, _, qi, _, u0, u1, u2, p02, p10, p11, p12, p21, p22 = _limb(
+            r_a, r_b, z, ta, zs, ca, sa, R, i
+        )
+        q[i] = qi
+        Jq[i, 0], Jq[i, 1], Jq[i, 2] = _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22)
 
 
 @kernel(inline="always")
@@ -104,22 +150,11 @@ def body_jacobians(geom, X, Xd, v, Rb, Jv, Jw, av, aw, Jq, q):
     av01, aw01, aw02 = av[0, 1], aw[0, 1], aw[0, 2]
     zs = z * sec2
     for i in range(4):
-        cth, sth = _LIMB_DIR[i, 0], _LIMB_DIR[i, 1]
-        rx = r_a * (R[0, 0] * cth + R[0, 1] * sth)  # rho = R a_i
-        ry = r_a * (R[1, 0] * cth + R[1, 1] * sth)
-        rz = r_a * (R[2, 0] * cth + R[2, 1] * sth)
+        rx, ry, rz, qi, iq, u0, u1, u2, p02, p10, p11, p12, p21, p22 = _limb(
+            r_a, r_b, z, ta, zs, ca, sa, R, i
+        )
         rdx, rdy, rdz = _cx(w0x, w0y, w0z, rx, ry, rz)  # rho_dot = omega x rho
-        Px, Py, Pz = rx, -z * ta + ry, z + rz  # P = p + rho
-        d0, d1, d2 = Px - r_b * cth, Py - r_b * sth, Pz
-        qi = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         q[i] = qi
-        iq = 1.0 / qi
-        u0, u1, u2 = d0 * iq, d1 * iq, d2 * iq
-        # J_P = Jv0 + [Jw0 columns] x rho, written out (the z column has no rotation,
-        # the alpha column turns about e_x, the beta column about R_x(alpha) e_y)
-        p02 = ca * rz - sa * ry
-        p10, p11, p12 = -ta, -zs - rz, sa * rx
-        p21, p22 = ry, -ca * rx
         # dJ_P v = av0 + aw0 x rho + (Jw0 v) x rho_dot
         t0, t1, t2 = _cx(0.0, aw01, aw02, rx, ry, rz)
         s0, s1, s2 = _cx(wv0x, wv0y, wv0z, rdx, rdy, rdz)
@@ -134,9 +169,7 @@ def body_jacobians(geom, X, Xd, v, Rb, Jv, Jw, av, aw, Jq, q):
         qd = u0 * Pd0 + u1 * Pd1 + u2 * Pd2
         ud0, ud1, ud2 = (Pd0 - u0 * qd) * iq, (Pd1 - u1 * qd) * iq, (Pd2 - u2 * qd) * iq
         # J = u^T J_P (eq. 8); J_u = (I - u u^T) J_P / q, so u_dot = J_u Xd
-        j0 = u1 * p10 + u2
-        j1 = u1 * p11 + u2 * p21
-        j2 = u0 * p02 + u1 * p12 + u2 * p22
+        j0, j1, j2 = _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22)
         Jq[i, 0], Jq[i, 1], Jq[i, 2] = j0, j1, j2
         k00, k01, k02 = -u0 * j0 * iq, -u0 * j1 * iq, (p02 - u0 * j2) * iq
         k10, k11, k12 = (p10 - u1 * j0) * iq, (p11 - u1 * j1) * iq, (p12 - u1 * j2) * iq

@@ -1,0 +1,212 @@
+"""The controllers as objects a user (or a hardware loop) steps from Python.
+
+Contract of a :class:`Controller` (like SciPy's ``OdeSolver``):
+
+1. It is built from a controller model (a :class:`~pkmctl.Mechanism`, never the
+   plant's), :class:`~pkmctl.Gains` and the control period, and runs the compiled step
+   of a registered controller part (:mod:`pkmctl.parts`): the same code as the loop.
+2. ``step(X, Xdot, X_d, Xdot_d, Xddot_d)`` returns the task-space force F (3,) and
+   advances the controller's state by one period.
+3. Its whole state is :attr:`Controller.state` (a copy); :meth:`Controller.reset`
+   restores the initial state.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from pkmctl._jit import specialise
+from pkmctl.control.gains import Gains
+from pkmctl.control.sliding import SLIDING_STATE
+from pkmctl.fuzzy import FLC, MamdaniSystem
+from pkmctl.model.mechanism import Mechanism
+from pkmctl.parts import PartContext, controller_step, get_part, names
+
+__all__ = [
+    "AFSMC",
+    "CONTROLLERS",
+    "CTC",
+    "FSMC",
+    "PD",
+    "SMC",
+    "Controller",
+    "ControllerState",
+    "make_controller",
+]
+
+
+@dataclass(frozen=True)
+class ControllerState:
+    """A snapshot of a controller's state.
+
+    s_prev : (3,) s at the previous step; sdot : (3,) filtered sdot estimate (both None
+    for a controller without a sliding surface); theta_hat : (36,) Theta^ (AFSMC) or
+    None; steps : control periods taken; raw : the part's whole state array.
+    """
+
+    s_prev: np.ndarray | None
+    sdot: np.ndarray | None
+    theta_hat: np.ndarray | None
+    steps: int
+    raw: np.ndarray
+
+
+def _entry(p, state, work, y, ref, F):
+    controller_step(p, state, work, y, ref, F)
+
+
+def _as_vec3(a, name: str) -> np.ndarray:
+    if type(a) is np.ndarray and a.dtype == np.float64 and a.shape == (3,):
+        return a
+    a = np.asarray(a, dtype=float)
+    if a.shape != (3,):
+        raise ValueError(f"{name}: expected shape (3,), got {a.shape}")
+    return a
+
+
+class Controller:
+    """One registered controller, stepped from Python (see the module docstring).
+
+    ``Controller(model, gains, period=T_c, name="pd")`` builds any registered controller;
+    the subclasses :class:`SMC`, :class:`FSMC`, :class:`AFSMC`, :class:`PD` and
+    :class:`CTC` fix the name.
+    """
+
+    name: ClassVar[str] = ""
+
+    def __init__(
+        self,
+        model: Mechanism,
+        gains: Gains | None = None,
+        *,
+        period: float,
+        flc: MamdaniSystem | None = None,
+        name: str | None = None,
+    ) -> None:
+        if not isinstance(model, Mechanism):
+            raise TypeError("model: expected a pkmctl.Mechanism (the controller's own model)")
+        if not (isinstance(period, int | float) and 0 < period < math.inf):
+            raise ValueError(f"period = {period!r}: must be > 0 (s)")
+        self.name = name or type(self).name
+        self.part = get_part("controller", self.name)
+        self.model = model
+        self.gains = Gains() if gains is None else gains
+        self.period = float(period)
+        self.flc = FLC() if flc is None else flc
+        ctx = PartContext(model, model, self.gains, self.period, self.flc)
+        self.params, self._initial, self._work = self.part.make(ctx)
+        self._state = self._initial.copy()
+        self._steps = 0
+        self._y, self._ref = np.empty(6), np.empty(9)
+        self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False)
+
+    @property
+    def _adaptive(self) -> bool:
+        return self.part.log_name == "theta_hat"
+
+    def reset(self) -> None:
+        """Restore the initial state (no previous s, sdot = 0, Theta^ = the model's Theta)."""
+        self._state[:] = self._initial
+        self._steps = 0
+
+    @property
+    def state(self) -> ControllerState:
+        st = self._state
+        sliding = st.shape[0] >= SLIDING_STATE and self.name in ("smc", "fsmc", "afsmc")
+        return ControllerState(
+            s_prev=st[:3].copy() if sliding else None,
+            sdot=st[3:6].copy() if sliding else None,
+            theta_hat=st[SLIDING_STATE:].copy() if self._adaptive else None,
+            steps=self._steps,
+            raw=st.copy(),
+        )
+
+    def step(self, X, Xdot, X_d, Xdot_d, Xddot_d) -> np.ndarray:
+        """One control period: the task-space force F (3,) for the measured (X, Xdot)."""
+        y, ref = self._y, self._ref
+        y[0:3], y[3:6] = _as_vec3(X, "X"), _as_vec3(Xdot, "Xdot")
+        ref[0:3], ref[3:6] = _as_vec3(X_d, "X_d"), _as_vec3(Xdot_d, "Xdot_d")
+        ref[6:9] = _as_vec3(Xddot_d, "Xddot_d")
+        F = np.empty(3)
+        self._step(self.params, self._state, self._work, y, ref, F)
+        self._steps += 1
+        return F
+
+    def __deepcopy__(self, memo) -> Controller:
+        """An independent controller: its own state and work, the same (immutable) params."""
+        import copy
+
+        twin = copy.copy(self)
+        twin._state, twin._initial = self._state.copy(), self._initial.copy()
+        twin._work = copy.deepcopy(self._work, memo)
+        twin._y, twin._ref = np.empty(6), np.empty(9)
+        return twin
+
+    def __getstate__(self) -> dict:
+        d = self.__dict__.copy()
+        del d["_step"], d["part"]  # looked up again on unpickling
+        return d
+
+    def __setstate__(self, d: dict) -> None:
+        self.__dict__.update(d)
+        self.part = get_part("controller", self.name)
+        self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False)
+
+
+class SMC(Controller):
+    """Sliding mode control with a boundary layer (eq. 25)."""
+
+    name = "smc"
+
+
+class FSMC(Controller):
+    """Fuzzy sliding mode control: the switching term replaced by the FLC (eq. 26)."""
+
+    name = "fsmc"
+
+
+class AFSMC(Controller):
+    """Adaptive fuzzy sliding mode control: regressor-based model with Theta^ adapted (eq. 46)."""
+
+    name = "afsmc"
+
+    @property
+    def gamma_vec(self) -> np.ndarray:
+        return self.params.gamma_vec
+
+    @property
+    def theta_min(self) -> np.ndarray:
+        return self.params.theta_min
+
+    @property
+    def theta_max(self) -> np.ndarray:
+        return self.params.theta_max
+
+
+class PD(Controller):
+    """PD in task space plus the model's gravity (a baseline, DESIGN.md §6)."""
+
+    name = "pd"
+
+
+class CTC(Controller):
+    """Computed torque (a baseline, DESIGN.md §6)."""
+
+    name = "ctc"
+
+
+#: The built-in controllers by name (every registered one: :func:`pkmctl.parts.names`).
+CONTROLLERS: dict[str, type[Controller]] = {c.name: c for c in (SMC, FSMC, AFSMC, PD, CTC)}
+
+
+def make_controller(name: str, model: Mechanism, gains: Gains | None = None, **kw) -> Controller:
+    """Build any registered controller by name ("smc", "fsmc", "afsmc", "pd", "ctc", ...)."""
+    if not isinstance(name, str):
+        raise ValueError(f"controller = {name!r}: must be one of {names('controller')}")
+    key = name.lower() if name.lower() in CONTROLLERS else name
+    cls = CONTROLLERS.get(key, Controller)
+    return cls(model, gains, name=key, **kw)

@@ -1,0 +1,41 @@
+"""Fuzzy logic: membership functions, the Mamdani engine and its kernels, `.fis` files."""
+
+from pkmctl.fuzzy.engine import (
+    FLC,
+    MF_KINDS,
+    PAPER_RULE_TABLE,
+    TERM_NAMES,
+    FISTables,
+    MamdaniSystem,
+    Rule,
+    Term,
+    Variable,
+    flc_eval,
+    gaussmf,
+    mamdani_eval,
+    smf,
+    trapmf,
+    trimf,
+    uniform_terms,
+    zmf,
+)
+
+__all__ = [
+    "MF_KINDS",
+    "FISTables",
+    "FLC",
+    "MamdaniSystem",
+    "PAPER_RULE_TABLE",
+    "Rule",
+    "TERM_NAMES",
+    "Term",
+    "Variable",
+    "flc_eval",
+    "gaussmf",
+    "mamdani_eval",
+    "smf",
+    "trapmf",
+    "trimf",
+    "uniform_terms",
+    "zmf",
+]

@@ -1,0 +1,436 @@
+"""The parts of the closed loop: their contract, their registries, and how users add one.
+
+Every control period the loop runs sensor → controller → actuator → plant (DESIGN.md
+§6). A *part* is
+
+1. a **parameter bundle**: an instance of a ``typing.NamedTuple`` class of arrays and
+   floats. Its *type* selects the compiled step functions (one class, one part); the
+   loop is compiled once per combination of the four types and cached on disk;
+2. a **state**: a float64 array of the size the part declares, owned by the loop,
+   advanced in place, returned in ``Result.final_state[kind]``;
+3. a **work** tuple: the arrays a part needs as scratch, made once per run by its
+   ``work(p)`` function (or ``work=n``: one float64 array of n), so no step allocates;
+4. **step functions**, compiled without reference counting (they must not allocate or
+   return arrays). Their signatures, by kind (all arrays float64, shapes fixed):
+
+   ========== ================================================================
+   plant      ``derivative(p, x, tau, dist, work, dx)``: dx = dx/dt at x under the
+              limb forces tau (4,) and the task-space disturbance dist (3,). x
+              starts with [X (3), Xdot (3)]; the rest is the plant's own.
+              ``observe(p, x, tau, work, q, F)``: the true limb lengths q (4,) and
+              the task-space force F = J(X)^T tau (3,), for the log; called right
+              after ``derivative`` at the same x (it may reuse ``work``).
+   sensor     ``measure(p, state, work, x, y)``: what the controller sees,
+              y = [X^ (3), Xdot^ (3)], from the plant state x at the sample time.
+   controller ``step(p, state, work, y, ref, F)``: the task-space force F (3,) from
+              y (6,) and ref = [X_d, Xdot_d, Xddot_d] (9,).
+   actuator   ``command(p, state, work, y, F, cmd)``: the limb commands cmd (4,) from
+              F at the measured pose; ``force(p, state, cmd, tau)``: the limb forces
+              tau (4,) that reach the plant. The first ``continuous`` entries of an
+              actuator's state are integrated with the plant by RK4 through
+              ``derivative(p, state, cmd, dstate)`` (a drive's torque lag).
+   ========== ================================================================
+
+   A controller may also log a row per period (``log(p, state, row)``, ``log_size``
+   and ``log_name``; AFSMC logs Θ̂ as ``theta_hat``).
+
+Each kind has a registry (name → :class:`Part`); scenarios and the CLI choose parts by
+name. A user adds one from their own module with a decorator
+(:func:`register_controller`, :func:`register_sensor`, :func:`register_actuator`,
+:func:`register_plant`) without editing pkmctl; see docs/parts.md.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import numpy as np
+from numba import njit
+from numba.core import types
+from numba.extending import overload
+
+from pkmctl._jit import JIT_OPTIONS, NO_REFCOUNT
+from pkmctl.errors import PkmctlError
+
+if TYPE_CHECKING:
+    from pkmctl.control.gains import Gains
+    from pkmctl.fuzzy import MamdaniSystem
+    from pkmctl.model import Mechanism
+
+__all__ = [
+    "KINDS",
+    "Part",
+    "PartContext",
+    "PartError",
+    "get_part",
+    "names",
+    "register_actuator",
+    "register_controller",
+    "register_plant",
+    "register_sensor",
+]
+
+#: The four kinds of part, in the order the loop runs them, and their step functions.
+ROLES: dict[str, dict[str, int]] = {
+    "sensor": {"measure": 5},
+    "controller": {"step": 6, "log": 3},
+    "actuator": {"command": 6, "force": 4, "derivative": 4},
+    "plant": {"derivative": 6, "observe": 6},
+}
+KINDS = tuple(ROLES)
+_REQUIRED = {
+    "sensor": ("measure",),
+    "controller": ("step",),
+    "actuator": ("command", "force"),
+    "plant": ("derivative", "observe"),
+}
+
+
+class PartError(PkmctlError, ValueError):
+    """A part that cannot be registered or built (one line: the part, the field, why)."""
+
+
+@dataclass(frozen=True)
+class PartContext:
+    """What a part's ``build`` may use to make its parameter bundle.
+
+    ``scenario`` is the :class:`~pkmctl.Scenario` of the run (None when a controller is
+    built alone, e.g. for a hardware loop); ``plant`` the true machine, ``model`` the
+    controllers' model (never the plant's parameters), ``gains`` the scenario's gains,
+    ``period`` the control period T_c (s), ``flc`` the fuzzy system of FSMC/AFSMC.
+    """
+
+    plant: Mechanism
+    model: Mechanism
+    gains: Gains
+    period: float
+    flc: MamdaniSystem
+    scenario: Any = None
+
+
+@dataclass(frozen=True, eq=False)
+class Part:
+    """One registered part (see the module docstring for the contract)."""
+
+    kind: str
+    name: str
+    params: type
+    build: Callable[[PartContext], Any]
+    functions: dict[str, Callable]
+    state_size: Callable[[Any], int]
+    make_work: Callable[[Any], tuple]
+    initial_state: Callable[[Any], np.ndarray] | None = None
+    continuous: int = 0
+    log_size: Callable[[Any], int] = lambda p: 0
+    log_name: str = ""
+    description: str = ""
+    label: str = ""
+    surface_gain: Callable[[Any, Any], np.ndarray] | None = None
+    adaptive: bool = False
+    sources: tuple[str, ...] = ()
+    builtin: bool = False
+    compiled: dict[str, Any] = field(default_factory=dict)
+
+    def make(self, ctx: PartContext) -> tuple[Any, np.ndarray, np.ndarray]:
+        """(parameter bundle, initial state, work) for one run."""
+        p = self.build(ctx)
+        if type(p) is not self.params:
+            raise PartError(
+                f"{self.kind} {self.name!r}: build returned {type(p).__name__}, "
+                f"expected {self.params.__name__}"
+            )
+        n = int(self.state_size(p))
+        if self.initial_state is not None:
+            state = np.array(self.initial_state(p), dtype=np.float64).reshape(-1)
+            if state.shape != (n,):
+                raise PartError(
+                    f"{self.kind} {self.name!r}: initial_state has shape {state.shape}, "
+                    f"state_size says ({n},)"
+                )
+        else:
+            state = np.zeros(n)
+        work = self.make_work(p)
+        if not (isinstance(work, tuple) and work and _arrays(work)):
+            raise PartError(
+                f"{self.kind} {self.name!r}: work must give a non-empty tuple of arrays (or of "
+                f"tuples of arrays), "
+                f"got {type(work).__name__}"
+            )
+        return p, state, work
+
+
+def _arrays(t) -> bool:
+    """True if t is a tuple whose items are arrays or such tuples."""
+    return all(isinstance(a, np.ndarray) or (isinstance(a, tuple) and _arrays(a)) for a in t)
+
+
+_REGISTRY: dict[str, dict[str, Part]] = {k: {} for k in KINDS}
+_BY_TYPE: dict[tuple[str, type], Part] = {}
+
+
+def names(kind: str) -> list[str]:
+    """The registered names of one kind of part, sorted."""
+    return sorted(_registry(kind))
+
+
+def _registry(kind: str) -> dict[str, Part]:
+    if kind not in _REGISTRY:
+        raise PartError(f"part kind {kind!r}: must be one of {', '.join(KINDS)}")
+    if kind == "controller":  # the built-in controllers register on import
+        import pkmctl.control  # noqa: F401
+    else:
+        import pkmctl.sim.actuators  # noqa: F401
+        import pkmctl.sim.plants  # noqa: F401
+        import pkmctl.sim.sensors  # noqa: F401
+    return _REGISTRY[kind]
+
+
+def get_part(kind: str, name: str) -> Part:
+    """The part of that kind registered under ``name``; one-line error if none."""
+    reg = _registry(kind)
+    try:
+        return reg[name]
+    except (KeyError, TypeError):
+        raise PartError(f"{kind} = {name!r}: must be one of {', '.join(sorted(reg))}") from None
+
+
+def _sizer(v, what: str, kind: str, name: str) -> Callable[[Any], int]:
+    if callable(v):
+        return v
+    if isinstance(v, int | np.integer) and not isinstance(v, bool) and v >= 0:
+        return lambda p, v=int(v): v
+    raise PartError(f"{kind} {name!r}: {what} = {v!r}: must be an integer >= 0 or a function")
+
+
+def _worker(v, kind: str, name: str) -> Callable[[Any], tuple]:
+    if callable(v):
+        return v
+    if isinstance(v, int | np.integer) and not isinstance(v, bool) and v >= 0:
+        return lambda p, v=int(v): (np.zeros(max(1, v)),)
+    raise PartError(f"{kind} {name!r}: work = {v!r}: must be an integer >= 0 or a function")
+
+
+def _register(
+    kind: str,
+    name: str,
+    functions: dict[str, Callable],
+    *,
+    params: type,
+    build: Callable | None,
+    state_size=0,
+    work=1,
+    initial_state=None,
+    continuous: int = 0,
+    log_size=0,
+    log_name: str = "",
+    description: str = "",
+    label: str = "",
+    surface_gain: Callable | None = None,
+    adaptive: bool = False,
+    builtin: bool = False,
+) -> Part:
+    reg = _REGISTRY[kind]
+    if not isinstance(name, str) or not name or name != name.strip():
+        raise PartError(f"{kind} name {name!r}: must be a non-empty string without spaces")
+    if name in reg:
+        raise PartError(f"{kind} {name!r}: a {kind} of that name is already registered")
+    if not (isinstance(params, type) and issubclass(params, tuple) and hasattr(params, "_fields")):
+        raise PartError(f"{kind} {name!r}: params = {params!r}: must be a typing.NamedTuple class")
+    if (kind, params) in _BY_TYPE:
+        other = _BY_TYPE[(kind, params)].name
+        raise PartError(
+            f"{kind} {name!r}: params class {params.__name__} already belongs to {kind} {other!r}"
+        )
+    if build is None:
+        build = getattr(params, "from_context", None)
+    if not callable(build):
+        raise PartError(
+            f"{kind} {name!r}: give build=... or a classmethod {params.__name__}.from_context(ctx)"
+        )
+    for role in _REQUIRED[kind]:
+        if role not in functions:
+            raise PartError(f"{kind} {name!r}: missing its {role!r} function")
+    sources = set()
+    for role, fn in functions.items():
+        if role not in ROLES[kind]:
+            raise PartError(f"{kind} {name!r}: unknown function {role!r}")
+        py = getattr(fn, "py_func", fn)
+        if not inspect.isfunction(py):
+            raise PartError(f"{kind} {name!r}: {role} = {fn!r}: must be a function")
+        want = ROLES[kind][role]
+        sig = inspect.signature(py)
+        plain = [
+            p
+            for p in sig.parameters.values()
+            if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD) and p.default is p.empty
+        ]
+        if len(plain) != want or len(sig.parameters) != want:
+            raise PartError(
+                f"{kind} {name!r}: {role} function {py.__name__}{sig} takes "
+                f"{len(sig.parameters)} arguments, the contract needs {want} "
+                f"({_SIGNATURES[kind][role]})"
+            )
+        functions[role] = py
+        src = inspect.getsourcefile(py)
+        if src:
+            sources.add(src)
+    if continuous and "derivative" not in functions:
+        raise PartError(f"{kind} {name!r}: continuous = {continuous} needs a derivative function")
+    part = Part(
+        kind=kind,
+        name=name,
+        params=params,
+        build=build,
+        functions=dict(functions),
+        state_size=_sizer(state_size, "state_size", kind, name),
+        make_work=_worker(work, kind, name),
+        initial_state=initial_state,
+        continuous=int(continuous),
+        log_size=_sizer(log_size, "log_size", kind, name),
+        log_name=log_name,
+        description=description,
+        label=label or name.upper(),
+        surface_gain=surface_gain,
+        adaptive=bool(adaptive),
+        sources=tuple(sorted(sources)),
+        builtin=builtin,
+    )
+    reg[name] = part
+    _BY_TYPE[(kind, params)] = part
+    return part
+
+
+_SIGNATURES = {
+    "sensor": {"measure": "p, state, work, x, y"},
+    "controller": {"step": "p, state, work, y, ref, F", "log": "p, state, row"},
+    "actuator": {
+        "command": "p, state, work, y, F, cmd",
+        "force": "p, state, cmd, tau",
+        "derivative": "p, state, cmd, dstate",
+    },
+    "plant": {
+        "derivative": "p, x, tau, dist, work, dx",
+        "observe": "p, x, tau, work, q, F",
+    },
+}
+
+
+def _others(kind: str, main_role: str) -> str:
+    return ", ".join(r for r in ROLES[kind] if r != main_role) or "none"
+
+
+def _decorator(kind: str, main_role: str):
+    def register(name: str, *, params: type, build: Callable | None = None, **options):
+        extra = {r: options.pop(r) for r in list(options) if r in ROLES[kind]}
+
+        def deco(fn):
+            _register(kind, name, {main_role: fn, **extra}, params=params, build=build, **options)
+            return fn
+
+        return deco
+
+    register.__name__ = f"register_{kind}"
+    register.__doc__ = f"""Register a {kind}: ``@register_{kind}(name, params=P, ...)`` on its
+    ``{main_role}({_SIGNATURES[kind][main_role]})`` function.
+
+    ``params``: the NamedTuple class of its parameter bundle; ``build(ctx)`` (or a
+    classmethod ``params.from_context(ctx)``) makes one from a :class:`PartContext`.
+    Options: ``state_size`` (int, or a function of the bundle), ``work`` (an int n for
+    one float64 array of n, or a function of the bundle giving a tuple of arrays),
+    ``initial_state`` (function of the bundle), ``description``, ``label`` (its name in
+    reports), and the other step functions of a {kind} ({_others(kind, main_role)}).
+    Raises :class:`PartError` (one line) on a taken name or a wrong signature.
+    """
+    return register
+
+
+register_sensor = _decorator("sensor", "measure")
+register_controller = _decorator("controller", "step")
+register_actuator = _decorator("actuator", "command")
+register_plant = _decorator("plant", "derivative")
+
+
+def builtin_part(kind: str, name: str, functions: dict[str, Callable], **options) -> Part:
+    """Register one of pkmctl's own parts (sources covered by pkmctl's cache hash)."""
+    return _register(kind, name, dict(functions), builtin=True, **options)
+
+
+# ---------------------------------------------------------------- compiled dispatch
+# One stub per step function; its overload finds the part by the Numba type of the
+# parameter bundle and inlines the part's function at the call site (Numba IR inlining,
+# compiled without reference counting). Selection happens at compile time, and the
+# loop's disk cache key is the bundles' types (DESIGN.md §6). Inlining matters: a call
+# passes every array of the bundles and work tuples as separate scalars (a work tuple of
+# 12 arrays is ~100 words on the stack), which cost the loop a third of its speed. The
+# loop calls each step function from one place only (the RK4 stages are a loop), so
+# each part's code appears once in it and compiling stays quick.
+
+_OPTIONS = JIT_OPTIONS | NO_REFCOUNT
+
+
+def _compiled(part: Part, role: str):
+    disp = part.compiled.get(role)
+    if disp is None:
+        disp = njit(**_OPTIONS)(part.functions[role])
+        part.compiled[role] = disp
+    return disp
+
+
+def _lookup(kind: str, p) -> Part | None:
+    cls = getattr(p, "instance_class", None) if isinstance(p, types.BaseNamedTuple) else None
+    return _BY_TYPE.get((kind, cls))
+
+
+def _resolver(kind: str, role: str):
+    argnames = _SIGNATURES[kind][role].replace(" ", "")
+
+    def resolve(p):
+        part = _lookup(kind, p)
+        if part is None:
+            return None  # not a bundle of this kind: Numba reports a typing error
+        if role in part.functions:
+            return part.functions[role]  # inlined into the caller (see above)
+        local: dict[str, Any] = {}  # an optional step the part does not have: nothing to do
+        exec(f"def impl({argnames}):\n    return None\n", local)
+        return local["impl"]
+
+    return resolve
+
+
+def _stub(kind: str, role: str):
+    n = ROLES[kind][role]
+    argnames = _SIGNATURES[kind][role].replace(" ", "")
+    src = (
+        f"def stub({argnames}):\n    raise TypeError('{kind}_{role} runs in compiled code only')\n"
+    )
+    ns: dict[str, Any] = {}
+    exec(src, ns)  # a plain stub with the contract's argument names
+    stub = ns["stub"]
+    stub.__name__ = stub.__qualname__ = f"{kind}_{role}"
+
+    resolve = _resolver(kind, role)
+    ns = {"resolve": resolve}
+    exec(f"def typer({argnames}):\n    return resolve({argnames.split(',')[0]})\n", ns)
+    typer = ns["typer"]
+    assert len(argnames.split(",")) == n
+    overload(stub, jit_options=_OPTIONS, strict=False, inline="always")(typer)
+    return stub
+
+
+sensor_measure = _stub("sensor", "measure")
+controller_step = _stub("controller", "step")
+controller_log = _stub("controller", "log")
+actuator_command = _stub("actuator", "command")
+actuator_force = _stub("actuator", "force")
+actuator_derivative = _stub("actuator", "derivative")
+plant_derivative = _stub("plant", "derivative")
+plant_observe = _stub("plant", "observe")
+
+
+class NoParams(NamedTuple):
+    """A placeholder field for parts without parameters (Numba needs one field)."""
+
+    unused: float = 0.0

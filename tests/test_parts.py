@@ -1,0 +1,192 @@
+"""The loop of parts: users' own parts (docs/parts.md, run as written), registration errors,
+final states, and the baselines PD and CTC against the model's own terms."""
+
+import re
+import sys
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import pytest
+from conftest import random_poses
+
+import pkmctl
+from pkmctl.parts import PartError, get_part, names
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "parts.md"
+
+
+def _blocks():
+    return re.findall(r"```python\n(.*?)```", DOC.read_text(encoding="utf-8"), flags=re.S)
+
+
+@pytest.fixture(scope="module")
+def doc_modules(tmp_path_factory):
+    """The doc's `# my_*.py` blocks saved as the user's own files, importable."""
+    folder = tmp_path_factory.mktemp("user")
+    for code in _blocks():
+        first = code.splitlines()[0]
+        if first.startswith("# ") and first.endswith(".py"):
+            (folder / first[2:]).write_text(code, encoding="utf-8")
+    sys.path.insert(0, str(folder))
+    yield folder
+    sys.path.remove(str(folder))
+
+
+def test_docs_parts_examples_run_as_written(doc_modules, capsys):
+    blocks = [b for b in _blocks() if not b.startswith("# my_")]
+    assert len(blocks) == 2
+    for code in blocks:
+        ns: dict = {}
+        exec(compile(code, str(DOC), "exec"), ns)  # noqa: S102
+    out = capsys.readouterr().out.split()
+    assert out[-1] == "True"  # the quantised pose is within half a step of the true one
+    assert "my-law" in names("controller") and "quantised-pose" in names("sensor")
+
+
+def test_a_users_law_runs_in_the_loop_and_matches_the_same_law_from_python(doc_modules):
+    import my_law  # noqa: F401
+
+    sc = pkmctl.Scenario.builtin("paper")
+    r = pkmctl.simulate(sc, controller="my-law", duration=0.05)
+    assert r.controller == "my-law" and r.success and r.final_state["controller"].shape == (0,)
+    # the same law, evaluated from Python at the logged samples, gives the logged command
+    model = sc.controller_mechanism()
+    g = sc.controller_gains()
+    k = np.arange(0, r.t.size, 97)
+    e, ed = r.X_desired[k] - r.X[k], r.Xdot_desired[k] - r.Xdot[k]
+    F = g.pd_kp * e + g.pd_kd * ed + model.gravity(r.X_desired[k])
+    tau = np.stack([model.actuator_forces(x, f) for x, f in zip(r.X[k], F, strict=True)])
+    np.testing.assert_allclose(r.tau[k], tau, rtol=1e-9, atol=1e-9)
+    ctrl = pkmctl.make_controller("my-law", model, g, period=sc.timing.control_period)
+    np.testing.assert_allclose(
+        ctrl.step(r.X[k[3]], r.Xdot[k[3]], r.X_desired[k[3]], r.Xdot_desired[k[3]], np.zeros(3)),
+        F[3],
+        rtol=1e-12,
+    )
+
+
+class _P(NamedTuple):
+    a: float
+
+
+def test_registration_errors_are_one_line():
+    def ok(p, state, work, y, ref, F):
+        pass
+
+    def short(p, state, y, F):
+        pass
+
+    cases = [
+        (lambda: pkmctl.register_controller("smc", params=_P, build=lambda c: _P(1.0))(ok),
+         "controller 'smc': a controller of that name is already registered"),
+        (lambda: pkmctl.register_controller("x-short", params=_P, build=lambda c: _P(1.0))(short),
+         r"takes 4 arguments, the contract needs 6 \(p, state, work, y, ref, F\)"),
+        (lambda: pkmctl.register_controller("x-dict", params=dict, build=lambda c: {})(ok),
+         "must be a typing.NamedTuple class"),
+        (lambda: pkmctl.register_sensor("x-nobuild", params=_P)(ok),
+         "give build=... or a classmethod _P.from_context"),
+    ]  # fmt: skip
+    for make, message in cases:
+        with pytest.raises(PartError, match=message) as info:
+            make()
+        assert "\n" not in str(info.value)
+    with pytest.raises(PartError, match=r"controller = 'nope': must be one of .*afsmc"):
+        pkmctl.simulate("paper", controller="nope", duration=0.01)
+
+
+def test_a_step_that_does_not_compile_names_the_part():
+    class Bad(NamedTuple):
+        gain: float
+
+    @pkmctl.register_controller("x-bad", params=Bad, build=lambda ctx: Bad(1.0))
+    def bad(p, state, work, y, ref, F):
+        F[0] = p.no_such_field
+
+    with pytest.raises(PartError, match=r"the parts controller 'x-bad' do not compile: ") as info:
+        pkmctl.simulate("paper", controller="x-bad", duration=0.001)
+    assert "\n" not in str(info.value)
+
+
+def test_scenario_names_unknown_parts_in_one_line():
+    with pytest.raises(pkmctl.ScenarioError, match=r"sensor.kind: 'nope': unknown sensor"):
+        pkmctl.Scenario.builtin("paper").replace(**{"sensor.kind": "nope"})
+    text = pkmctl.Scenario.builtin("paper").to_toml()
+    assert '[plant]\nkind = "rigid"' in text and pkmctl.Scenario.from_toml(text).plant_spec.kind
+
+
+def test_result_carries_every_parts_final_state():
+    r = pkmctl.simulate("paper", controller="afsmc", duration=0.01)
+    fs = r.final_state
+    assert set(fs) == {"plant", "sensor", "controller", "actuator"}
+    np.testing.assert_allclose(fs["plant"][:3], r.X[-1], atol=1e-3)  # one period later
+    assert fs["plant"].shape == (6,) and fs["controller"].shape == (7 + 36,)
+    # the controller's final estimate is one adaptation step past the last logged one
+    assert not np.array_equal(fs["controller"][7:], r.theta_hat[-1])
+    assert r.parts == {"plant": "rigid", "sensor": "ideal", "controller": "afsmc",
+                       "actuator": "ideal"}  # fmt: skip
+    np.testing.assert_array_equal(r.X_measured, r.X)  # the ideal sensor
+    assert get_part("controller", "afsmc").adaptive
+
+
+# ---------------------------------------------------------------- baselines
+
+
+def test_ctc_with_the_exact_model_and_zero_error_gives_inverse_dynamics(robot):
+    rng = np.random.default_rng(30)
+    for X in random_poses(rng, 10):
+        Xd, Xdd = rng.normal(size=3), rng.normal(size=3) * 3
+        F = pkmctl.CTC(robot, period=5e-5).step(X, Xd, X, Xd, Xdd)
+        expected = robot.mass_matrix(X) @ Xdd + robot.coriolis_matrix(X, Xd) @ Xd
+        expected += robot.gravity(X)
+        np.testing.assert_allclose(F, expected, rtol=1e-12, atol=1e-10)
+
+
+def test_ctc_law_away_from_zero_error(robot):
+    rng = np.random.default_rng(31)
+    g = pkmctl.Gains()
+    for Xdes in random_poses(rng, 10):
+        X = Xdes + rng.normal(size=3) * [0.002, 0.02, 0.02]
+        Xdot, Xd_des, Xdd_des = rng.normal(size=3), rng.normal(size=3), rng.normal(size=3)
+        F = pkmctl.CTC(robot, g, period=5e-5).step(X, Xdot, Xdes, Xd_des, Xdd_des)
+        a = Xdd_des + g.ctc_kd * (Xd_des - Xdot) + g.ctc_kp * (Xdes - X)
+        expected = robot.mass_matrix(X) @ a + robot.coriolis_matrix(X, Xdot) @ Xdot
+        np.testing.assert_allclose(F, expected + robot.gravity(X), rtol=1e-11, atol=1e-9)
+
+
+def test_pd_law(robot):
+    rng = np.random.default_rng(32)
+    g = pkmctl.Gains()
+    for Xdes in random_poses(rng, 10):
+        X, Xdot, Xd_des = Xdes + rng.normal(size=3) * 0.01, rng.normal(size=3), rng.normal(size=3)
+        F = pkmctl.PD(robot, g, period=5e-5).step(X, Xdot, Xdes, Xd_des, np.zeros(3))
+        expected = g.pd_kp * (Xdes - X) + g.pd_kd * (Xd_des - Xdot) + robot.gravity(X)
+        np.testing.assert_allclose(F, expected, rtol=1e-12, atol=1e-9)
+
+
+def test_pd_steady_error_under_a_gravity_mismatch_is_dG_over_Kp():
+    # hold the home pose (no motion, no disturbance) with a model 15 % light: at rest
+    # K_p e = G(X) - G^(X), so e = dG / K_p, axis by axis (G^ is evaluated at X itself)
+    sc = pkmctl.Scenario.builtin("paper").replace(
+        **{
+            "trajectory.amplitude": [0.0, 0.0, 0.0],
+            "trajectory.offset": [0.7, 0.05, -0.05],
+            "initial.X": [0.7, 0.05, -0.05],
+            "disturbance.amplitude": [0.0, 0.0, 0.0],
+            "timing.duration": 4.0,  # the slowest closed-loop mode is ~8 1/s
+        }
+    )
+    r = pkmctl.simulate(sc, controller="pd")
+    X = r.X[-1]
+    dG = sc.plant().gravity(X) - sc.controller_mechanism().gravity(X)
+    e = sc.trajectory.offset - X
+    np.testing.assert_allclose(e, dG / sc.controller_gains().pd_kp, rtol=1e-6, atol=1e-12)
+    assert abs(e[0]) > 1e-5  # the mismatch is visible: 25 N over 50 kN/m is 0.5 mm
+    np.testing.assert_allclose(r.Xdot[-1], 0.0, atol=1e-9)  # and the plant is at rest
+
+
+@pytest.mark.parametrize("controller", ["pd", "ctc"])
+def test_baselines_track_the_paper_trajectory(controller):
+    r = pkmctl.simulate("paper", controller=controller, duration=2.0)
+    after = pkmctl.metrics.rmse(r, t_from=1.0)
+    assert after["z_mm"] < 1.0 and after["beta_deg"] < 0.5, after
