@@ -344,8 +344,34 @@ def _cog_quad(kind, prm, lo, hi, levels, act, na):
 
 
 @_jit
-def _centroid(kind, prm, lo, hi, levels):
-    """Centre of gravity of max_k min(levels[k], μ_k) over [lo, hi]; midpoint if empty."""
+def _point_masses(kind, prm, lo, hi, levels, act, na):
+    """Centroid of a zero-area aggregate whose rules fire (singletons such as trimf
+    [c c c]): the mean of the points where the aggregate is positive, weighted by its
+    value there, the limit of MATLAB's sampled centroid when they are samples."""
+    pts = np.empty(4 * na)
+    n = 0
+    for i in range(na):
+        for j in range(4):
+            y = prm[act[i], j]
+            if lo <= y <= hi:
+                pts[n] = y
+                n += 1
+    pts[:n].sort()
+    m0 = 0.0
+    m1 = 0.0
+    for j in range(n):
+        if j == 0 or pts[j] != pts[j - 1]:
+            v = _envelope(kind, prm, levels, act, na, pts[j])[0]
+            m0 += v
+            m1 += v * pts[j]
+    if m0 <= 0.0:
+        return 0.5 * (lo + hi)
+    return min(max(m1 / m0, lo), hi)
+
+
+@_jit
+def _centroid_flag(kind, prm, lo, hi, levels):
+    """(centroid, 1 if the aggregate had zero area although rules fired, else 0)."""
     K = kind.shape[0]
     act = np.empty(K, dtype=np.int64)
     na = 0
@@ -356,14 +382,21 @@ def _centroid(kind, prm, lo, hi, levels):
             na += 1
             gauss = gauss or kind[k] == _GAUSS
     if na == 0:
-        return 0.5 * (lo + hi)
+        return 0.5 * (lo + hi), 0
     if gauss:
         m0, m1 = _cog_quad(kind, prm, lo, hi, levels, act, na)
     else:
         m0, m1 = _cog_poly(kind, prm, lo, hi, levels, act, na)
     if m0 <= 0.0:
-        return 0.5 * (lo + hi)
-    return min(max(m1 / m0, lo), hi)
+        return _point_masses(kind, prm, lo, hi, levels, act, na), 1
+    return min(max(m1 / m0, lo), hi), 0
+
+
+@_jit
+def _centroid(kind, prm, lo, hi, levels):
+    """Centre of gravity of max_k min(levels[k], μ_k) over [lo, hi]; midpoint if empty,
+    the point-mass centroid if the aggregate has zero area (singleton terms)."""
+    return _centroid_flag(kind, prm, lo, hi, levels)[0]
 
 
 # ---------------------------------------------------------------------------------------
@@ -575,16 +608,23 @@ def _fire(ints, reals, x, mu, levels):
 
 
 @_jit
-def _general_eval(ints, reals, x):
-    """Any compiled system at one point x (n_in,): the general (allocating) kernel."""
+def _general_eval_flag(ints, reals, x):
+    """(output, zero-area flag) of any compiled system at one point x (n_in,): the general
+    (allocating) kernel."""
     for i in range(x.shape[0]):
         if x[i] != x[i]:
-            return np.nan
+            return np.nan, 0
     mu = np.empty((ints[_N_IN], ints[_T]))
     levels = np.empty(ints[_K])
     _fire(ints, reals, x, mu, levels)
     _, _, kout, _, _, _, _, rout, pout, _ = _unpack(ints, reals)
-    return _centroid(kout, pout, rout[0], rout[1], levels)
+    return _centroid_flag(kout, pout, rout[0], rout[1], levels)
+
+
+@_jit
+def _general_eval(ints, reals, x):
+    """Any compiled system at one point x (n_in,): the general (allocating) kernel."""
+    return _general_eval_flag(ints, reals, x)[0]
 
 
 @_jit_free
@@ -639,11 +679,15 @@ def mamdani_eval(tables, x):
 
 @_jit
 def _eval_batch(ints, reals, X, out, fast):
+    """out[n] = system(X[n]); returns how many points had a zero-area aggregate."""
+    flags = 0
     for n in range(X.shape[0]):
         if fast and ints[_FAST] == 1:
             out[n] = _grid_eval2(ints, reals, X[n, 0], X[n, 1])
         else:
-            out[n] = _general_eval(ints, reals, X[n])
+            out[n], f = _general_eval_flag(ints, reals, X[n])
+            flags += f
+    return flags
 
 
 @_jit
