@@ -11,8 +11,8 @@ pyfuzzylite's WeightedAverage / WeightedSum directly.
 """
 
 import os
-import zlib
 import warnings
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +28,7 @@ FILES = sorted(CORPUS.glob("*.fis")) if CORPUS.is_dir() else []
 pytestmark = pytest.mark.skipif(not FILES, reason="no .fis corpus next to the repository")
 FULL = os.environ.get("PKMCTL_FULL") == "1"
 N_POINTS = 200
-GRID = 20001
+GRID = 100001 if FULL else 20001  # oracle grid; 200 points need the finer one
 REFUSED = {"frss_malformed.fis"}  # hand-edited: [system] and OrMethod="max'
 
 fl = pytest.importorskip("fuzzylite")
@@ -183,6 +183,23 @@ def _points(system, rng, n):
     return rng.uniform(lo - pad, hi + pad, (n, len(lo)))
 
 
+def _max_strength(system, X):
+    """Largest rule strength at each point (N,) (AND = min; only selects the points)."""
+    lo = np.array([v.universe[0] for v in system.inputs])
+    hi = np.array([v.universe[1] for v in system.inputs])
+    Xc = np.clip(X, lo, hi)
+    best = np.zeros(X.shape[0])
+    for r in system.rules:
+        mus = [
+            np.asarray(system.inputs[i].terms[abs(a) - 1](Xc[:, i]))
+            for i, a in enumerate(r.antecedent)
+            if a != 0
+        ]
+        if mus:
+            best = np.maximum(best, np.max(mus, axis=0) if r.connective == "or" else np.min(mus, 0))
+    return best
+
+
 def _readable():
     return [f for f in FILES if f.name not in REFUSED]
 
@@ -211,6 +228,10 @@ def test_corpus_file_agrees_with_pyfuzzylite_and_round_trips(path):
         warnings.simplefilter("ignore", FuzzyWarning)
         ours = ours_sys.evaluate(X)
     ref = oracle(system, X, 1001 if sampled else None)
+    # A rule firing at a subnormal strength (~1e-320) gives an aggregate whose area
+    # underflows to 0 in double precision (in MATLAB too): no engine defines a value there.
+    levels = _max_strength(system, X)
+    ours, ref = ours[levels > 1e-300], ref[levels > 1e-300]
     span = np.array([v.universe[1] - v.universe[0] for v in system.outputs])
     err = np.max(np.abs(ours - ref) / span)
     assert err <= 1e-6, f"{path.name}: max error {err:.2e} of the output range"
