@@ -171,3 +171,101 @@ def run(quick: bool = False, *, echo: bool = False) -> dict:
     if echo:
         print("\n".join(lines))
     return out
+
+
+CORPUS_FILE = "bank_choice4.fis"  # 4 inputs, 81 rules, trapmf/trimf, centroid
+
+
+def run_corpus(path, n: int = 200, *, echo: bool = False) -> dict:
+    """Time a 4-input, 81-rule corpus file with pkmctl, scikit-fuzzy and pyfuzzylite.
+
+    Returns microseconds per evaluation: ``pkmctl_exact_us`` (MamdaniSystem, closed-form
+    centroid), ``pkmctl_general_us`` (FuzzySystem kernels), ``skfuzzy_us``,
+    ``fuzzylite_us``, and each peer's ``*_max_diff`` to pkmctl.
+    """
+    import fuzzylite as fl  # noqa: F401  (the oracle of tests/test_fis_corpus.py)
+    import skfuzzy as fuzz
+    from skfuzzy import control as ctrl
+
+    from .fis import read_fis
+
+    general = read_fis(path, general=True)
+    exact = read_fis(path)
+    rng = np.random.default_rng(0)
+    lo = np.array([v.universe[0] for v in general.inputs])
+    hi = np.array([v.universe[1] for v in general.inputs])
+    X = rng.uniform(lo, hi, (n, len(lo)))
+    out: dict = {}
+    general.evaluate(X[:2])
+    out["pkmctl_general_us"] = _best(lambda: general.evaluate(X), 3) / n * 1e6
+    ref = general.evaluate(X)[:, 0]
+    cols = [X[:, i] for i in range(X.shape[1])]
+    exact(*cols)
+    out["pkmctl_exact_us"] = _best(lambda: exact(*cols), 3) / n * 1e6
+    out["pkmctl_exact_max_diff"] = float(np.max(np.abs(exact(*cols) - ref)))
+
+    ants = []
+    for i, v in enumerate(general.inputs):
+        a = ctrl.Antecedent(np.linspace(*v.universe, 2001), f"in{i}")
+        for k, t in enumerate(v.terms):
+            a[f"t{k}"] = getattr(fuzz, t.kind)(a.universe, list(t.params))
+        ants.append(a)
+    ov = general.outputs[0]
+    cons = ctrl.Consequent(np.linspace(*ov.universe, 20001), "out")
+    for k, t in enumerate(ov.terms):
+        cons[f"t{k}"] = getattr(fuzz, t.kind)(cons.universe, list(t.params))
+    rules = []
+    for r in general.rules:
+        terms = [ants[i][f"t{a - 1}"] for i, a in enumerate(r.antecedent) if a > 0]
+        ante = terms[0]
+        for t in terms[1:]:
+            ante = ante & t
+        rules.append(ctrl.Rule(ante, cons[f"t{r.consequent[0] - 1}"]))
+    sim = ctrl.ControlSystemSimulation(ctrl.ControlSystem(rules))
+    m = min(n, 50)
+
+    def sk_all():
+        res = []
+        for x in X[:m]:
+            for i, v in enumerate(x):
+                sim.input[f"in{i}"] = v
+            sim.compute()
+            res.append(sim.output["out"])
+        return np.array(res)
+
+    t0 = time.perf_counter()
+    sk = sk_all()
+    out["skfuzzy_us"] = (time.perf_counter() - t0) / m * 1e6
+    out["skfuzzy_max_diff"] = float(np.max(np.abs(sk - ref[:m])))
+
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
+    from test_fis_corpus import _safe_names, fuzzylite_engine
+
+    eng = fuzzylite_engine(_safe_names(general))
+    eng.output_variables[0].defuzzifier = fl.Centroid(20000)
+
+    def fl_all():
+        res = []
+        for x in X[:m]:
+            for iv, v in zip(eng.input_variables, x, strict=True):
+                iv.value = v
+            eng.process()
+            res.append(float(np.asarray(eng.output_variables[0].value).reshape(-1)[0]))
+        return np.array(res)
+
+    t0 = time.perf_counter()
+    fz = fl_all()
+    out["fuzzylite_us"] = (time.perf_counter() - t0) / m * 1e6
+    out["fuzzylite_max_diff"] = float(np.max(np.abs(fz - ref[:m])))
+    if echo:
+        print(f"{Path(path).name}: 4 inputs, {len(general.rules)} rules, per evaluation:")
+        print(f"  pkmctl MamdaniSystem (closed-form centroid): {out['pkmctl_exact_us']:9.2f} us")
+        print(f"  pkmctl FuzzySystem (general kernels)       : {out['pkmctl_general_us']:9.2f} us")
+        print(f"  scikit-fuzzy (output grid 20001)           : {out['skfuzzy_us']:9.1f} us, "
+              f"max |diff| {out['skfuzzy_max_diff']:.1e}")  # fmt: skip
+        print(f"  pyfuzzylite (Centroid resolution 20000)    : {out['fuzzylite_us']:9.1f} us, "
+              f"max |diff| {out['fuzzylite_max_diff']:.1e}")  # fmt: skip
+    return out

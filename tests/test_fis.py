@@ -144,13 +144,12 @@ def _lineno(text, needle):
 
 
 MALFORMED = [
-    ("MF2='high':'trapmf',[3 6 10 12]", "MF2='high':'pimf',[3 6 10 12]",
-     "unknown membership type 'pimf' (supported: trimf, trapmf, gaussmf, zmf, smf)"),
-    ("Type='mamdani'", "Type='sugeno'", "only Mamdani systems are supported"),
-    ("DefuzzMethod='centroid'", "DefuzzMethod='mom'", "only DefuzzMethod='centroid'"),
-    ("AndMethod='min'", "AndMethod='prod'", "only AndMethod='min'"),
-    ("2 2 1, 3 (1) : 1", "2 2 1, 3 (1) : 2", "only AND rules"),
-    ("2 2 1, 3 (1) : 1", "2 -2 1, 3 (1) : 1", "negated terms"),
+    ("MF2='high':'trapmf',[3 6 10 12]", "MF2='high':'custommf',[3 6 10 12]",
+     "unknown membership type 'custommf' (supported: trimf, trapmf, gaussmf, zmf, smf, gauss2mf"),
+    ("Type='mamdani'", "Type='tsk'", "Type must be 'mamdani' or 'sugeno'"),
+    ("DefuzzMethod='centroid'", "DefuzzMethod='wtaver'", "DefuzzMethod='wtaver' is not supported"),
+    ("AndMethod='min'", "AndMethod='mymin'", "AndMethod='mymin' is not supported"),
+    ("2 2 1, 3 (1) : 1", "2 2 1, 3 (1) : 3", "connective must be 1 (AND) or 2 (OR)"),
     ("2 2 1, 3 (1) : 1", "2 3 1, 3 (1) : 1", "term index 3 out of range for 'b'"),
     ("2 2 1, 3 (1) : 1", "2 2, 3 (1) : 1", "expected 3 antecedent(s)"),
     ("2 2 1, 3 (1) : 1", "2 2 1 3 1 1", "expected a rule"),
@@ -190,7 +189,7 @@ def test_structural_errors_name_a_line():
         (_replace(GENERAL, "NumInputs=3", "NumInputs=2"), "beyond NumInputs=2", None),
         (_replace(GENERAL, "Range=[0 1]\n", ""), "[Input3] has no Range", None),
         ("Name='x'\n[System]\n", "text before the first section", 1),
-        (_replace(GENERAL, "NumOutputs=1", "NumOutputs=2"), "only one output", 6),
+        (_replace(GENERAL, "NumOutputs=1", "NumOutputs=2"), "missing section [Output2]", None),
         (GENERAL + "[Rules]\n", "duplicate section [Rules]", None),
     ]
     for text, message, lineno in cases:

@@ -450,9 +450,12 @@ def test_mamdani_system_validation():
         fz.MamdaniSystem((x,), x, [fz.Rule(("a", "a"), "a")])
     with pytest.raises(ValueError, match="universe"):
         fz.Variable("x", (1.0, 0.0), x.terms)
-    with pytest.raises(ValueError, match="unknown membership function 'pimf'"):
-        fz.Term("p", "pimf", (0, 1, 2, 3))
-    with pytest.raises(ValueError, match="takes 3 parameters"):
+    with pytest.raises(ValueError, match="unknown membership function 'custommf'"):
+        fz.Term("p", "custommf", (0, 1, 2, 3))
+    with pytest.raises(ValueError, match="MamdaniSystem takes trimf"):  # FuzzySystem does
+        fz.MamdaniSystem((fz.Variable("p", (0, 3), (fz.Term("p", "pimf", (0, 1, 2, 3)),)),), x,
+                         [((0,), 0)])  # fmt: skip
+    with pytest.raises(ValueError, match="takes 3 or 4 parameters"):
         fz.Term("p", "trimf", (0, 1))
     system = fz.MamdaniSystem((x,), x, [(("a",), "a")])  # tuples are accepted as rules
     assert system.rules == (fz.Rule((0,), 0, 1.0),)

@@ -1,4 +1,5 @@
-"""Fuzzy logic: membership functions, the Mamdani engine and its kernels, `.fis` files."""
+"""Fuzzy logic: membership functions, the Mamdani engine and its kernels, the general
+Mamdani/Sugeno engine, `.fis` files (docs/fuzzy.md)."""
 
 from pkmctl.fuzzy.engine import (
     FLC,
@@ -6,6 +7,7 @@ from pkmctl.fuzzy.engine import (
     PAPER_RULE_TABLE,
     TERM_NAMES,
     FISTables,
+    FuzzyWarning,
     MamdaniSystem,
     Rule,
     Term,
@@ -19,17 +21,30 @@ from pkmctl.fuzzy.engine import (
     uniform_terms,
     zmf,
 )
+from pkmctl.fuzzy.system import (
+    FuzzyRule,
+    FuzzySystem,
+    SugenoTerm,
+    SystemTables,
+    fis_eval,
+)
 
 __all__ = [
-    "MF_KINDS",
     "FISTables",
     "FLC",
+    "FuzzyRule",
+    "FuzzySystem",
+    "FuzzyWarning",
+    "MF_KINDS",
     "MamdaniSystem",
     "PAPER_RULE_TABLE",
     "Rule",
+    "SugenoTerm",
+    "SystemTables",
     "TERM_NAMES",
     "Term",
     "Variable",
+    "fis_eval",
     "flc_eval",
     "gaussmf",
     "mamdani_eval",

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from collections.abc import Sequence
 from dataclasses import KW_ONLY, dataclass, field
 from typing import NamedTuple
@@ -35,15 +36,16 @@ from pkmctl.fuzzy.kernels import (
     _centroid_batch,
     _eval_batch,
     _levels_batch,
-    _mf_fill,
     flc_eval,
     mamdani_eval,
 )
+from pkmctl.fuzzy.mf import MF_TYPES, check_mf, mf_fill
 
 __all__ = [
     "MF_KINDS",
     "FISTables",
     "FLC",
+    "FuzzyWarning",
     "MamdaniSystem",
     "PAPER_RULE_TABLE",
     "Rule",
@@ -60,8 +62,10 @@ __all__ = [
     "zmf",
 ]
 
-# Membership function kinds: MATLAB name -> (kernel code, number of parameters).
-# Parameters follow the public functions below: gaussmf is (mean, sigma).
+# The membership function kinds the exact Mamdani kernels integrate in closed form:
+# MATLAB name -> (kernel code, number of parameters). Parameters follow the public
+# functions below: gaussmf is (mean, sigma). Terms may use every kind of
+# pkmctl.fuzzy.mf.MF_TYPES; systems with the others are pkmctl.fuzzy.system.FuzzySystem.
 MF_KINDS: dict[str, tuple[int, int]] = {
     "trimf": (0, 3),
     "trapmf": (1, 4),
@@ -72,28 +76,16 @@ MF_KINDS: dict[str, tuple[int, int]] = {
 
 
 def _check_mf(kind: str, params: Sequence[float]) -> tuple[float, ...]:
-    """Validated parameters of a membership function of the given kind."""
-    if kind not in MF_KINDS:
-        raise ValueError(f"unknown membership function {kind!r} (supported: {', '.join(MF_KINDS)})")
-    p = tuple(float(v) for v in params)
-    if len(p) != MF_KINDS[kind][1]:
-        raise ValueError(f"{kind} takes {MF_KINDS[kind][1]} parameters, got {len(p)}: {p}")
-    if not all(math.isfinite(v) for v in p):
-        raise ValueError(f"{kind} parameters must be finite, got {p}")
-    if kind == "gaussmf":
-        if p[1] <= 0.0:
-            raise ValueError(f"gaussmf sigma must be > 0, got {p[1]}")
-    elif any(u > v for u, v in zip(p, p[1:], strict=False)):
-        raise ValueError(f"{kind} parameters must be non-decreasing, got {p}")
-    return p
+    """Validated parameters of a membership function of any toolbox kind (MF_TYPES)."""
+    return check_mf(kind, params)
 
 
 def _membership(kind: str, params: Sequence[float], x: ArrayLike) -> np.ndarray:
-    p = _check_mf(kind, params) + (0.0,) * 4
+    p = (_check_mf(kind, params) + (0.0,) * 4)[:4]
     xa = np.asarray(x, dtype=np.float64)
     flat = np.ascontiguousarray(xa).reshape(-1)
     out = np.empty(flat.shape)
-    _mf_fill(MF_KINDS[kind][0], p[0], p[1], p[2], p[3], flat, out)
+    mf_fill(MF_TYPES[kind][0], p[0], p[1], p[2], p[3], flat, out)
     return out.reshape(xa.shape)[()]
 
 
@@ -153,8 +145,9 @@ def smf(x: ArrayLike, a: float, b: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Term:
-    """A linguistic term: a name and a membership function ``kind`` (a key of MF_KINDS)
-    with ``params`` in the order of the function of that name (gaussmf: mean, sigma)."""
+    """A linguistic term: a name and a membership function ``kind`` (a key of
+    :data:`pkmctl.fuzzy.mf.MF_TYPES`) with ``params`` in MATLAB's order, except gaussmf:
+    (mean, sigma). MamdaniSystem takes the kinds of MF_KINDS; FuzzySystem all."""
 
     name: str
     kind: str
@@ -176,7 +169,7 @@ class Term:
             "gaussmf": (-np.inf, np.inf),
             "zmf": (-np.inf, p[1]),
             "smf": (p[0], np.inf),
-        }[self.kind]
+        }.get(self.kind, (-np.inf, np.inf))
 
 
 @dataclass(frozen=True)
@@ -419,6 +412,20 @@ def _frozen_tables(ints: np.ndarray, reals: np.ndarray) -> FISTables:
     return FISTables(ints, reals)
 
 
+class FuzzyWarning(UserWarning):
+    """An evaluation took a fallback (zero-area aggregate with firing rules)."""
+
+
+def _warn_zero_area(name: str, count: int) -> None:
+    if count:
+        warnings.warn(
+            f"{name}: {count} evaluation(s) had a zero-area aggregate although rules fired "
+            "(singleton output terms): output = centroid of the point masses",
+            FuzzyWarning,
+            stacklevel=3,
+        )
+
+
 @dataclass(frozen=True)
 class MamdaniSystem:
     """A Mamdani fuzzy system with one or more inputs and one output.
@@ -429,7 +436,9 @@ class MamdaniSystem:
        of gravity over the output universe: exact for trimf/trapmf/zmf/smf output terms,
        breakpoint-aware quadrature (error << 1e-6) with Gaussian output terms.
     2. Inputs are clipped to their universes; a NaN input gives NaN.
-    3. If no rule fires, the output is the midpoint of the output universe (as MATLAB).
+    3. If no rule fires, the output is the midpoint of the output universe (as MATLAB);
+       if rules fire but the aggregate has zero area (singleton terms, trimf [c c c]),
+       the centroid of the point masses, with a :class:`FuzzyWarning`.
     4. The rule base is compiled once into :class:`FISTables` (``compiled()``);
        evaluation never loops over rules in Python.
     """
@@ -461,6 +470,13 @@ class MamdaniSystem:
             rules.append(Rule(ant, self.output.index(r.consequent), w))
         if not rules:
             raise ValueError("a Mamdani system needs at least one rule")
+        for v in (*inputs, self.output):
+            for t in v.terms:
+                if t.kind not in MF_KINDS or len(t.params) != MF_KINDS[t.kind][1]:
+                    raise ValueError(
+                        f"MamdaniSystem takes {', '.join(MF_KINDS)} terms; {v.name!r} has "
+                        f"{t.kind} {t.params} (use pkmctl.fuzzy.system.FuzzySystem)"
+                    )
         object.__setattr__(self, "inputs", inputs)
         object.__setattr__(self, "rules", tuple(rules))
         object.__setattr__(self, "_tables", _compile(inputs, self.output, tuple(rules)))
@@ -487,14 +503,14 @@ class MamdaniSystem:
         """
         X, shape = self._stack(x)
         out = np.empty(X.shape[0])
-        _eval_batch(*self._tables, X, out, True)
+        _warn_zero_area(self.name, _eval_batch(*self._tables, X, out, True))
         return float(out[0]) if shape == () else out.reshape(shape)
 
     def general(self, *x: ArrayLike) -> float | np.ndarray:
         """As ``__call__`` but always with the general kernel (to check the fast one)."""
         X, shape = self._stack(x)
         out = np.empty(X.shape[0])
-        _eval_batch(*self._tables, X, out, False)
+        _warn_zero_area(self.name, _eval_batch(*self._tables, X, out, False))
         return float(out[0]) if shape == () else out.reshape(shape)
 
     def clip_levels(self, *x: ArrayLike) -> np.ndarray:

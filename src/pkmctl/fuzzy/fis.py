@@ -1,11 +1,20 @@
-"""Read and write MATLAB Fuzzy Logic Toolbox ``.fis`` files (the Mamdani subset pkmctl runs).
+"""Read and write MATLAB Fuzzy Logic Toolbox ``.fis`` files: Mamdani and Sugeno systems.
 
-Supported: ``Type='mamdani'``, one output, AndMethod='min', ImpMethod='min',
-AggMethod='max', DefuzzMethod='centroid'; membership types trimf, trapmf, gaussmf, zmf,
-smf; AND rules (connective 1) with any weight in [0, 1] and "don't care" (0) antecedents.
-Rejected with :class:`FISError` (naming the line): Sugeno systems, other methods, other
-membership types, OR rules (connective 2), negated (NOT) terms, rules without a consequent.
-OrMethod is read but unused, since OR rules are rejected.
+Supported: ``Type`` mamdani or sugeno; any number of inputs and outputs; AndMethod min
+or prod, OrMethod max or probor; Mamdani: ImpMethod min or prod, AggMethod max, sum or
+probor, DefuzzMethod centroid, bisector, mom, som or lom; Sugeno: ImpMethod prod,
+AggMethod sum, DefuzzMethod wtaver or wtsum, output terms constant or linear; the
+membership types of :data:`pkmctl.fuzzy.mf.MF_TYPES` (all thirteen of the toolbox);
+AND (connective 1) and OR (2) rules, NOT (negative indices) in antecedents and Mamdani
+consequents, don't care (0), weights in [0, 1]. Files in UTF-8 or Latin-1 are read.
+
+Anything else raises :class:`FISError`, which lists *every* problem of the file, one per
+line, as ``file:line: message in: line``; a binary file is refused in one line.
+
+A file that fits the subset of :class:`~pkmctl.fuzzy.MamdaniSystem` (one output; min,
+min, max, centroid; trimf/trapmf/gaussmf/zmf/smf; AND rules without NOT) is read as one,
+which the paper's compiled kernels (``flc_eval``) take; any other (or every file with
+``general=True``) as a :class:`~pkmctl.fuzzy.system.FuzzySystem`.
 
 The text format is MATLAB's (``writefis``)::
 
@@ -22,24 +31,45 @@ The text format is MATLAB's (``writefis``)::
     [Rules]
     1 1, 7 (1) : 1
 
-Rule lines are: one term index per input (1-based, 0 = don't care), a comma, the output
-term index, the weight in parentheses, a colon and the connective. Note that MATLAB's
-gaussmf parameters are [sigma mean]; pkmctl's ``Term`` keeps (mean, sigma).
+Rule lines are: one term index per input (1-based, 0 = don't care, negative = NOT), a
+comma, one index per output, the weight in parentheses, a colon and the connective
+(1 = AND, 2 = OR). Note that MATLAB's gaussmf parameters are [sigma mean]; pkmctl's
+``Term`` keeps (mean, sigma).
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 from pathlib import Path
-from typing import NoReturn
 
 from pkmctl.fuzzy.engine import MF_KINDS, MamdaniSystem, Rule, Term, Variable
+from pkmctl.fuzzy.mf import MF_TYPES
+from pkmctl.fuzzy.system import FuzzyRule, FuzzySystem, SugenoTerm
 from pkmctl.io.atomic import atomic_write
 
 __all__ = ["FISError", "read_fis", "to_fis_text", "write_fis"]
 
-_METHODS = {"AndMethod": "min", "ImpMethod": "min", "AggMethod": "max", "DefuzzMethod": "centroid"}
+_MAMDANI_METHODS = {
+    "AndMethod": ("min", "prod"),
+    "OrMethod": ("max", "probor"),
+    "ImpMethod": ("min", "prod"),
+    "AggMethod": ("max", "sum", "probor"),
+    "DefuzzMethod": ("centroid", "bisector", "mom", "som", "lom"),
+}
+_SUGENO_METHODS = _MAMDANI_METHODS | {
+    "ImpMethod": ("prod",),
+    "AggMethod": ("sum",),
+    "DefuzzMethod": ("wtaver", "wtsum"),
+}
+_FIELDS = {
+    "AndMethod": "and_method",
+    "OrMethod": "or_method",
+    "ImpMethod": "imp_method",
+    "AggMethod": "agg_method",
+    "DefuzzMethod": "defuzz_method",
+}
 _MF_LINE = re.compile(r"'([^']*)'\s*:\s*'([^']*)'\s*,\s*\[([^\]]*)\]")
 _RULE_LINE = re.compile(r"([-+\d\s]+),([-+\d\s]+)\(([^)]*)\)\s*:\s*([-+\d]+)")
 _SECTION = re.compile(r"\[(System|Input\d+|Output\d+|Rules)\]")
@@ -48,12 +78,26 @@ _SECTION = re.compile(r"\[(System|Input\d+|Output\d+|Rules)\]")
 class FISError(ValueError):
     """A .fis file that is malformed or uses a feature pkmctl does not support.
 
-    Attributes ``source`` (file name or ``"<string>"``), ``lineno`` (1-based) and ``line``.
+    Attributes ``source`` (file name or ``"<string>"``), ``lineno`` (1-based; 0 when
+    no line applies) and ``line`` of the first problem, and ``problems``, the list of
+    all ``(lineno, message, line)``; the message has one line per problem.
     """
 
-    def __init__(self, source: str, lineno: int, message: str, line: str = "") -> None:
+    def __init__(
+        self, source: str, lineno: int, message: str, line: str = "", more: tuple = ()
+    ) -> None:
         self.source, self.lineno, self.line = source, lineno, line
-        super().__init__(f"{source}:{lineno}: {message}" + (f" in: {line}" if line else ""))
+        self.problems = [(lineno, message, line), *more]
+        super().__init__(
+            "\n".join(
+                (f"{source}:{n}: " if n else f"{source}: ") + m + (f" in: {t}" if t else "")
+                for n, m, t in self.problems
+            )
+        )
+
+
+class _Fatal(Exception):
+    """Stops reading after a problem that leaves nothing sensible to check further."""
 
 
 class _Section:
@@ -64,55 +108,74 @@ class _Section:
 
 
 class _Reader:
+    """Parses the whole file, collecting every problem (``self.problems``)."""
+
     def __init__(self, text: str, source: str) -> None:
         self.source = source
+        self.problems: list[tuple[int, str, str]] = []
         self.sections: dict[str, _Section] = {}
-        self.nlines = max(1, len(text.splitlines()))
+        lines = text.splitlines()
+        self.nlines = max(1, len(lines))
         current: _Section | None = None
-        for lineno, raw in enumerate(text.splitlines(), start=1):
+        skipping = False
+        for lineno, raw in enumerate(lines, start=1):
             line = raw.strip()
             if not line or line.startswith(("%", "#")):
                 continue
             if line.startswith("["):
                 m = _SECTION.fullmatch(line)
+                if m is None and _SECTION.fullmatch(line.title()):
+                    # [system]: say so, but read on, so that its other problems show too
+                    self.note(lineno, f"section names are case-sensitive: {line.title()}", line)
+                    m = _SECTION.fullmatch(line.title())
+                skipping = m is None or m.group(1) in self.sections
                 if m is None:
-                    self.fail(
+                    self.note(
                         lineno,
                         "unknown section (expected [System], [InputN], [OutputN] or [Rules])",
                         line,
                     )
-                if m.group(1) in self.sections:
-                    self.fail(lineno, f"duplicate section [{m.group(1)}]", line)
-                current = self.sections[m.group(1)] = _Section(m.group(1), lineno)
+                elif m.group(1) in self.sections:
+                    self.note(lineno, f"duplicate section [{m.group(1)}]", line)
+                else:
+                    current = self.sections[m.group(1)] = _Section(m.group(1), lineno)
+            elif skipping:
+                continue
             elif current is None:
-                self.fail(lineno, "text before the first section", line)
+                self.note(lineno, "text before the first section", line)
             elif current.name == "Rules":
                 current.rules.append((lineno, line))
             else:
                 key, sep, value = line.partition("=")
                 if not sep or not key.strip():
-                    self.fail(lineno, "expected Key=Value", line)
-                if key.strip() in current.keys:
-                    self.fail(lineno, f"duplicate key {key.strip()!r}", line)
-                current.keys[key.strip()] = (value.strip(), lineno, line)
+                    self.note(lineno, "expected Key=Value", line)
+                elif key.strip() in current.keys:
+                    self.note(lineno, f"duplicate key {key.strip()!r}", line)
+                else:
+                    current.keys[key.strip()] = (value.strip(), lineno, line)
 
-    def fail(self, lineno: int, message: str, line: str = "") -> NoReturn:
-        raise FISError(self.source, lineno, message, line)
+    def note(self, lineno: int, message: str, line: str = "") -> None:
+        self.problems.append((lineno, message, line))
+
+    def fatal(self, lineno: int, message: str, line: str = ""):
+        self.note(lineno, message, line)
+        raise _Fatal
 
     def section(self, name: str) -> _Section:
         if name not in self.sections:
-            self.fail(self.nlines, f"missing section [{name}]")
+            self.fatal(self.nlines, f"missing section [{name}]")
         return self.sections[name]
 
     def raw(self, sec: _Section, key: str) -> tuple[str, int, str]:
         if key not in sec.keys:
-            self.fail(sec.lineno, f"[{sec.name}] has no {key}")
+            self.fatal(sec.lineno, f"[{sec.name}] has no {key}")
         return sec.keys[key]
 
-    def string(self, sec: _Section, key: str) -> str:
+    def string(self, sec: _Section, key: str) -> str | None:
         value, lineno, line = self.raw(sec, key)
         if len(value) < 2 or value[0] != "'" or value[-1] != "'":
-            self.fail(lineno, f"{key} must be a quoted string", line)
+            self.note(lineno, f"{key} must be a quoted string ('...')", line)
+            return None
         return value[1:-1]
 
     def integer(self, sec: _Section, key: str, lo: int) -> int:
@@ -122,135 +185,256 @@ class _Reader:
         except ValueError:
             n = lo - 1
         if n < lo:
-            self.fail(lineno, f"{key} must be an integer >= {lo}", line)
+            self.fatal(lineno, f"{key} must be an integer >= {lo}", line)
         return n
 
-    def numbers(self, text: str, lineno: int, line: str) -> list[float]:
+    def numbers(self, text: str, lineno: int, line: str) -> list[float] | None:
         try:
             return [float(v) for v in text.replace(",", " ").split()]
         except ValueError:
-            self.fail(lineno, f"not a list of numbers: [{text}]", line)
+            self.note(lineno, f"not a list of numbers: [{text}]", line)
+            return None
 
-    def variable(self, name: str) -> Variable:
+    def variable(self, name: str, sugeno_out: int = 0) -> Variable | None:
+        """Input or output section ``name``; ``sugeno_out`` = number of inputs for a
+        Sugeno output (its terms are constant or linear), else 0."""
         sec = self.section(name)
         value, lineno, line = self.raw(sec, "Range")
+        rng = None
         if not (value.startswith("[") and value.endswith("]")):
-            self.fail(lineno, "Range must be [lo hi]", line)
-        rng = self.numbers(value[1:-1], lineno, line)
-        if len(rng) != 2 or not rng[0] < rng[1]:
-            self.fail(lineno, "Range must be [lo hi] with lo < hi", line)
+            self.note(lineno, "Range must be [lo hi]", line)
+        else:
+            rng = self.numbers(value[1:-1], lineno, line)
+            if rng is not None and (len(rng) != 2 or not rng[0] < rng[1]):
+                self.note(lineno, "Range must be [lo hi] with lo < hi", line)
+                rng = None
         n_mf = self.integer(sec, "NumMFs", 1)
-        extra = sorted(
-            k
-            for k in sec.keys
-            if k.startswith("MF") and k[2:] not in {str(i) for i in range(1, n_mf + 1)}
-        )
-        if extra:
-            self.fail(
-                sec.keys[extra[0]][1], f"{extra[0]} beyond NumMFs={n_mf}", sec.keys[extra[0]][2]
-            )
-        terms = []
+        wanted = {f"MF{i}" for i in range(1, n_mf + 1)}
+        for k in sorted(k for k in sec.keys if k.startswith("MF") and k not in wanted):
+            self.note(sec.keys[k][1], f"{k} beyond NumMFs={n_mf}", sec.keys[k][2])
+        terms: list = []
         for i in range(1, n_mf + 1):
-            value, lineno, line = self.raw(sec, f"MF{i}")
-            m = _MF_LINE.fullmatch(value)
-            if m is None:
-                self.fail(lineno, "expected MFn='name':'type',[params]", line)
-            term_name, kind, params = m.group(1), m.group(2), self.numbers(m.group(3), lineno, line)
-            if kind not in MF_KINDS:
-                self.fail(
+            if f"MF{i}" not in sec.keys:
+                self.note(sec.lineno, f"[{sec.name}] has no MF{i}")
+                continue
+            terms.append(self.term(*sec.keys[f"MF{i}"], sugeno_out))
+        var_name = self.string(sec, "Name")
+        if rng is None or var_name is None or any(t is None for t in terms):
+            return None
+        try:
+            return Variable(var_name, (rng[0], rng[1]), tuple(terms))
+        except ValueError as exc:
+            self.note(sec.lineno, str(exc))
+            return None
+
+    def term(self, value: str, lineno: int, line: str, sugeno_out: int):
+        m = _MF_LINE.fullmatch(value)
+        if m is None:
+            self.note(lineno, "expected MFn='name':'type',[params]", line)
+            return None
+        term_name, kind, params = m.group(1), m.group(2), self.numbers(m.group(3), lineno, line)
+        if params is None:
+            return None
+        if sugeno_out:
+            if kind not in ("constant", "linear"):
+                self.note(lineno, f"Sugeno output terms are constant or linear, not {kind!r}", line)
+                return None
+            if kind == "linear" and len(params) != sugeno_out + 1:
+                self.note(
                     lineno,
-                    f"unknown membership type {kind!r} (supported: {', '.join(MF_KINDS)})",
+                    f"linear takes {sugeno_out + 1} parameters (one per input and a constant), "
+                    f"got {len(params)}",
                     line,
                 )
-            if kind == "gaussmf" and len(params) == 2:
-                params = [params[1], params[0]]  # MATLAB: [sigma mean]
+                return None
             try:
-                terms.append(Term(term_name, kind, tuple(params)))
+                return SugenoTerm(term_name, kind, tuple(params))
             except ValueError as exc:
-                self.fail(lineno, str(exc), line)
+                self.note(lineno, str(exc), line)
+                return None
+        if kind not in MF_TYPES:
+            self.note(
+                lineno, f"unknown membership type {kind!r} (supported: {', '.join(MF_TYPES)})", line
+            )
+            return None
+        if kind == "gaussmf" and len(params) == 2:
+            params = [params[1], params[0]]  # MATLAB: [sigma mean]
         try:
-            return Variable(self.string(sec, "Name"), (rng[0], rng[1]), tuple(terms))
+            return Term(term_name, kind, tuple(params))
         except ValueError as exc:
-            self.fail(sec.lineno, str(exc))
+            self.note(lineno, str(exc), line)
+            return None
 
-    def system(self) -> MamdaniSystem:
+    def system(self, general: bool) -> MamdaniSystem | FuzzySystem | None:
         sys_ = self.section("System")
-        kind = self.string(sys_, "Type")
-        if kind.lower() != "mamdani":
-            self.fail(
-                sys_.keys["Type"][1],
-                f"only Mamdani systems are supported, not {kind!r}",
-                sys_.keys["Type"][2],
-            )
-        for key, want in _METHODS.items():
-            if self.string(sys_, key) != want:
-                self.fail(sys_.keys[key][1], f"only {key}='{want}' is supported", sys_.keys[key][2])
+        kind = (self.string(sys_, "Type") or "").lower()
+        if kind not in ("mamdani", "sugeno"):
+            value, lineno, line = sys_.keys["Type"]
+            self.note(lineno, f"Type must be 'mamdani' or 'sugeno', not {value}", line)
+        allowed = _SUGENO_METHODS if kind == "sugeno" else _MAMDANI_METHODS
+        methods = {}
+        for key, choices in allowed.items():
+            method = self.string(sys_, key)
+            if method is not None and method not in choices:
+                _, lineno, line = sys_.keys[key]
+                self.note(
+                    lineno,
+                    f"{key}={method!r} is not supported for {kind or 'this'} systems "
+                    f"(supported: {', '.join(choices)})",
+                    line,
+                )
+            methods[_FIELDS[key]] = method
         n_in = self.integer(sys_, "NumInputs", 1)
-        if self.integer(sys_, "NumOutputs", 1) != 1:
-            self.fail(
-                sys_.keys["NumOutputs"][1],
-                "only one output is supported",
-                sys_.keys["NumOutputs"][2],
-            )
-        expected = {"System", "Output1", "Rules"} | {f"Input{i}" for i in range(1, n_in + 1)}
+        n_out = self.integer(sys_, "NumOutputs", 1)
+        expected = {"System", "Rules"} | {f"Input{i}" for i in range(1, n_in + 1)}
+        expected |= {f"Output{i}" for i in range(1, n_out + 1)}
         for name, sec in self.sections.items():
             if name not in expected:
-                self.fail(sec.lineno, f"section [{name}] beyond NumInputs={n_in}, NumOutputs=1")
-        inputs = tuple(self.variable(f"Input{i}") for i in range(1, n_in + 1))
-        output = self.variable("Output1")
+                self.note(
+                    sec.lineno, f"section [{name}] beyond NumInputs={n_in}, NumOutputs={n_out}"
+                )
+        inputs = [self.variable(f"Input{i}") for i in range(1, n_in + 1)]
+        outputs = [
+            self.variable(f"Output{i}", n_in if kind == "sugeno" else 0)
+            for i in range(1, n_out + 1)
+        ]
         rules_sec = self.section("Rules")
-        n_rules = self.integer(sys_, "NumRules", 1)
+        n_rules = self.integer(sys_, "NumRules", 0)
         if len(rules_sec.rules) != n_rules:
-            self.fail(
-                sys_.keys["NumRules"][1],
-                f"NumRules={n_rules} but [Rules] has {len(rules_sec.rules)} lines",
-                sys_.keys["NumRules"][2],
+            _, lineno, line = sys_.keys["NumRules"]
+            self.note(
+                lineno, f"NumRules={n_rules} but [Rules] has {len(rules_sec.rules)} lines", line
             )
-        rules = [self.rule(lineno, line, inputs, output) for lineno, line in rules_sec.rules]
-        return MamdaniSystem(inputs, output, tuple(rules), name=self.string(sys_, "Name"))
+        rules = [self.rule(n, t, inputs, outputs, kind) for n, t in rules_sec.rules]
+        name = self.string(sys_, "Name")
+        if self.problems:
+            return None
+        if not general and _mamdani_subset(kind, methods, inputs, outputs, rules):
+            return MamdaniSystem(
+                tuple(inputs),
+                outputs[0],
+                tuple(
+                    Rule(tuple(None if a == 0 else a - 1 for a in r.antecedent),
+                         r.consequent[0] - 1, r.weight)
+                    for r in rules
+                ),
+                name=name,
+            )  # fmt: skip
+        try:
+            return FuzzySystem(
+                tuple(inputs), tuple(outputs), tuple(rules), kind=kind, name=name, **methods
+            )
+        except ValueError as exc:
+            self.note(sys_.lineno, str(exc))
+            return None
 
-    def rule(self, lineno: int, line: str, inputs: tuple[Variable, ...], output: Variable) -> Rule:
+    def rule(self, lineno, line, inputs, outputs, kind) -> FuzzyRule | None:
         m = _RULE_LINE.fullmatch(line)
         if m is None:
-            self.fail(lineno, "expected a rule 'i1 i2 ..., o (weight) : connective'", line)
+            self.note(lineno, "expected a rule 'i1 i2 ..., o1 ... (weight) : connective'", line)
+            return None
         ant = [int(v) for v in m.group(1).split()]
         cons = [int(v) for v in m.group(2).split()]
-        weight = self.numbers(m.group(3), lineno, line)
-        if len(ant) != len(inputs) or len(cons) != 1 or len(weight) != 1:
-            self.fail(lineno, f"expected {len(inputs)} antecedent(s), 1 consequent, 1 weight", line)
-        if int(m.group(4)) != 1:
-            self.fail(lineno, "only AND rules (connective 1) are supported", line)
+        weight = self.numbers(m.group(3), lineno, line) or []
+        if len(ant) != len(inputs) or len(cons) != len(outputs) or len(weight) != 1:
+            self.note(
+                lineno,
+                f"expected {len(inputs)} antecedent(s), {len(outputs)} consequent(s), 1 weight",
+                line,
+            )
+            return None
+        ok = True
+        connective = int(m.group(4))
+        if connective not in (1, 2):
+            self.note(lineno, f"connective must be 1 (AND) or 2 (OR), got {connective}", line)
+            ok = False
         if not 0.0 <= weight[0] <= 1.0:
-            self.fail(lineno, "rule weight must be in [0, 1]", line)
-        for idx, var in zip(ant + cons, inputs + (output,), strict=True):
-            if idx < 0:
-                self.fail(lineno, "negated terms (NOT) are not supported", line)
-            if idx > len(var.terms) or (idx == 0 and var is output):
-                self.fail(
+            self.note(lineno, "rule weight must be in [0, 1]", line)
+            ok = False
+        for idx, var, is_out in zip(
+            ant + cons, inputs + outputs, [False] * len(ant) + [True] * len(cons), strict=True
+        ):
+            if var is not None and abs(idx) > len(var.terms):
+                self.note(
                     lineno,
                     f"term index {idx} out of range for {var.name!r} (1..{len(var.terms)})",
                     line,
                 )
-        return Rule(tuple(None if a == 0 else a - 1 for a in ant), cons[0] - 1, weight[0])
+                ok = False
+            if is_out and idx < 0 and kind == "sugeno":
+                self.note(lineno, "a Sugeno consequent cannot be negated (NOT)", line)
+                ok = False
+        if not ok:
+            return None
+        return FuzzyRule(tuple(ant), tuple(cons), weight[0], "and" if connective == 1 else "or")
 
 
-def read_fis(source: str | os.PathLike[str]) -> MamdaniSystem:
-    """Read a MATLAB .fis file into a :class:`~pkmctl.fuzzy.MamdaniSystem`.
+def _mamdani_subset(kind, methods, inputs, outputs, rules) -> bool:
+    """Whether a parsed file is a :class:`MamdaniSystem` (see the module docstring)."""
+    return (
+        kind == "mamdani"
+        and len(outputs) == 1
+        and (methods["and_method"], methods["imp_method"], methods["agg_method"],
+             methods["defuzz_method"]) == ("min", "min", "max", "centroid")
+        and all(t.kind in MF_KINDS and len(t.params) == MF_KINDS[t.kind][1]
+                for v in inputs + outputs for t in v.terms)
+        and all(r.connective == "and" and min(r.antecedent) >= 0 and r.consequent[0] > 0
+                for r in rules)
+    )  # fmt: skip
+
+
+def _decode(data: bytes, source: str) -> str:
+    """The text of a file: UTF-8 (with or without BOM), else Latin-1; binary refused."""
+    controls = sum(1 for b in data[:4096] if b < 32 and b not in (9, 10, 12, 13))
+    if b"\0" in data or controls > 0.01 * max(1, len(data[:4096])):
+        raise FISError(source, 0, "binary file, not a .fis text file")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return data.decode("latin-1")
+
+
+def read_fis(
+    source: str | os.PathLike[str], *, general: bool = False, **options
+) -> MamdaniSystem | FuzzySystem:
+    """Read a MATLAB .fis file.
 
     Parameters
     ----------
     source : str or path-like
         A path, or the FIS text itself (a str containing a newline or starting with '[').
+    general : bool
+        Always return a :class:`~pkmctl.fuzzy.system.FuzzySystem` (else a
+        :class:`~pkmctl.fuzzy.MamdaniSystem` when the file fits its subset).
+    **options
+        ``input_range`` ("clip" or "raw"), ``samples`` (None or an int): the
+        :class:`~pkmctl.fuzzy.system.FuzzySystem` fields; giving any implies general.
 
     Raises
     ------
     FISError
-        ``file:line: message in: line`` for malformed or unsupported content.
+        ``file:line: message in: line``, one line per problem, for malformed or
+        unsupported content; ``file: binary file...`` for a binary file.
     """
+    unknown = set(options) - {"input_range", "samples"}
+    if unknown:
+        raise TypeError(f"read_fis got unknown options {sorted(unknown)}")
     if isinstance(source, str) and ("\n" in source or source.lstrip().startswith("[")):
-        return _Reader(source, "<string>").system()
-    path = Path(source)
-    return _Reader(path.read_text(encoding="utf-8"), str(source)).system()
+        text, name = source, "<string>"
+    else:
+        name = str(source)
+        text = _decode(Path(source).read_bytes(), name)
+    reader = _Reader(text, name)
+    system = None
+    with contextlib.suppress(_Fatal):
+        system = reader.system(general or bool(options))
+    if reader.problems or system is None:
+        # in the order found: a cause comes before what follows from it
+        first, *more = reader.problems or [(0, "unreadable", "")]
+        raise FISError(name, *first, more=tuple(more))
+    if options:
+        system = system.replace(**options)
+    return system
 
 
 def _num(x: float) -> str:
@@ -258,27 +442,29 @@ def _num(x: float) -> str:
     return str(int(x)) if x.is_integer() and abs(x) < 1e15 else repr(x)
 
 
-def to_fis_text(system: MamdaniSystem) -> str:
+def to_fis_text(system: MamdaniSystem | FuzzySystem) -> str:
     """The MATLAB .fis text of a system (floats written exactly, by their repr)."""
-    for name in [system.name] + [v.name for v in (*system.inputs, system.output)]:
+    g = system if isinstance(system, FuzzySystem) else FuzzySystem.from_mamdani(system)
+    for name in [g.name] + [v.name for v in (*g.inputs, *g.outputs)]:
         if "'" in name or "\n" in name:
             raise ValueError(f"name {name!r} cannot be written to a .fis file")
     out = [
         "[System]",
-        f"Name='{system.name}'",
-        "Type='mamdani'",
+        f"Name='{g.name}'",
+        f"Type='{g.kind}'",
         "Version=2.0",
-        f"NumInputs={len(system.inputs)}",
-        "NumOutputs=1",
-        f"NumRules={len(system.rules)}",
-        "AndMethod='min'",
-        "OrMethod='max'",
-        "ImpMethod='min'",
-        "AggMethod='max'",
-        "DefuzzMethod='centroid'",
+        f"NumInputs={len(g.inputs)}",
+        f"NumOutputs={len(g.outputs)}",
+        f"NumRules={len(g.rules)}",
+        f"AndMethod='{g.and_method}'",
+        f"OrMethod='{g.or_method}'",
+        f"ImpMethod='{g.imp_method}'",
+        f"AggMethod='{g.agg_method}'",
+        f"DefuzzMethod='{g.defuzz_method}'",
     ]
-    sections = [(f"Input{i + 1}", v) for i, v in enumerate(system.inputs)]
-    for header, var in sections + [("Output1", system.output)]:
+    sections = [(f"Input{i + 1}", v) for i, v in enumerate(g.inputs)]
+    sections += [(f"Output{i + 1}", v) for i, v in enumerate(g.outputs)]
+    for header, var in sections:
         out += ["", f"[{header}]", f"Name='{var.name}'"]
         out += [f"Range=[{_num(var.universe[0])} {_num(var.universe[1])}]"]
         out += [f"NumMFs={len(var.terms)}"]
@@ -286,13 +472,14 @@ def to_fis_text(system: MamdaniSystem) -> str:
             params = (t.params[1], t.params[0]) if t.kind == "gaussmf" else t.params
             out.append(f"MF{i}='{t.name}':'{t.kind}',[{' '.join(_num(p) for p in params)}]")
     out += ["", "[Rules]"]
-    for r in system.rules:
-        ant = " ".join(str(0 if a is None else a + 1) for a in r.antecedent)
-        out.append(f"{ant}, {r.consequent + 1} ({_num(r.weight)}) : 1")
+    for r in g.rules:
+        ant = " ".join(str(a) for a in r.antecedent)
+        cons = " ".join(str(c) for c in r.consequent)
+        out.append(f"{ant}, {cons} ({_num(r.weight)}) : {1 if r.connective == 'and' else 2}")
     return "\n".join(out) + "\n"
 
 
-def write_fis(system: MamdaniSystem, path: str | os.PathLike[str]) -> None:
+def write_fis(system: MamdaniSystem | FuzzySystem, path: str | os.PathLike[str]) -> None:
     """Write a system as a MATLAB .fis file, atomically.
 
     The text goes to a temporary file in the same directory, which then replaces ``path``

@@ -45,12 +45,12 @@ _HEADER = 19
 
 # ---------------------------------------------------------------------------------------
 # Scalar kernels and the general exact centroid. One formula per membership function:
-# `_piece` serves evaluation (its value) and the exact centroid (its local polynomial).
+# `mf_piece` serves evaluation (its value) and the exact centroid (its local polynomial).
 # ---------------------------------------------------------------------------------------
 
 
 @_jit
-def _piece(kind, a, b, c, d, y):
+def mf_piece(kind, a, b, c, d, y):
     """Local polynomial of μ at y: μ(y + u) = v0 + v1 u + v2 u² on the piece holding y.
 
     For Gaussians only v0 is meaningful (they are not piecewise polynomial).
@@ -100,7 +100,7 @@ def _piece(kind, a, b, c, d, y):
 @_jit
 def _clipped_piece(kind, a, b, c, d, h, y):
     """Local polynomial of min(h, μ) at y (the implication of a rule firing at h)."""
-    v0, v1, v2 = _piece(kind, a, b, c, d, y)
+    v0, v1, v2 = mf_piece(kind, a, b, c, d, y)
     if v0 >= h:
         return h, 0.0, 0.0
     return v0, v1, v2
@@ -273,7 +273,7 @@ def _envelope(kind, prm, levels, act, na, y):
     for i in range(na):
         k = act[i]
         p = prm[k]
-        v = min(levels[k], _piece(kind[k], p[0], p[1], p[2], p[3], y)[0])
+        v = min(levels[k], mf_piece(kind[k], p[0], p[1], p[2], p[3], y)[0])
         if v > best:
             best = v
             kbest = k
@@ -324,8 +324,8 @@ def _cog_quad(kind, prm, lo, hi, levels, act, na):
                 hi_s = b
                 for _ in range(60):
                     mid = 0.5 * (lo_s + hi_s)
-                    va = min(levels[ka], _piece(kind[ka], pa[0], pa[1], pa[2], pa[3], mid)[0])
-                    vb = min(levels[kb], _piece(kind[kb], pb[0], pb[1], pb[2], pb[3], mid)[0])
+                    va = min(levels[ka], mf_piece(kind[ka], pa[0], pa[1], pa[2], pa[3], mid)[0])
+                    vb = min(levels[kb], mf_piece(kind[kb], pb[0], pb[1], pb[2], pb[3], mid)[0])
                     if va >= vb:
                         lo_s = mid
                     else:
@@ -343,8 +343,34 @@ def _cog_quad(kind, prm, lo, hi, levels, act, na):
 
 
 @_jit
-def _centroid(kind, prm, lo, hi, levels):
-    """Centre of gravity of max_k min(levels[k], μ_k) over [lo, hi]; midpoint if empty."""
+def _point_masses(kind, prm, lo, hi, levels, act, na):
+    """Centroid of a zero-area aggregate whose rules fire (singletons such as trimf
+    [c c c]): the mean of the points where the aggregate is positive, weighted by its
+    value there, the limit of MATLAB's sampled centroid when they are samples."""
+    pts = np.empty(4 * na)
+    n = 0
+    for i in range(na):
+        for j in range(4):
+            y = prm[act[i], j]
+            if lo <= y <= hi:
+                pts[n] = y
+                n += 1
+    pts[:n].sort()
+    m0 = 0.0
+    m1 = 0.0
+    for j in range(n):
+        if j == 0 or pts[j] != pts[j - 1]:
+            v = _envelope(kind, prm, levels, act, na, pts[j])[0]
+            m0 += v
+            m1 += v * pts[j]
+    if m0 <= 0.0:
+        return 0.5 * (lo + hi)
+    return min(max(m1 / m0, lo), hi)
+
+
+@_jit
+def _centroid_flag(kind, prm, lo, hi, levels):
+    """(centroid, 1 if the aggregate had zero area although rules fired, else 0)."""
     K = kind.shape[0]
     act = np.empty(K, dtype=np.int64)
     na = 0
@@ -355,14 +381,21 @@ def _centroid(kind, prm, lo, hi, levels):
             na += 1
             gauss = gauss or kind[k] == _GAUSS
     if na == 0:
-        return 0.5 * (lo + hi)
+        return 0.5 * (lo + hi), 0
     if gauss:
         m0, m1 = _cog_quad(kind, prm, lo, hi, levels, act, na)
     else:
         m0, m1 = _cog_poly(kind, prm, lo, hi, levels, act, na)
     if m0 <= 0.0:
-        return 0.5 * (lo + hi)
-    return min(max(m1 / m0, lo), hi)
+        return _point_masses(kind, prm, lo, hi, levels, act, na), 1
+    return min(max(m1 / m0, lo), hi), 0
+
+
+@_jit
+def _centroid(kind, prm, lo, hi, levels):
+    """Centre of gravity of max_k min(levels[k], μ_k) over [lo, hi]; midpoint if empty,
+    the point-mass centroid if the aggregate has zero area (singleton terms)."""
+    return _centroid_flag(kind, prm, lo, hi, levels)[0]
 
 
 # ---------------------------------------------------------------------------------------
@@ -478,13 +511,15 @@ def _grid_eval2(ints, reals, x1, x2):
     j2, x2 = _locate(reals[r + 2], reals[r + 3], reals[ints[_O_INV] + 1], ints[ints[_O_NT] + 1], x2)
     kin = ints[_O_KIN]
     q = ints[_O_PIN] + 4 * j1
-    u1a = _piece(ints[kin + j1], reals[q], reals[q + 1], reals[q + 2], reals[q + 3], x1)[0]
+    u1a = mf_piece(ints[kin + j1], reals[q], reals[q + 1], reals[q + 2], reals[q + 3], x1)[0]
     q += 4
-    u1b = _piece(ints[kin + j1 + 1], reals[q], reals[q + 1], reals[q + 2], reals[q + 3], x1)[0]
+    u1b = mf_piece(ints[kin + j1 + 1], reals[q], reals[q + 1], reals[q + 2], reals[q + 3], x1)[0]
     q = ints[_O_PIN] + 4 * (T + j2)
-    u2a = _piece(ints[kin + T + j2], reals[q], reals[q + 1], reals[q + 2], reals[q + 3], x2)[0]
+    u2a = mf_piece(ints[kin + T + j2], reals[q], reals[q + 1], reals[q + 2], reals[q + 3], x2)[0]
     q += 4
-    u2b = _piece(ints[kin + T + j2 + 1], reals[q], reals[q + 1], reals[q + 2], reals[q + 3], x2)[0]
+    u2b = mf_piece(ints[kin + T + j2 + 1], reals[q], reals[q + 1], reals[q + 2], reals[q + 3], x2)[
+        0
+    ]
     c = ints[_O_GCONS] + j1 * T + j2
     w = ints[_O_GW] + j1 * T + j2
     k0, k1, k2, k3 = ints[c], ints[c + 1], ints[c + T], ints[c + T + 1]
@@ -561,7 +596,7 @@ def _fire(ints, reals, x, mu, levels):
         xi = min(max(x[i], rin[i, 0]), rin[i, 1])
         for j in range(nt[i]):
             p = pin[i, j]
-            mu[i, j] = _piece(kin[i, j], p[0], p[1], p[2], p[3], xi)[0]
+            mu[i, j] = mf_piece(kin[i, j], p[0], p[1], p[2], p[3], xi)[0]
     levels[:] = 0.0
     for r in range(cons.shape[0]):
         s = 1.0
@@ -574,16 +609,23 @@ def _fire(ints, reals, x, mu, levels):
 
 
 @_jit
-def _general_eval(ints, reals, x):
-    """Any compiled system at one point x (n_in,): the general (allocating) kernel."""
+def _general_eval_flag(ints, reals, x):
+    """(output, zero-area flag) of any compiled system at one point x (n_in,): the general
+    (allocating) kernel."""
     for i in range(x.shape[0]):
         if x[i] != x[i]:
-            return np.nan
+            return np.nan, 0
     mu = np.empty((ints[_N_IN], ints[_T]))
     levels = np.empty(ints[_K])
     _fire(ints, reals, x, mu, levels)
     _, _, kout, _, _, _, _, rout, pout, _ = _unpack(ints, reals)
-    return _centroid(kout, pout, rout[0], rout[1], levels)
+    return _centroid_flag(kout, pout, rout[0], rout[1], levels)
+
+
+@_jit
+def _general_eval(ints, reals, x):
+    """Any compiled system at one point x (n_in,): the general (allocating) kernel."""
+    return _general_eval_flag(ints, reals, x)[0]
 
 
 @_jit_free
@@ -638,11 +680,15 @@ def mamdani_eval(tables, x):
 
 @_jit
 def _eval_batch(ints, reals, X, out, fast):
+    """out[n] = system(X[n]); returns how many points had a zero-area aggregate."""
+    flags = 0
     for n in range(X.shape[0]):
         if fast and ints[_FAST] == 1:
             out[n] = _grid_eval2(ints, reals, X[n, 0], X[n, 1])
         else:
-            out[n] = _general_eval(ints, reals, X[n])
+            out[n], f = _general_eval_flag(ints, reals, X[n])
+            flags += f
+    return flags
 
 
 @_jit
@@ -661,7 +707,7 @@ def _centroid_batch(kind, prm, lo, hi, L, out):
 @_jit
 def _mf_fill(kind, a, b, c, d, x, out):
     for n in range(x.shape[0]):
-        out[n] = _piece(kind, a, b, c, d, x[n])[0] if x[n] == x[n] else np.nan
+        out[n] = mf_piece(kind, a, b, c, d, x[n])[0] if x[n] == x[n] else np.nan
 
 
 # ---------------------------------------------------------------------------------------

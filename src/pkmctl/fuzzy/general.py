@@ -1,0 +1,510 @@
+"""Numba kernels of the general fuzzy engine (:class:`pkmctl.fuzzy.system.FuzzySystem`).
+
+Mamdani and Sugeno systems with any number of inputs and outputs, every method of the
+Fuzzy Logic Toolbox. The table layout (two flat read-only arrays, ``ints`` and
+``reals``, as :class:`pkmctl.fuzzy.FISTables`) is written by
+:func:`pkmctl.fuzzy.system._compile`; the header slots are named below.
+
+Continuous defuzzification of a Mamdani output walks the output universe between
+*nodes*: the breakpoints of its terms (feet, peaks, spline midpoints, extrema), the
+points where a term reaches its clip level (min implication, found by bisection on
+intervals where the term is monotone) and the crossings of the top two implied sets
+(max aggregation, bisection). Between nodes the aggregate is one polynomial of degree
+<= 8 for the polynomial kinds (trimf, trapmf, zmf, smf, pimf, linzmf, linsmf; not with
+probor aggregation), which 5-point Gauss-Legendre integrates exactly; other kinds are
+cut into panels of width <= range/256 as well.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pkmctl._jit import kernel
+from pkmctl.fuzzy.mf import mf_value
+
+__all__ = ["fis_eval"]
+
+_jit = kernel(fastmath=False)
+
+# header of ints
+(_NIN, _NOUT, _R, _T, _KO, _P, _B, _SUGENO, _AND, _OR, _IMP, _AGG, _DEFUZZ, _CLIP,
+ _SAMPLES) = range(15)  # fmt: skip
+(_O_INNT, _O_INKIND, _O_OUTNT, _O_OUTKIND, _O_ANT, _O_CONS, _O_ISOR, _O_NBP, _O_POLY,
+ _O_INRANGE, _O_INPAR, _O_OUTRANGE, _O_OUTPAR, _O_W, _O_BP) = range(15, 30)  # fmt: skip
+HEADER = 30
+#: codes of the methods, in header slots _AND ... _DEFUZZ
+AND_CODES = {"min": 0, "prod": 1}
+OR_CODES = {"max": 0, "probor": 1}
+IMP_CODES = {"min": 0, "prod": 1}
+AGG_CODES = {"max": 0, "sum": 1, "probor": 2}
+DEFUZZ_CODES = {
+    "centroid": 0,
+    "bisector": 1,
+    "mom": 2,
+    "som": 3,
+    "lom": 4,
+    "wtaver": 5,
+    "wtsum": 6,
+}
+CONSTANT, LINEAR = 100, 101  # kinds of Sugeno output terms
+_PANELS = 256
+
+_GL_X = np.array(
+    [-0.9061798459386640, -0.5384693101056831, 0.0, 0.5384693101056831, 0.9061798459386640]
+)
+_GL_W = np.array(
+    [0.2369268850561891, 0.4786286704993665, 0.5688888888888889, 0.4786286704993665,
+     0.2369268850561891]
+)  # fmt: skip
+
+
+@_jit
+def _views(ints, reals):
+    n_in, n_out, R, T, KO, P, B = (
+        ints[_NIN],
+        ints[_NOUT],
+        ints[_R],
+        ints[_T],
+        ints[_KO],
+        ints[_P],
+        ints[_B],
+    )  # noqa: E501
+    o = ints
+    return (
+        ints[o[_O_INNT] : o[_O_INNT] + n_in],
+        ints[o[_O_INKIND] : o[_O_INKIND] + n_in * T].reshape((n_in, T)),
+        ints[o[_O_OUTNT] : o[_O_OUTNT] + n_out],
+        ints[o[_O_OUTKIND] : o[_O_OUTKIND] + n_out * KO].reshape((n_out, KO)),
+        ints[o[_O_ANT] : o[_O_ANT] + R * n_in].reshape((R, n_in)),
+        ints[o[_O_CONS] : o[_O_CONS] + R * n_out].reshape((R, n_out)),
+        ints[o[_O_ISOR] : o[_O_ISOR] + R],
+        ints[o[_O_NBP] : o[_O_NBP] + n_out],
+        ints[o[_O_POLY] : o[_O_POLY] + n_out],
+        reals[o[_O_INRANGE] : o[_O_INRANGE] + 2 * n_in].reshape((n_in, 2)),
+        reals[o[_O_INPAR] : o[_O_INPAR] + 4 * n_in * T].reshape((n_in, T, 4)),
+        reals[o[_O_OUTRANGE] : o[_O_OUTRANGE] + 2 * n_out].reshape((n_out, 2)),
+        reals[o[_O_OUTPAR] : o[_O_OUTPAR] + P * n_out * KO].reshape((n_out, KO, P)),
+        reals[o[_O_W] : o[_O_W] + R],
+        reals[o[_O_BP] : o[_O_BP] + B * n_out].reshape((n_out, B)),
+    )
+
+
+@_jit
+def _term(kind, par, k, neg, y):
+    """μ_k(y) of an output term, or 1 - μ_k(y) for a negated consequent."""
+    p = par[k]
+    m = mf_value(kind[k], p[0], p[1], p[2], p[3], y)
+    return 1.0 - m if neg else m
+
+
+@_jit
+def _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, y, mu):
+    """(aggregate at y, index of the top piece for max aggregation, else -1).
+
+    Piece i is the implied set imp(ph[i], μ_pk[i]) (negated if pneg[i]).
+    """
+    for k in range(nt):
+        p = par[k]
+        mu[k] = mf_value(kind[k], p[0], p[1], p[2], p[3], y)
+    v = 0.0
+    arg = -1
+    for i in range(na):
+        m = mu[pk[i]]
+        if pneg[i]:
+            m = 1.0 - m
+        z = min(ph[i], m) if imp == 0 else ph[i] * m
+        if agg == 0:
+            if z > v:
+                v = z
+                arg = i
+        elif agg == 1:
+            v += z
+        else:
+            v = v + z - v * z
+    return v, arg
+
+
+@_jit
+def _gl(kind, par, nt, pk, pneg, ph, na, imp, agg, a, b, mu):
+    """(∫ agg, ∫ y agg) over [a, b] by 5-point Gauss-Legendre."""
+    c = 0.5 * (a + b)
+    r = 0.5 * (b - a)
+    m0 = 0.0
+    m1 = 0.0
+    for g in range(5):
+        y = c + r * _GL_X[g]
+        v = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, y, mu)[0]
+        m0 += _GL_W[g] * r * v
+        m1 += _GL_W[g] * r * v * y
+    return m0, m1
+
+
+@_jit
+def _sampled(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, n, method, mu):
+    """MATLAB's defuzzification on n evenly spaced points (linspace(lo, hi, n)).
+
+    Returns (value, zero-area flag)."""
+    vals = np.empty(n)
+    ys = np.empty(n)
+    total = 0.0
+    vmax = 0.0
+    for i in range(n):
+        y = lo + i * (hi - lo) / (n - 1) if i < n - 1 else hi
+        v = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, y, mu)[0]
+        ys[i] = y
+        vals[i] = v
+        total += v
+        vmax = max(vmax, v)
+    if total <= 0.0:
+        return 0.5 * (lo + hi), 1
+    if method == 0:
+        s = 0.0
+        for i in range(n):
+            s += ys[i] * vals[i]
+        return s / total, 0
+    if method == 1:  # MATLAB's defuzz.m: first sample where the running sum reaches half
+        s = 0.0
+        for i in range(n):
+            s += vals[i]
+            if s >= 0.5 * total:
+                return ys[i], 0
+        return hi, 0
+    cnt = 0
+    s = 0.0
+    first = hi
+    last = lo
+    for i in range(n):
+        if vals[i] == vmax:
+            cnt += 1
+            s += ys[i]
+            first = min(first, ys[i])
+            last = max(last, ys[i])
+    if method == 2:
+        return s / cnt, 0
+    return (first, 0) if method == 3 else (last, 0)
+
+
+@_jit
+def _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp, nbp, poly, method, mu):
+    """Defuzzification of the continuous aggregate (see the module docstring).
+
+    Returns (value, zero-area flag)."""
+    # nodes: static breakpoints inside (lo, hi), the ends, and the clip points
+    nodes = np.empty(nbp + 2 + na * (nbp + 1))
+    nn = 0
+    nodes[nn] = lo
+    nn += 1
+    for j in range(nbp):
+        if lo < bp[j] < hi:
+            nodes[nn] = bp[j]
+            nn += 1
+    nodes[nn] = hi
+    nn += 1
+    nodes[:nn].sort()
+    ns = nn
+    if imp == 0:
+        for i in range(na):
+            h = ph[i]
+            if not 0.0 < h < 1.0:
+                continue
+            for j in range(ns - 1):
+                a = nodes[j]
+                b = nodes[j + 1]
+                ga = _term(kind, par, pk[i], pneg[i], a) - h
+                gb = _term(kind, par, pk[i], pneg[i], b) - h
+                if ga * gb < 0.0:
+                    for _ in range(64):
+                        m = 0.5 * (a + b)
+                        if not a < m < b:
+                            break
+                        gm = _term(kind, par, pk[i], pneg[i], m) - h
+                        if (gm < 0.0) == (ga < 0.0):
+                            a = m
+                        else:
+                            b = m
+                    nodes[nn] = 0.5 * (a + b)
+                    nn += 1
+        nodes[:nn].sort()
+    hmax = (hi - lo) / _PANELS
+    smooth = poly == 1 and agg != 2
+    nseg_max = 2 * (nn + (0 if smooth else _PANELS + 1))
+    sa = np.empty(nseg_max)
+    sb = np.empty(nseg_max)
+    sm = np.empty(nseg_max)
+    nseg = 0
+    m0 = 0.0
+    m1 = 0.0
+    for j in range(nn - 1):
+        a0 = nodes[j]
+        b0 = nodes[j + 1]
+        if not b0 > a0:
+            continue
+        nsub = 1 if smooth else max(1, int(math.ceil((b0 - a0) / hmax)))
+        for q in range(nsub):
+            a = a0 + (b0 - a0) * q / nsub
+            b = b0 if q == nsub - 1 else a0 + (b0 - a0) * (q + 1) / nsub
+            split = b
+            if agg == 0:
+                d = (b - a) * 1e-9
+                ia = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, a + d, mu)[1]
+                ib = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, b - d, mu)[1]
+                if ia != ib and ia >= 0 and ib >= 0:
+                    lo_s = a
+                    hi_s = b
+                    for _ in range(64):
+                        mid = 0.5 * (lo_s + hi_s)
+                        if not lo_s < mid < hi_s:
+                            break
+                        za = _term(kind, par, pk[ia], pneg[ia], mid)
+                        zb = _term(kind, par, pk[ib], pneg[ib], mid)
+                        za = min(ph[ia], za) if imp == 0 else ph[ia] * za
+                        zb = min(ph[ib], zb) if imp == 0 else ph[ib] * zb
+                        if za >= zb:
+                            lo_s = mid
+                        else:
+                            hi_s = mid
+                    split = 0.5 * (lo_s + hi_s)
+            for u, w in ((a, split), (split, b)):
+                if w > u:
+                    i0, i1 = _gl(kind, par, nt, pk, pneg, ph, na, imp, agg, u, w, mu)
+                    sa[nseg] = u
+                    sb[nseg] = w
+                    sm[nseg] = i0
+                    nseg += 1
+                    m0 += i0
+                    m1 += i1
+    if method >= 2 or m0 <= 0.0:
+        return _points(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, sa, sb, nseg, method, mu)
+    if method == 0:
+        return min(max(m1 / m0, lo), hi), 0
+    # bisector: the segment where the running area reaches half, then bisection inside it
+    half = 0.5 * m0
+    acc = 0.0
+    for s in range(nseg):
+        if acc + sm[s] >= half or s == nseg - 1:
+            a = sa[s]
+            b = sb[s]
+            for _ in range(64):
+                mid = 0.5 * (a + b)
+                if not a < mid < b:
+                    break
+                part = _gl(kind, par, nt, pk, pneg, ph, na, imp, agg, sa[s], mid, mu)[0]
+                if acc + part < half:
+                    a = mid
+                else:
+                    b = mid
+            return 0.5 * (a + b), 0
+        acc += sm[s]
+    return 0.5 * (lo + hi), 0
+
+
+@_jit
+def _points(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, sa, sb, nseg, method, mu):
+    """Maximum-based methods (mom, som, lom) and the zero-area fallback of centroid and
+    bisector, from the aggregate at the segment ends and midpoints.
+
+    mom is the mean of the maximum set (by length if it has intervals, else of its
+    points; MATLAB's sampled mom in the limit); som/lom its smallest/largest point. A
+    zero-area aggregate with firing rules is a set of point masses (singletons): the
+    centroid is their weighted mean, the bisector their weighted median (flag 1).
+    """
+    ve = np.empty(nseg + 1)
+    ye = np.empty(nseg + 1)
+    vm = np.empty(nseg)
+    vmax = 0.0
+    for s in range(nseg + 1):
+        ye[s] = sa[s] if s < nseg else sb[nseg - 1]
+        ve[s] = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, ye[s], mu)[0]
+        vmax = max(vmax, ve[s])
+    for s in range(nseg):
+        vm[s] = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, 0.5 * (sa[s] + sb[s]), mu)[0]
+        vmax = max(vmax, vm[s])
+    if vmax <= 0.0:
+        return 0.5 * (lo + hi), 1
+    if method <= 1:  # zero area: point masses
+        total = 0.0
+        for s in range(nseg + 1):
+            total += ve[s]
+        if method == 0:
+            acc = 0.0
+            for s in range(nseg + 1):
+                acc += ye[s] * ve[s]
+            return min(max(acc / total, lo), hi), 1
+        acc = 0.0
+        for s in range(nseg + 1):
+            acc += ve[s]
+            if acc >= 0.5 * total:
+                return ye[s], 1
+        return hi, 1
+    tol = vmax * (1.0 - 1e-12)
+    length = 0.0
+    moment = 0.0
+    npts = 0
+    psum = 0.0
+    first = hi
+    last = lo
+    for s in range(nseg):
+        if ve[s] >= tol and vm[s] >= tol and ve[s + 1] >= tol:
+            length += sb[s] - sa[s]
+            moment += (sb[s] - sa[s]) * 0.5 * (sa[s] + sb[s])
+            first = min(first, sa[s])
+            last = max(last, sb[s])
+        elif vm[s] >= tol:  # an interior peak between ends (smooth terms)
+            npts += 1
+            psum += 0.5 * (sa[s] + sb[s])
+            first = min(first, 0.5 * (sa[s] + sb[s]))
+            last = max(last, 0.5 * (sa[s] + sb[s]))
+    for s in range(nseg + 1):
+        if ve[s] >= tol:
+            npts += 1
+            psum += ye[s]
+            first = min(first, ye[s])
+            last = max(last, ye[s])
+    if method == 3:
+        return first, 0
+    if method == 4:
+        return last, 0
+    return (moment / length if length > 0.0 else psum / npts), 0
+
+
+@_jit
+def _eval_point(ints, reals, x, out):
+    """Evaluate a compiled system at x (n_in,) into out (n_out,); return the number of
+    outputs that took the zero-area fallback."""
+    (in_nt, in_kind, out_nt, out_kind, ant, cons, is_or, nbp, poly, in_range, in_par,
+     out_range, out_par, weight, bp) = _views(ints, reals)  # fmt: skip
+    n_in = ints[_NIN]
+    n_out = ints[_NOUT]
+    R = ints[_R]
+    for i in range(n_in):
+        if x[i] != x[i]:
+            out[:] = np.nan
+            return 0
+    xs = np.empty(n_in)
+    for i in range(n_in):
+        xs[i] = min(max(x[i], in_range[i, 0]), in_range[i, 1]) if ints[_CLIP] == 1 else x[i]
+    mu_in = np.empty((n_in, ints[_T]))
+    for i in range(n_in):
+        for j in range(in_nt[i]):
+            p = in_par[i, j]
+            mu_in[i, j] = mf_value(in_kind[i, j], p[0], p[1], p[2], p[3], xs[i])
+    w = np.empty(R)
+    and_prod = ints[_AND] == 1
+    or_prob = ints[_OR] == 1
+    for r in range(R):
+        orr = is_or[r] == 1
+        acc = 0.0 if orr else 1.0
+        for i in range(n_in):
+            a = ant[r, i]
+            if a == 0:
+                continue
+            m = mu_in[i, abs(a) - 1]
+            if a < 0:
+                m = 1.0 - m
+            if orr:
+                acc = acc + m - acc * m if or_prob else max(acc, m)
+            else:
+                acc = acc * m if and_prod else min(acc, m)
+        w[r] = acc * weight[r]
+    flags = 0
+    KO = ints[_KO]
+    pk = np.empty(max(R, 2 * KO), dtype=np.int64)
+    pneg = np.empty(max(R, 2 * KO), dtype=np.bool_)
+    ph = np.empty(max(R, 2 * KO))
+    mu = np.empty(KO)
+    imp = ints[_IMP]
+    agg = ints[_AGG]
+    method = ints[_DEFUZZ]
+    for o in range(n_out):
+        lo = out_range[o, 0]
+        hi = out_range[o, 1]
+        if ints[_SUGENO] == 1:
+            num = 0.0
+            den = 0.0
+            for r in range(R):
+                c = cons[r, o]
+                if c == 0:
+                    continue
+                p = out_par[o, c - 1]
+                if out_kind[o, c - 1] == CONSTANT:
+                    z = p[0]
+                else:
+                    z = p[n_in]
+                    for i in range(n_in):
+                        z += p[i] * xs[i]
+                num += w[r] * z
+                den += w[r]
+            if den <= 0.0:
+                out[o] = 0.5 * (lo + hi)
+            else:
+                out[o] = num / den if method == 5 else num
+            continue
+        # Mamdani: the implied sets ("pieces"); with max aggregation one per signed term
+        na = 0
+        if agg == 0:
+            ph[: 2 * KO] = 0.0
+            for r in range(R):
+                c = cons[r, o]
+                if c != 0:
+                    slot = c - 1 if c > 0 else KO - c - 1
+                    ph[slot] = max(ph[slot], w[r])
+            for slot in range(2 * KO):
+                if ph[slot] > 0.0:
+                    pk[na] = slot if slot < KO else slot - KO
+                    pneg[na] = slot >= KO
+                    ph[na] = ph[slot]
+                    na += 1
+        else:
+            for r in range(R):
+                c = cons[r, o]
+                if c != 0 and w[r] > 0.0:
+                    pk[na] = abs(c) - 1
+                    pneg[na] = c < 0
+                    ph[na] = w[r]
+                    na += 1
+        if na == 0:
+            out[o] = 0.5 * (lo + hi)
+            continue
+        kind = out_kind[o]
+        par = out_par[o]
+        nt = out_nt[o]
+        if ints[_SAMPLES] > 1:
+            v, f = _sampled(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, ints[_SAMPLES],
+                            method, mu)  # fmt: skip
+        else:
+            v, f = _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp[o], nbp[o],
+                               poly[o], method, mu)  # fmt: skip
+        out[o] = v
+        flags += f
+    return flags
+
+
+@_jit
+def fis_eval(tables, x, out):
+    """Evaluate a compiled :class:`~pkmctl.fuzzy.system.FuzzySystem` at one point.
+
+    Parameters
+    ----------
+    tables : SystemTables
+        ``system.compiled()``.
+    x : ndarray, shape (n_inputs,)
+    out : ndarray, shape (n_outputs,)
+        Receives the crisp outputs (NaN if an input is NaN).
+
+    Returns
+    -------
+    int
+        Number of outputs whose aggregate had zero area although rules fired.
+    """
+    return _eval_point(tables[0], tables[1], x, out)
+
+
+@_jit
+def eval_batch(ints, reals, X, out):
+    """out[n] = system(X[n]) for X (N, n_in), out (N, n_out); returns the zero-area count."""
+    flags = 0
+    for n in range(X.shape[0]):
+        flags += _eval_point(ints, reals, X[n], out[n])
+    return flags
