@@ -13,20 +13,12 @@ from collections.abc import Callable
 
 import numpy as np
 
+from benchmarks.timing import best_time
 from pkmctl._jit import kernel
 from pkmctl.model.dynamics import dynamics_kernel, make_work, regressor_kernel
 from pkmctl.parts import controller_step, plant_derivative
 
 __all__ = ["render", "run_all"]
-
-
-def _best(fn: Callable[[], object], repeats: int) -> float:
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 @kernel(refcount=False)
@@ -83,8 +75,8 @@ def bench_model(quick: bool = False) -> dict[str, float]:
     reg_args = (g, X.copy(), Xd, 0.9 * Xd, 3 * Xd, n, work, Y)
     _loop_mcg(*mcg_args[:4], 10, *mcg_args[5:])  # compile (or load the cache)
     _loop_regressor(*reg_args[:5], 10, *reg_args[6:])
-    mcg = _best(lambda: _loop_mcg(*mcg_args), 5) / n
-    reg = _best(lambda: _loop_regressor(*reg_args), 5) / n
+    mcg = best_time(lambda: _loop_mcg(*mcg_args), 5) / n
+    reg = best_time(lambda: _loop_regressor(*reg_args), 5) / n
     return {"mcg_us": mcg * 1e6, "regressor_us": reg * 1e6}
 
 
@@ -169,8 +161,8 @@ def bench_breakdown(loop_steps_per_s: float, quick: bool = False) -> dict[str, f
     ctrl_args = (ctrl_p, cs, cw, x.copy(), ref, np.empty(3))
     _loop_plant(*plant_args, 10)
     _loop_control(*ctrl_args, 10)
-    plant = _best(lambda: _loop_plant(*plant_args, n), 5) / n * 1e6
-    control = _best(lambda: _loop_control(*ctrl_args, n), 5) / n * 1e6
+    plant = best_time(lambda: _loop_plant(*plant_args, n), 5) / n * 1e6
+    control = best_time(lambda: _loop_control(*ctrl_args, n), 5) / n * 1e6
     step = 1e6 / loop_steps_per_s
     return {
         "step_us": step,

@@ -58,10 +58,11 @@ print(json.dumps({"flc_us": run(quick=False)["compiled_us"]}))
 """
 
 
-def _sh(cmd: list[str], **kw) -> subprocess.CompletedProcess:
-    done = subprocess.run(cmd, capture_output=True, text=True, **kw)
+def _sh(cmd: list[str], *, text: bool = True, **kw) -> subprocess.CompletedProcess:
+    done = subprocess.run(cmd, capture_output=True, text=text, **kw)
     if done.returncode != 0:
-        sys.exit(f"failed: {' '.join(cmd)}\n{done.stderr[-2000:]}")
+        err = done.stderr if text else done.stderr.decode(errors="replace")
+        sys.exit(f"failed: {' '.join(cmd)}\n{err[-2000:]}")
     return done
 
 

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from benchmarks.bench import _best
+from benchmarks.timing import best_time
 from pkmctl._jit import kernel
 from pkmctl.fuzzy import FLC, PAPER_RULE_TABLE, TERM_NAMES, flc_eval
 
@@ -123,15 +123,15 @@ def run(quick: bool = False, *, echo: bool = False) -> dict:
     s_smooth, sdot_smooth = 0.8 * np.sin(2 * t), 8.0 * np.cos(3 * t)
     _loop(tables, s[:10], sdot[:10])  # compile
     out: dict = {}
-    out["compiled_us"] = _best(lambda: _loop(tables, s, sdot), 3) / n_loop * 1e6
+    out["compiled_us"] = best_time(lambda: _loop(tables, s, sdot), 3) / n_loop * 1e6
     out["compiled_smooth_us"] = (
-        _best(lambda: _loop(tables, s_smooth, sdot_smooth), 3) / n_loop * 1e6
+        best_time(lambda: _loop(tables, s_smooth, sdot_smooth), 3) / n_loop * 1e6
     )
     nb = 10**5
     flc(s[:nb], sdot[:nb])
-    out["batched_us"] = _best(lambda: flc(s[:nb], sdot[:nb]), 3) / nb * 1e6
+    out["batched_us"] = best_time(lambda: flc(s[:nb], sdot[:nb]), 3) / nb * 1e6
     pairs = list(zip(s[:1000].tolist(), sdot[:1000].tolist(), strict=True))
-    out["python_scalar_us"] = _best(lambda: [flc(a, b) for a, b in pairs], 3) * 1e3
+    out["python_scalar_us"] = best_time(lambda: [flc(a, b) for a, b in pairs], 3) * 1e3
 
     n_ref = 10 if quick else 40
     ours = flc(s[:n_ref], sdot[:n_ref])
@@ -197,11 +197,11 @@ def run_corpus(path, n: int = 200, *, echo: bool = False) -> dict:
     X = rng.uniform(lo, hi, (n, len(lo)))
     out: dict = {}
     general.evaluate(X[:2])
-    out["pkmctl_general_us"] = _best(lambda: general.evaluate(X), 3) / n * 1e6
+    out["pkmctl_general_us"] = best_time(lambda: general.evaluate(X), 3) / n * 1e6
     ref = general.evaluate(X)[:, 0]
     cols = [X[:, i] for i in range(X.shape[1])]
     exact(*cols)
-    out["pkmctl_exact_us"] = _best(lambda: exact(*cols), 3) / n * 1e6
+    out["pkmctl_exact_us"] = best_time(lambda: exact(*cols), 3) / n * 1e6
     out["pkmctl_exact_max_diff"] = float(np.max(np.abs(exact(*cols) - ref)))
 
     ants = []

@@ -150,3 +150,15 @@ def test_an_edited_kernel_is_never_run_stale(tmp_path):
     assert after_edit[1] != before[1]  # ... and the new code ran
     assert reverted[1:] == before[1:]  # the old numbers, bit for bit, from the old cache
     assert reverted[0] == "0"
+
+
+def test_compilations_are_announced_with_their_time():
+    from pkmctl._jit import announce
+
+    heard = []
+    fresh = njit(cache=False)(lambda x: 2.0 * x)  # a new dispatcher: it must compile
+    with announce(lambda event, what, seconds: heard.append((event, what, seconds))):
+        assert fresh(1.5) == 3.0
+        assert fresh(1.5) == 3.0  # compiled already: says nothing more
+    assert [e for e, _, _ in heard] == ["start", "end"]
+    assert heard[0][1] == "the model kernels" and heard[1][2] > 0.0

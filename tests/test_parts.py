@@ -190,3 +190,17 @@ def test_baselines_track_the_paper_trajectory(controller):
     r = pkmctl.simulate("paper", controller=controller, duration=2.0)
     after = pkmctl.metrics.rmse(r, t_from=1.0)
     assert after["z_mm"] < 1.0 and after["beta_deg"] < 0.5, after
+
+
+def test_precompile_deals_loops_to_workers_and_skips_what_is_compiled():
+    from pkmctl.sim.loop import is_compiled
+    from pkmctl.sim.simulate import _groups, _parts, precompile
+
+    five = ["smc", "fsmc", "afsmc", "pd", "ctc"]
+    assert _groups(five, {"fsmc", "afsmc"}, 2) == [["fsmc", "afsmc"], ["smc", "pd", "ctc"]]
+    assert _groups(five, {"fsmc", "afsmc"}, 3) == [["fsmc", "afsmc"], ["smc", "ctc"], ["pd"]]
+    assert _groups(["smc", "pd", "ctc"], set(), 2) == [["smc", "ctc"], ["pd"]]
+    sc = pkmctl.Scenario.builtin("paper")
+    pkmctl.simulate(sc, controller="smc", duration=0.001)
+    assert is_compiled(_parts(sc, "smc"))  # a run leaves its marker ...
+    assert precompile(sc, ["smc"]) == []  # ... so nothing is compiled again

@@ -40,6 +40,7 @@ the elapsed time, on a terminal and as plain lines in a log).
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import os
 import sys
@@ -268,18 +269,27 @@ def specialise(py_func: Callable, key: tuple, sources: Iterable[str], *, refcoun
     with _SPECIALISED_LOCK:
         disp = _SPECIALISED.get((py_func, key))
         if disp is None:
-            sources = sorted({str(Path(s).resolve()) for s in sources if s} - _builtin())
             options = JIT_OPTIONS | (REFCOUNT if refcount else NO_REFCOUNT)
             disp = njit(**options)(py_func)
-            stamp = cache_dir(sources).name
-            disp = _attach_cache(disp, cache_dir(sources), stamp)
+            folder = specialised_dir(py_func, key, sources)
+            disp = _attach_cache(disp, folder, folder.parent.name)
             disp.__pkmctl_key__ = key  # for messages
             _SPECIALISED[(py_func, key)] = disp
         return disp
 
 
-def _builtin() -> set[str]:
-    return {str(p) for p in _kernel_sources()}
+def specialised_dir(py_func: Callable, key: tuple, sources: Iterable[str]) -> Path:
+    """The cache folder of :func:`specialise`'s dispatcher for ``key``: one per key, so
+    that processes compiling different combinations never share an index file."""
+    sources = sorted({str(Path(s).resolve()) for s in sources if s} - _builtin())
+    names = ",".join(f"{getattr(k, '__module__', '')}.{getattr(k, '__qualname__', k)}" for k in key)
+    tag = hashlib.sha256(f"{py_func.__module__}.{py_func.__qualname__}|{names}".encode())
+    return cache_dir(sources) / f"{py_func.__name__.strip('_')}-{tag.hexdigest()[:12]}"
+
+
+@functools.cache
+def _builtin() -> frozenset[str]:
+    return frozenset(str(p) for p in _kernel_sources())
 
 
 # ---------------------------------------------------------------- compile announcements

@@ -107,7 +107,7 @@ def reproduce(
         _fail(str(exc))
     from pkmctl.experiment import CONTROLLER_ORDER
 
-    steps = [*CONTROLLER_ORDER, "series", "table", "figures", "report"]
+    steps = ["compile", *CONTROLLER_ORDER, "series", "table", "figures", "report"]
     with Progress(
         SpinnerColumn(),
         TextColumn("{task.description}"),

@@ -24,7 +24,7 @@ from pkmctl.io.atomic import atomic_write
 from pkmctl.io.results import save_result
 from pkmctl.sim.result import Result
 from pkmctl.sim.scenario import Scenario
-from pkmctl.sim.simulate import simulate
+from pkmctl.sim.simulate import precompile, simulate
 
 __all__ = ["CONTROLLER_ORDER", "ReproduceOutput", "reproduce"]
 
@@ -58,6 +58,12 @@ def reproduce(
     say = progress or (lambda _msg: None)
     t0 = time.perf_counter()
     out = Path(out)
+
+    def compiling(todo: list[str], n: int) -> None:
+        say(f"compiling {len(todo)} control loops in {n} processes (once per machine)…")
+
+    if not precompile(scenario, CONTROLLER_ORDER, on_start=compiling):
+        say("compiled loops found in the cache")
     # The compiled loop releases the GIL: the three runs share the machine's cores.
     workers = min(len(CONTROLLER_ORDER), os.cpu_count() or 1)
     with ThreadPoolExecutor(max_workers=workers) as pool:

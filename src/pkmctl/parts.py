@@ -179,12 +179,8 @@ def names(kind: str) -> list[str]:
 def _registry(kind: str) -> dict[str, Part]:
     if kind not in _REGISTRY:
         raise PartError(f"part kind {kind!r}: must be one of {', '.join(KINDS)}")
-    if kind == "controller":  # the built-in controllers register on import
-        import pkmctl.control  # noqa: F401
-    else:
-        import pkmctl.sim.actuators  # noqa: F401
-        import pkmctl.sim.plants  # noqa: F401
-        import pkmctl.sim.sensors  # noqa: F401
+    # The built-in parts register when their modules load, which ``import pkmctl`` (the
+    # package any ``pkmctl.*`` import runs first) does: nothing to import here.
     return _REGISTRY[kind]
 
 

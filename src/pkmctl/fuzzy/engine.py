@@ -28,15 +28,15 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from pkmctl.fuzzy.kernels import (
-    _HEADER,
-    _INT_SECTIONS,
-    _O_NT,
-    _O_RIN,
-    _REAL_SECTIONS,
-    _centroid_batch,
-    _eval_batch,
-    _levels_batch,
+    HEADER,
+    INT_SECTIONS,
+    O_NT,
+    O_RIN,
+    REAL_SECTIONS,
+    centroid_batch,
+    eval_batch,
     flc_eval,
+    levels_batch,
     mamdani_eval,
 )
 from pkmctl.fuzzy.mf import MF_TYPES, check_mf, mf_fill
@@ -277,8 +277,8 @@ class FISTables(NamedTuple):
         )
         out = {}
         for arr, names, first in (
-            (self.ints, _INT_SECTIONS, _O_NT),
-            (self.reals, _REAL_SECTIONS, _O_RIN),
+            (self.ints, INT_SECTIONS, O_NT),
+            (self.reals, REAL_SECTIONS, O_RIN),
         ):
             for n, name in enumerate(names):
                 o = int(self.ints[first + n])
@@ -392,13 +392,13 @@ def _compile(inputs: tuple[Variable, ...], output: Variable, rules: tuple[Rule, 
         grid_weight=grid_weight,
         cells=cells if fast else np.zeros((0, 10)),
     )
-    ints = [np.array([n_in, K, R, T, int(fast)] + [0] * (_HEADER - 5), dtype=np.int64)]
+    ints = [np.array([n_in, K, R, T, int(fast)] + [0] * (HEADER - 5), dtype=np.int64)]
     reals: list[np.ndarray] = []
     for parts, sections, first, dtype in (
-        (ints, int_sections, _O_NT, np.int64),
-        (reals, real_sections, _O_RIN, np.float64),
+        (ints, int_sections, O_NT, np.int64),
+        (reals, real_sections, O_RIN, np.float64),
     ):
-        for n, name in enumerate(_INT_SECTIONS if dtype is np.int64 else _REAL_SECTIONS):
+        for n, name in enumerate(INT_SECTIONS if dtype is np.int64 else REAL_SECTIONS):
             ints[0][first + n] = sum(p.size for p in parts)
             parts.append(np.asarray(sections[name], dtype=dtype).reshape(-1))
     return _frozen_tables(np.concatenate(ints), np.concatenate(reals))
@@ -503,21 +503,21 @@ class MamdaniSystem:
         """
         X, shape = self._stack(x)
         out = np.empty(X.shape[0])
-        _warn_zero_area(self.name, _eval_batch(*self._tables, X, out, True))
+        _warn_zero_area(self.name, eval_batch(*self._tables, X, out, True))
         return float(out[0]) if shape == () else out.reshape(shape)
 
     def general(self, *x: ArrayLike) -> float | np.ndarray:
         """As ``__call__`` but always with the general kernel (to check the fast one)."""
         X, shape = self._stack(x)
         out = np.empty(X.shape[0])
-        _warn_zero_area(self.name, _eval_batch(*self._tables, X, out, False))
+        _warn_zero_area(self.name, eval_batch(*self._tables, X, out, False))
         return float(out[0]) if shape == () else out.reshape(shape)
 
     def clip_levels(self, *x: ArrayLike) -> np.ndarray:
         """Clip level of each output term, shape (*broadcast shape, K)."""
         X, shape = self._stack(x)
         out = np.empty((X.shape[0], len(self.output.terms)))
-        _levels_batch(*self._tables, X, out)
+        levels_batch(*self._tables, X, out)
         return out.reshape(shape + (out.shape[1],))
 
     def defuzzify(self, levels: ArrayLike) -> np.ndarray:
@@ -544,7 +544,7 @@ class MamdaniSystem:
         flat = np.ascontiguousarray(L.reshape(-1, L.shape[-1]))
         out = np.empty(flat.shape[0])
         t = self._tables.unpack()
-        _centroid_batch(t["out_kind"], t["out_params"], *self.output.universe, flat, out)
+        centroid_batch(t["out_kind"], t["out_params"], *self.output.universe, flat, out)
         return out.reshape(L.shape[:-1])[()]
 
     @classmethod

@@ -25,10 +25,10 @@ _jit = kernel(fastmath=False)
 # compiled without reference counting, which saves ~4 atomic operations per call.
 _jit_free = kernel(fastmath=False, refcount=False)
 
-# FISTables layout: two flat arrays. ints[:_HEADER] = [n_in, K, R, T, fast] followed by
-# the offsets of the sections _INT_SECTIONS in ints and _REAL_SECTIONS in reals.
-_INT_SECTIONS = ("in_nterms", "in_kind", "out_kind", "rule_ant", "rule_cons", "grid_cons")
-_REAL_SECTIONS = (
+# FISTables layout: two flat arrays. ints[:HEADER] = [n_in, K, R, T, fast] followed by
+# the offsets of the sections INT_SECTIONS in ints and REAL_SECTIONS in reals.
+INT_SECTIONS = ("in_nterms", "in_kind", "out_kind", "rule_ant", "rule_cons", "grid_cons")
+REAL_SECTIONS = (
     "in_range",
     "grid_inv_step",
     "in_params",
@@ -39,9 +39,9 @@ _REAL_SECTIONS = (
     "cells",
 )
 _N_IN, _K, _R, _T, _FAST = range(5)
-_O_NT, _O_KIN, _O_KOUT, _O_ANT, _O_CONS, _O_GCONS = range(5, 11)
-_O_RIN, _O_INV, _O_PIN, _O_ROUT, _O_POUT, _O_W, _O_GW, _O_CELLS = range(11, 19)
-_HEADER = 19
+O_NT, _O_KIN, _O_KOUT, _O_ANT, _O_CONS, _O_GCONS = range(5, 11)
+O_RIN, _O_INV, _O_PIN, _O_ROUT, _O_POUT, _O_W, _O_GW, _O_CELLS = range(11, 19)
+HEADER = 19
 
 # ---------------------------------------------------------------------------------------
 # Scalar kernels and the general exact centroid. One formula per membership function:
@@ -506,9 +506,9 @@ def _grid_eval2(ints, reals, x1, x2):
         return np.nan
     T = ints[_T]
     K = ints[_K]
-    r = ints[_O_RIN]
-    j1, x1 = _locate(reals[r], reals[r + 1], reals[ints[_O_INV]], ints[ints[_O_NT]], x1)
-    j2, x2 = _locate(reals[r + 2], reals[r + 3], reals[ints[_O_INV] + 1], ints[ints[_O_NT] + 1], x2)
+    r = ints[O_RIN]
+    j1, x1 = _locate(reals[r], reals[r + 1], reals[ints[_O_INV]], ints[ints[O_NT]], x1)
+    j2, x2 = _locate(reals[r + 2], reals[r + 3], reals[ints[_O_INV] + 1], ints[ints[O_NT] + 1], x2)
     kin = ints[_O_KIN]
     q = ints[_O_PIN] + 4 * j1
     u1a = mf_piece(ints[kin + j1], reals[q], reals[q + 1], reals[q + 2], reals[q + 3], x1)[0]
@@ -575,12 +575,12 @@ def _unpack(ints, reals):
     n_in, K, R, T = ints[_N_IN], ints[_K], ints[_R], ints[_T]
     o = ints
     return (
-        ints[o[_O_NT] : o[_O_NT] + n_in],
+        ints[o[O_NT] : o[O_NT] + n_in],
         ints[o[_O_KIN] : o[_O_KIN] + n_in * T].reshape((n_in, T)),
         ints[o[_O_KOUT] : o[_O_KOUT] + K],
         ints[o[_O_ANT] : o[_O_ANT] + R * n_in].reshape((R, n_in)),
         ints[o[_O_CONS] : o[_O_CONS] + R],
-        reals[o[_O_RIN] : o[_O_RIN] + 2 * n_in].reshape((n_in, 2)),
+        reals[o[O_RIN] : o[O_RIN] + 2 * n_in].reshape((n_in, 2)),
         reals[o[_O_PIN] : o[_O_PIN] + 4 * n_in * T].reshape((n_in, T, 4)),
         reals[o[_O_ROUT] : o[_O_ROUT] + 2],
         reals[o[_O_POUT] : o[_O_POUT] + 4 * K].reshape((K, 4)),
@@ -679,7 +679,7 @@ def mamdani_eval(tables, x):
 
 
 @_jit
-def _eval_batch(ints, reals, X, out, fast):
+def eval_batch(ints, reals, X, out, fast):
     """out[n] = system(X[n]); returns how many points had a zero-area aggregate."""
     flags = 0
     for n in range(X.shape[0]):
@@ -692,14 +692,14 @@ def _eval_batch(ints, reals, X, out, fast):
 
 
 @_jit
-def _levels_batch(ints, reals, X, out):
+def levels_batch(ints, reals, X, out):
     mu = np.empty((ints[_N_IN], ints[_T]))
     for n in range(X.shape[0]):
         _fire(ints, reals, X[n], mu, out[n])
 
 
 @_jit
-def _centroid_batch(kind, prm, lo, hi, L, out):
+def centroid_batch(kind, prm, lo, hi, L, out):
     for n in range(L.shape[0]):
         out[n] = _centroid(kind, prm, lo, hi, L[n])
 

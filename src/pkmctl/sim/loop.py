@@ -14,14 +14,16 @@ parameter bundles (:mod:`pkmctl.parts`).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from numba.core.errors import NumbaError
 
-from pkmctl._jit import kernel, specialise
+from pkmctl._jit import kernel, specialise, specialised_dir
 from pkmctl.parts import (
     Part,
     PartError,
@@ -35,7 +37,7 @@ from pkmctl.parts import (
     sensor_measure,
 )
 
-__all__ = ["LoopOutput", "STATUS", "run_parts"]
+__all__ = ["LoopOutput", "STATUS", "is_compiled", "loop_for", "run_parts"]
 
 #: Why a loop stopped early, by its status code.
 STATUS = {1: "the state became non-finite", 2: "the pose left the valid set"}
@@ -170,11 +172,32 @@ def _reason(exc: Exception) -> str:
     return type(exc).__name__
 
 
+def _key(parts: dict[str, Part]) -> tuple[tuple, list[str]]:
+    key = tuple(parts[k].params for k in ("plant", "sensor", "controller", "actuator"))
+    return key, [s for p in parts.values() if not p.builtin for s in p.sources]
+
+
 def loop_for(parts: dict[str, Part]):
     """The compiled loop for this combination of parts (one per process, cached on disk)."""
-    key = tuple(parts[k].params for k in ("plant", "sensor", "controller", "actuator"))
-    sources = [s for p in parts.values() if not p.builtin for s in p.sources]
+    key, sources = _key(parts)
     return specialise(_run_loop, key, sources, refcount=False)
+
+
+_MARKER = "compiled"
+
+
+def is_compiled(parts: dict[str, Part]) -> bool:
+    """Whether this combination's loop has run on this machine with the current sources
+    (a marker in its cache folder, written after its first successful run)."""
+    key, sources = _key(parts)
+    return (specialised_dir(_run_loop, key, sources) / _MARKER).exists()
+
+
+def _mark_compiled(loop) -> None:
+    folder = Path(loop._cache.cache_path)
+    if not (folder / _MARKER).exists():
+        with contextlib.suppress(OSError):
+            (folder / _MARKER).touch()
 
 
 def run_parts(
@@ -218,6 +241,7 @@ def run_parts(
     except NumbaError as exc:
         raise PartError(f"{_describe(parts)} do not compile: {_reason(exc)}") from exc
     dt = time.perf_counter() - t0
+    _mark_compiled(loop)
     m = k if status else n
     return LoopOutput(
         status=int(status),

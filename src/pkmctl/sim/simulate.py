@@ -27,11 +27,11 @@ from pkmctl.model.dynamics import (
 )
 from pkmctl.model.mechanism import Mechanism
 from pkmctl.parts import Part, PartContext, PartError, get_part
-from pkmctl.sim.loop import STATUS, LogBuffers, run_parts
+from pkmctl.sim.loop import STATUS, LogBuffers, is_compiled, run_parts
 from pkmctl.sim.result import Result
 from pkmctl.sim.scenario import Scenario, ScenarioError
 
-__all__ = ["desired_forces", "simulate", "simulate_many"]
+__all__ = ["desired_forces", "precompile", "simulate", "simulate_many"]
 
 
 def desired_forces(plant: Mechanism, Xd, Xdd, Xddd) -> tuple[np.ndarray, np.ndarray]:
@@ -290,3 +290,68 @@ def simulate_many(
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
         return list(pool.map(one, seeds))
+
+
+def _compile_group(scenario_toml: str, controllers: list[str]) -> str:
+    """In a worker process: run each controller for one period, which compiles its loop
+    into the disk cache. Returns "" or the first error (the caller will meet it again)."""
+    try:
+        sc = Scenario.from_toml(scenario_toml)
+        sc = sc.replace(**{"timing.duration": sc.timing.control_period})
+        for c in controllers:
+            simulate(sc, controller=c)
+    except Exception as exc:  # noqa: BLE001 - reported by the run that follows
+        return f"{type(exc).__name__}: {exc}"
+    return ""
+
+
+def _groups(todo: list[str], fuzzy: set[str], n: int) -> list[list[str]]:
+    """Deal ``todo`` over ``n`` >= 2 workers. Controllers that share the fuzzy kernels go
+    to one worker (those kernels are the costliest to compile, once per process); the
+    others are dealt out over the rest."""
+    others = [c for c in todo if c not in fuzzy]
+    if fuzzy and others:
+        rest = [others[i :: n - 1] for i in range(n - 1)]
+        return [[c for c in todo if c in fuzzy], *(g for g in rest if g)]
+    return [g for g in (todo[i::n] for i in range(n)) if g]
+
+
+def precompile(
+    scenario: Scenario,
+    controllers,
+    *,
+    workers: int | None = None,
+    on_start=None,
+) -> list[str]:
+    """Compile the loops of ``controllers`` on ``scenario``'s parts into the disk cache,
+    in parallel worker processes, before a run that needs them all.
+
+    Numba compiles one function at a time per process; with several loops to build and
+    several cores, worker processes build them side by side (each compiles the model
+    kernels it needs too, on its own core). Loops already compiled on this machine, and
+    combinations with parts registered outside pkmctl (a worker would not import them),
+    are skipped; so is everything when fewer than two workers would run. Calls
+    ``on_start(controllers, workers)`` before it starts; returns the controllers whose
+    loops were compiled.
+    """
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    todo, fuzzy = [], set()
+    for c in controllers:
+        parts = _parts(scenario, c)
+        if all(p.builtin for p in parts.values()) and not is_compiled(parts):
+            todo.append(c)
+            if "flc" in parts["controller"].params._fields:
+                fuzzy.add(c)
+    n = min(len(todo), os.cpu_count() or 1, workers or len(todo))
+    if n < 2:
+        return []
+    groups = _groups(todo, fuzzy, n)
+    n = len(groups)
+    if on_start is not None:
+        on_start(todo, n)
+    text = scenario.to_toml()
+    with ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("spawn")) as pool:
+        list(pool.map(_compile_group, [text] * n, groups))
+    return todo
