@@ -17,6 +17,7 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar
 
+import numba
 import numpy as np
 
 from pkmctl._jit import specialise
@@ -55,14 +56,21 @@ class ControllerState:
     raw: np.ndarray
 
 
-def _entry(p, state, work, y, ref, F):
+def _entry(p, state, work, y, ref, X, Xdot, X_d, Xdot_d, Xddot_d, F):
+    """One controller step from Python's five vectors (copied into y and ref here, in
+    compiled code: cheaper than five NumPy slice assignments)."""
+    for i in range(3):
+        y[i], y[3 + i] = X[i], Xdot[i]
+        ref[i], ref[3 + i], ref[6 + i] = X_d[i], Xdot_d[i], Xddot_d[i]
     controller_step(p, state, work, y, ref, F)
 
 
 def _as_vec3(a, name: str) -> np.ndarray:
+    """a as a C-contiguous float64 (3,) array (the compiled entry's one argument type)."""
     if type(a) is np.ndarray and a.dtype == np.float64 and a.shape == (3,):
-        return a
-    a = np.asarray(a, dtype=float)
+        if a.flags.c_contiguous and a.flags.aligned and a.flags.writeable:
+            return a
+    a = np.array(a, dtype=np.float64)  # a copy: contiguous, aligned, writeable
     if a.shape != (3,):
         raise ValueError(f"{name}: expected shape (3,), got {a.shape}")
     return a
@@ -103,6 +111,7 @@ class Controller:
         self._steps = 0
         self._y, self._ref = np.empty(6), np.empty(9)
         self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False)
+        self._fast = None  # the compiled entry point, once known (see step)
 
     @property
     def _adaptive(self) -> bool:
@@ -127,14 +136,23 @@ class Controller:
 
     def step(self, X, Xdot, X_d, Xdot_d, Xddot_d) -> np.ndarray:
         """One control period: the task-space force F (3,) for the measured (X, Xdot)."""
-        y, ref = self._y, self._ref
-        y[0:3], y[3:6] = _as_vec3(X, "X"), _as_vec3(Xdot, "Xdot")
-        ref[0:3], ref[3:6] = _as_vec3(X_d, "X_d"), _as_vec3(Xdot_d, "Xdot_d")
-        ref[6:9] = _as_vec3(Xddot_d, "Xddot_d")
-        F = np.empty(3)
-        self._step(self.params, self._state, self._work, y, ref, F)
+        args = (
+            self.params, self._state, self._work, self._y, self._ref,
+            _as_vec3(X, "X"), _as_vec3(Xdot, "Xdot"), _as_vec3(X_d, "X_d"),
+            _as_vec3(Xdot_d, "Xdot_d"), _as_vec3(Xddot_d, "Xddot_d"), np.empty(3),
+        )  # fmt: skip
+        if self._fast is None:
+            self._step(*args)
+            # Every later call has the same argument types (the vectors are made so by
+            # _as_vec3), so call the compiled entry point for them directly: Numba's
+            # dispatcher would spend ~2.5 us per call re-deriving the bundle's type.
+            sig = tuple(numba.typeof(a) for a in args)
+            cres = self._step.overloads.get(sig)
+            self._fast = cres.entry_point if cres is not None else self._step
+        else:
+            self._fast(*args)
         self._steps += 1
-        return F
+        return args[-1]
 
     def __deepcopy__(self, memo) -> Controller:
         """An independent controller: its own state and work, the same (immutable) params."""
@@ -144,17 +162,19 @@ class Controller:
         twin._state, twin._initial = self._state.copy(), self._initial.copy()
         twin._work = copy.deepcopy(self._work, memo)
         twin._y, twin._ref = np.empty(6), np.empty(9)
+        twin._fast = None
         return twin
 
     def __getstate__(self) -> dict:
         d = self.__dict__.copy()
-        del d["_step"], d["part"]  # looked up again on unpickling
+        del d["_step"], d["part"], d["_fast"]  # looked up again on unpickling
         return d
 
     def __setstate__(self, d: dict) -> None:
         self.__dict__.update(d)
         self.part = get_part("controller", self.name)
         self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False)
+        self._fast = None
 
 
 class SMC(Controller):
