@@ -6,7 +6,9 @@ Contract of a :class:`Controller` (like SciPy's ``OdeSolver``):
    plant's), :class:`~pkmctl.Gains` and the control period, and runs the compiled step
    of a registered controller part (:mod:`pkmctl.parts`): the same code as the loop.
 2. ``step(X, Xdot, X_d, Xdot_d, Xddot_d)`` returns the task-space force F (3,) and
-   advances the controller's state by one period.
+   advances the controller's state by one period. A non-finite input (NaN, inf) raises
+   :class:`~pkmctl.errors.NonFiniteInputError` and leaves the state as it was: one bad
+   sample from a sensor must not poison the s-dot filter or Theta^ for good.
 3. Its whole state is :attr:`Controller.state` (a copy); :meth:`Controller.reset`
    restores the initial state.
 """
@@ -22,6 +24,7 @@ import numpy as np
 from pkmctl._jit import specialise
 from pkmctl.control.gains import Gains
 from pkmctl.control.sliding import SLIDING_STATE
+from pkmctl.errors import NonFiniteInputError
 from pkmctl.fuzzy import FLC, MamdaniSystem
 from pkmctl.model.mechanism import Mechanism
 from pkmctl.parts import PartContext, controller_step, get_part, names
@@ -68,6 +71,18 @@ def _as_vec3(a, name: str) -> np.ndarray:
     return a
 
 
+_STEP_INPUTS = (("X", 0), ("Xdot", 3), ("X_d", 6), ("Xdot_d", 9), ("Xddot_d", 12))
+
+
+def _non_finite(buf: np.ndarray) -> str:
+    """The first non-finite input of ``buf`` = [X, Xdot, X_d, Xdot_d, Xddot_d], for messages."""
+    for name, i in _STEP_INPUTS:
+        v = buf[i : i + 3]
+        if not np.isfinite(v).all():
+            return f"{name} = [{', '.join(repr(float(x)) for x in v)}]"
+    return "an input"
+
+
 class Controller:
     """One registered controller, stepped from Python (see the module docstring).
 
@@ -101,8 +116,13 @@ class Controller:
         self.params, self._initial, self._work = self.part.make(ctx)
         self._state = self._initial.copy()
         self._steps = 0
-        self._y, self._ref = np.empty(6), np.empty(9)
+        self._new_buffers()
         self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False)
+
+    def _new_buffers(self) -> None:
+        # One buffer [y | ref]: a single dot product checks all 15 inputs for finiteness.
+        self._io, self._zeros = np.empty(15), np.zeros(15)
+        self._y, self._ref = self._io[0:6], self._io[6:15]
 
     @property
     def _adaptive(self) -> bool:
@@ -126,11 +146,21 @@ class Controller:
         )
 
     def step(self, X, Xdot, X_d, Xdot_d, Xddot_d) -> np.ndarray:
-        """One control period: the task-space force F (3,) for the measured (X, Xdot)."""
-        y, ref = self._y, self._ref
+        """One control period: the task-space force F (3,) for the measured (X, Xdot).
+
+        Raises :class:`~pkmctl.errors.NonFiniteInputError` (the state unchanged) if any
+        input holds NaN or inf, and ``ValueError`` if one is not of shape (3,).
+        """
+        io, y, ref = self._io, self._y, self._ref
         y[0:3], y[3:6] = _as_vec3(X, "X"), _as_vec3(Xdot, "Xdot")
         ref[0:3], ref[3:6] = _as_vec3(X_d, "X_d"), _as_vec3(Xdot_d, "Xdot_d")
         ref[6:9] = _as_vec3(Xddot_d, "Xddot_d")
+        # x * 0 is 0 for every finite x and NaN for NaN and +-inf; the sum cannot overflow.
+        if not math.isfinite(io.dot(self._zeros)):
+            raise NonFiniteInputError(
+                f"{self.name} step: {_non_finite(io)} is not finite "
+                f"(the controller's state is unchanged)"
+            )
         F = np.empty(3)
         self._step(self.params, self._state, self._work, y, ref, F)
         self._steps += 1
@@ -143,7 +173,7 @@ class Controller:
         twin = copy.copy(self)
         twin._state, twin._initial = self._state.copy(), self._initial.copy()
         twin._work = copy.deepcopy(self._work, memo)
-        twin._y, twin._ref = np.empty(6), np.empty(9)
+        twin._new_buffers()
         return twin
 
     def __getstate__(self) -> dict:
