@@ -220,6 +220,20 @@ def _with_overrides(sc, seed: int | None, duration: float | None):
     return sc.replace(**changes) if changes else sc
 
 
+def _scenario(ctx: typer.Context, spec: str, seed, duration, kept: str):
+    """The scenario, validated; interruptible, since validating the trajectory calls the
+    kinematics kernels, which a first run compiles."""
+    compiles = _Compiles()
+    try:
+        with compiles.listen():
+            return _interruptible(
+                lambda: _with_overrides(_load_scenario(spec), seed, duration),
+                lambda: kept + compiles.kept(),
+            )
+    except Exception as exc:
+        _handle(ctx, exc)
+
+
 class _Compiles:
     """Say what compiles while it compiles: in the progress bar on a terminal (its
     elapsed-time column runs), as plain lines otherwise (a log, CI). Counts what was
@@ -300,10 +314,10 @@ def reproduce(
 
     try:  # (a str, not a Path: Path("") is ".", and --out '' must be refused)
         out = check_output_folder(out, what="--out")
-        sc = _with_overrides(_load_scenario(scenario), seed, duration)
     except Exception as exc:
         _handle(ctx, exc)
     existed = out.is_dir()
+    sc = _scenario(ctx, scenario, seed, duration, _untouched(out, existed))
     steps = [*CONTROLLER_ORDER, "series", "table", "figures", "report"]
     with Progress(
         SpinnerColumn(),
@@ -380,10 +394,10 @@ def simulate(
         )
     try:
         out = check_output_folder(out, what="--out")
-        sc = _with_overrides(_load_scenario(scenario_file), seed, duration)
     except Exception as exc:
         _handle(ctx, exc)
     existed = out.is_dir()
+    sc = _scenario(ctx, scenario_file, seed, duration, _untouched(out, existed))
     compiles = _Compiles()
     try:
         with (
