@@ -239,8 +239,9 @@ class _Compiles:
     elapsed-time column runs), as plain lines otherwise (a log, CI). Counts what was
     compiled, for the message after an interrupt."""
 
-    def __init__(self, bar: Progress | None = None, task=None) -> None:
-        self.bar, self.task, self.done = bar, task, 0
+    def __init__(self, bar: Progress | None = None, task=None, status=None) -> None:
+        self.bar, self.task, self.status, self.done = bar, task, status, 0
+        self.t0 = time.perf_counter()
 
     def __call__(self, event: str, what: str, seconds: float) -> None:
         if event == "start":
@@ -250,6 +251,12 @@ class _Compiles:
             msg = f"compiled {what} in {seconds:.1f} s (cached)"
         if self.bar is not None and err_console.is_terminal:
             self.bar.update(self.task, description=msg)
+        elif self.status is not None and console.is_terminal:
+            # a spinner has no clock: the line above it keeps the time
+            elapsed = time.perf_counter() - self.t0
+            self.status.update(Text(f"{msg} (at {elapsed:.0f} s)"))
+            if event == "end":
+                _say(msg)
         else:
             _say(msg)
 
@@ -398,12 +405,11 @@ def simulate(
         _handle(ctx, exc)
     existed = out.is_dir()
     sc = _scenario(ctx, scenario_file, seed, duration, _untouched(out, existed))
-    compiles = _Compiles()
     try:
         with (
             staged_folder(out) as stage,
             console.status(Text(f"simulating {controller} on {sc.name!r}")) as status,
-            compiles.listen(),
+            (compiles := _Compiles(status=status)).listen(),
         ):
 
             def work():
