@@ -1,38 +1,203 @@
 """The ``pkmctl`` command (DESIGN.md §5): a thin layer over the library.
 
+    pkmctl [--version] [--debug] COMMAND ...
     pkmctl reproduce [--scenario NAME|FILE] [--out DIR] [--seed N] [--duration S]
-    pkmctl simulate SCENARIO.toml [--controller NAME] [--out DIR] [--format parquet|csv]
+    pkmctl simulate SCENARIO [--controller NAME] [--out DIR] [--format parquet|csv]
+                    [--seed N] [--duration S]
     pkmctl scenario [NAME]
     pkmctl bench [--quick] [--json PATH]
 
-Bad input exits with status 2 and a one-line message on stderr.
+Every error a user can cause ends in one line on stderr naming the cause (the value,
+the field or the path) and exit status 2 for bad input or environment (output
+location, disk, memory, a missing dependency), 1 for a run that failed (diverged), 130
+for Ctrl-C; ``--debug`` shows the traceback instead. Output locations are checked
+before any computation, and a run's files appear all at once (io/atomic.py).
+
+Ctrl-C: the work runs in a worker thread the main thread waits on, so an interrupt is
+answered within a fraction of a second even while Numba compiles (the worker is then
+abandoned: the process exits at once, after removing its staging folder).
 """
 
 from __future__ import annotations
 
+import os
 import sys
+import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn, TypeVar
 
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
+from rich.text import Text
+from typer.core import TyperGroup
+
+try:  # Typer >= 0.2x carries its own copy of Click; older ones use Click itself
+    from typer._click.exceptions import ClickException
+except ImportError:  # pragma: no cover - depends on the installed Typer
+    from click import ClickException
+
+from pkmctl.parts import names as _part_names
+from pkmctl.sim.scenario import BUILTINS as _SCENARIOS
+
+T = TypeVar("T")
+
+_CONTROLLERS = ", ".join(_part_names("controller"))
+_SCENARIO_NAMES = ", ".join(_SCENARIOS)
+
+
+class _OneLineGroup(TyperGroup):
+    """Usage errors (a bad option, a missing argument) in one line, not a panel."""
+
+    def main(self, *args, **kwargs):  # noqa: D102
+        kwargs["standalone_mode"] = False
+        try:
+            code = super().main(*args, **kwargs)
+        except ClickException as exc:
+            if type(exc).__name__ == "NoArgsIsHelpError":  # Click >= 8.2: plain `pkmctl`
+                exc.show()
+                sys.exit(exc.exit_code)
+            name = exc.ctx.command_path if getattr(exc, "ctx", None) else "pkmctl"
+            _print_error(f"{exc.format_message()} (see {name} --help)")
+            sys.exit(exc.exit_code)
+        except typer.Abort:
+            sys.exit(130)
+        sys.exit(code if isinstance(code, int) else 0)
+
 
 app = typer.Typer(
+    cls=_OneLineGroup,
     add_completion=False,
     no_args_is_help=True,
+    pretty_exceptions_enable=False,
     help="Model, control and simulate the 2RPU-2SPR parallel manipulator "
-    "(SMC, FSMC, AFSMC, PD, CTC).",
+    "(SMC, FSMC, AFSMC, PD, CTC). The first run compiles the numerical kernels "
+    "(minutes; cached on disk for later runs).",
 )
 # Tables need ~100 columns; a pipe or a CI log would otherwise get rich's 80.
 console = Console(width=max(Console().width, 110))
 err_console = Console(stderr=True)
 
 
-def _fail(message: str, code: int = 2) -> None:
-    err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+def _print_error(message: str) -> None:
+    # A Text, not markup: "[0.7, 2.0]" or a file named "[abc].toml" must show verbatim.
+    err_console.print(Text.assemble(("error: ", "bold red"), message), soft_wrap=True)
+
+
+def _say(message: str) -> None:
+    err_console.print(Text(message), soft_wrap=True, highlight=False)
+
+
+def _debug(ctx: typer.Context) -> bool:
+    obj = ctx.find_root().obj
+    return bool(obj and obj.get("debug"))
+
+
+def _fail(message: str, code: int = 2) -> NoReturn:
+    _print_error(message)
     raise typer.Exit(code)
+
+
+def _exit_status(exc: BaseException) -> int:
+    """1 for a run that failed; 2 for bad input or environment."""
+    from pkmctl.errors import ConvergenceError, SimulationDiverged
+
+    return 1 if isinstance(exc, SimulationDiverged | ConvergenceError) else 2
+
+
+def _describe(exc: BaseException) -> str:
+    """One line for an exception a user can cause."""
+    from pkmctl.errors import PkmctlError
+
+    if isinstance(exc, PkmctlError | ValueError | TypeError):
+        return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    if isinstance(exc, ModuleNotFoundError):
+        return f"missing dependency {exc.name!r}: install it (python -m pip install {exc.name})"
+    if isinstance(exc, MemoryError):
+        return "out of memory: shorten timing.duration or lengthen timing.control_period"
+    if isinstance(exc, OSError):
+        where = f"{exc.filename}: " if exc.filename else ""
+        return f"{where}{exc.strerror or exc}"
+    return f"{type(exc).__name__}: {exc} (an internal error; pkmctl --debug shows the traceback)"
+
+
+def _handle(ctx: typer.Context, exc: BaseException, *, suffix: str = "") -> NoReturn:
+    """End the command with one line (or re-raise under --debug)."""
+    if _debug(ctx):
+        raise exc
+    if isinstance(exc, ModuleNotFoundError | MemoryError | OSError | ValueError | TypeError):
+        code = _exit_status(exc)
+    else:
+        from pkmctl.errors import PkmctlError
+
+        code = _exit_status(exc) if isinstance(exc, PkmctlError) else 1
+    _fail(_describe(exc) + suffix, code)
+
+
+def _hard_exit(code: int) -> NoReturn:
+    """Exit now, abandoning worker threads (a compiling thread cannot be stopped)."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
+
+
+def _interruptible(work: Callable[[], T], on_interrupt: Callable[[], str]) -> T:
+    """Run ``work`` in a worker thread; on Ctrl-C call ``on_interrupt`` (clean up, return
+    what was kept), say so and exit 130 at once, whatever the worker is doing.
+
+    The main thread only waits, in short slices, so Python runs its SIGINT handler
+    within milliseconds: Numba's compiler releases the GIL in its LLVM calls and every
+    few ms of its Python code.
+    """
+    box: dict = {}
+
+    def target() -> None:
+        try:
+            box["value"] = work()
+        except BaseException as exc:  # handed to the main thread
+            box["error"] = exc
+
+    worker = threading.Thread(target=target, name="pkmctl-work", daemon=True)
+    t0 = time.perf_counter()
+    try:
+        worker.start()
+        while worker.is_alive():
+            worker.join(0.05)
+    except KeyboardInterrupt:
+        kept = on_interrupt()
+        _say(f"interrupted after {time.perf_counter() - t0:.1f} s: {kept}")
+        _hard_exit(130)
+    if "error" in box:
+        raise box["error"]
+    return box["value"]
+
+
+def _version(value: bool) -> None:
+    if value:
+        import pkmctl
+
+        typer.echo(f"pkmctl {pkmctl.__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    ctx: typer.Context,
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_version, is_eager=True, help="Print the version."),
+    ] = False,
+    debug: Annotated[
+        bool, typer.Option("--debug", help="Show the traceback of an error (before COMMAND).")
+    ] = False,
+) -> None:
+    ctx.obj = {"debug": debug}
 
 
 def _load_scenario(spec: str):
@@ -46,22 +211,72 @@ def _load_scenario(spec: str):
     return Scenario.builtin(spec)  # raises: unknown built-in, with the list
 
 
-def _announce_compiles(bar: Progress | None = None, task=None):
-    """Say what compiles while it compiles: in the progress bar on a terminal (with the
-    elapsed time), as plain lines otherwise (a log, CI)."""
-    from pkmctl._jit import announce
+def _with_overrides(sc, seed: int | None, duration: float | None):
+    changes = {}
+    if duration is not None:
+        changes["timing.duration"] = duration
+    if seed is not None:
+        changes["disturbance.seed"] = seed
+    return sc.replace(**changes) if changes else sc
 
-    def say(event: str, what: str, seconds: float) -> None:
+
+def _scenario(ctx: typer.Context, spec: str, seed, duration, kept: str):
+    """The scenario, validated; interruptible, since validating the trajectory calls the
+    kinematics kernels, which a first run compiles."""
+    compiles = _Compiles()
+    try:
+        with compiles.listen():
+            return _interruptible(
+                lambda: _with_overrides(_load_scenario(spec), seed, duration),
+                lambda: kept + compiles.kept(),
+            )
+    except Exception as exc:
+        _handle(ctx, exc)
+
+
+class _Compiles:
+    """Say what compiles while it compiles: in the progress bar on a terminal (its
+    elapsed-time column runs), as plain lines otherwise (a log, CI). Counts what was
+    compiled, for the message after an interrupt."""
+
+    def __init__(self, bar: Progress | None = None, task=None, status=None) -> None:
+        self.bar, self.task, self.status, self.done = bar, task, status, 0
+        self.t0 = time.perf_counter()
+
+    def __call__(self, event: str, what: str, seconds: float) -> None:
         if event == "start":
-            msg = f"compiling {what} (once per machine)…"
+            msg = f"compiling {what} (once per machine; minutes on a first run)…"
         else:
-            msg = f"compiled {what} in {seconds:.1f} s"
-        if bar is not None and err_console.is_terminal:
-            bar.update(task, description=msg)
+            self.done += 1
+            msg = f"compiled {what} in {seconds:.1f} s (cached)"
+        if self.bar is not None and err_console.is_terminal:
+            self.bar.update(self.task, description=msg)
+        elif self.status is not None and console.is_terminal:
+            # a spinner has no clock: the line above it keeps the time
+            elapsed = time.perf_counter() - self.t0
+            self.status.update(Text(f"{msg} (at {elapsed:.0f} s)"))
+            if event == "end":
+                _say(msg)
         else:
-            err_console.print(msg, highlight=False)
+            _say(msg)
 
-    return announce(say)
+    def listen(self):
+        # (imported as a module: the text "pkmctl" "._jit" would put cli.py into the
+        # kernels' source hash, and every edit of the CLI would recompile them all)
+        from pkmctl import _jit
+
+        return _jit.announce(self)
+
+    def kept(self) -> str:
+        return "; kernels compiled so far stay cached" if self.done else ""
+
+
+def _untouched(out: Path, existed: bool) -> str:
+    return (
+        f"nothing written; {out} keeps its previous results"
+        if existed
+        else f"nothing written; {out} was not created"
+    )
 
 
 def _rmse_table(results: dict, title: str) -> Table:
@@ -83,30 +298,33 @@ def _rmse_table(results: dict, title: str) -> Table:
 
 @app.command()
 def reproduce(
+    ctx: typer.Context,
     scenario: Annotated[
-        str, typer.Option(help="Built-in scenario name (paper, paper-1khz) or a TOML file.")
+        str,
+        typer.Option(help=f"Built-in scenario ({_SCENARIO_NAMES}) or a TOML file."),
     ] = "paper",
-    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("pkmctl-out"),
+    out: Annotated[
+        str, typer.Option(help="Output folder (created; same-named files replaced).")
+    ] = "pkmctl-out",
     seed: Annotated[int | None, typer.Option(help="Disturbance seed (overrides).")] = None,
     duration: Annotated[float | None, typer.Option(help="Duration in s (overrides).")] = None,
 ) -> None:
-    """Run SMC, FSMC, AFSMC, PD and CTC; write Table 4, Figures 10-26, report.md, time series."""
-    from pkmctl.errors import PkmctlError
-    from pkmctl.experiment import reproduce as run
+    """Run SMC, FSMC, AFSMC, PD and CTC; write Table 4 (CSV, Markdown), Figures 10-26
+    (PNG), report.md and the time series (Parquet + JSON).
 
-    try:
-        sc = _load_scenario(scenario)
-        if duration is not None or seed is not None:
-            changes = {}
-            if duration is not None:
-                changes["timing.duration"] = duration
-            if seed is not None:
-                changes["disturbance.seed"] = seed
-            sc = sc.replace(**changes)
-    except (PkmctlError, ValueError) as exc:
-        _fail(str(exc))
+    The files appear all at once when the run is complete; a failed or interrupted run
+    leaves OUT as it was.
+    """
     from pkmctl.experiment import CONTROLLER_ORDER
+    from pkmctl.experiment import reproduce as run
+    from pkmctl.io.atomic import check_output_folder, staged_folder
 
+    try:  # (a str, not a Path: Path("") is ".", and --out '' must be refused)
+        out = check_output_folder(out, what="--out")
+    except Exception as exc:
+        _handle(ctx, exc)
+    existed = out.is_dir()
+    sc = _scenario(ctx, scenario, seed, duration, _untouched(out, existed))
     steps = ["compile", *CONTROLLER_ORDER, "series", "table", "figures", "report"]
     with Progress(
         SpinnerColumn(),
@@ -116,81 +334,126 @@ def reproduce(
         TimeElapsedColumn(),
         console=err_console,
         transient=False,
+        disable=not err_console.is_terminal,  # a log gets plain lines instead
     ) as bar:
         task = bar.add_task("starting", total=len(steps))
         count = {"n": -1}
+        compiles = _Compiles(bar, task)
 
         def progress(msg: str) -> None:
             count["n"] += 1
             bar.update(task, completed=count["n"], description=msg)
             if not err_console.is_terminal:
-                err_console.print(msg, highlight=False)
+                _say(msg)
 
         try:
-            with _announce_compiles(bar, task):
-                output = run(sc, out, progress=progress)
-        except (PkmctlError, ValueError) as exc:
-            _fail(str(exc), code=1)
+            with staged_folder(out) as stage:
+
+                def interrupted() -> str:
+                    from pkmctl.io.atomic import discard
+
+                    discard(stage)
+                    bar.stop()
+                    return _untouched(out, existed) + compiles.kept()
+
+                with compiles.listen():
+                    output = _interruptible(lambda: run(sc, stage, progress=progress), interrupted)
+        except Exception as exc:
+            bar.stop()
+            _handle(ctx, exc, suffix="; " + _untouched(out, existed))
         bar.update(task, completed=len(steps), description="done")
     console.print(_rmse_table(output.results, f"RMSE, scenario {sc.name!r}"))
-    console.print(f"wrote {len(output.files)} files to {out}/ in {output.wall_time_s:.1f} s")
-    console.print(f"report: {out / 'report.md'}")
+    console.print(Text(f"wrote {len(output.files)} files to {out}/ in {output.wall_time_s:.1f} s"))
+    console.print(Text(f"report: {out / 'report.md'}"))
 
 
 @app.command()
 def simulate(
-    scenario_file: Annotated[str, typer.Argument(help="Scenario TOML file or built-in name.")],
+    ctx: typer.Context,
+    scenario_file: Annotated[
+        str,
+        typer.Argument(help=f"Scenario TOML file or built-in name ({_SCENARIO_NAMES})."),
+    ],
     controller: Annotated[
-        str, typer.Option(help="A registered controller: smc, fsmc, afsmc, pd, ctc.")
+        str, typer.Option(help=f"A registered controller (built in: {_CONTROLLERS}).")
     ] = "afsmc",
-    out: Annotated[Path, typer.Option(help="Output folder for the time series.")] = Path(
+    out: Annotated[Path, typer.Option(help="Output folder for the time series (created).")] = Path(
         "pkmctl-out"
     ),
-    fmt: Annotated[str, typer.Option("--format", help="parquet or csv.")] = "parquet",
+    fmt: Annotated[
+        str,
+        typer.Option("--format", help="Time-series format: parquet (the default) or csv."),
+    ] = "parquet",
+    seed: Annotated[int | None, typer.Option(help="Disturbance seed (overrides).")] = None,
+    duration: Annotated[float | None, typer.Option(help="Duration in s (overrides).")] = None,
 ) -> None:
-    """Run one controller on a scenario; write its time series (Parquet or CSV) and metadata
-    (JSON)."""
-    from pkmctl.errors import PkmctlError
-    from pkmctl.io.results import save_result
-    from pkmctl.parts import names
+    """Run one controller on a scenario; write its time series (Parquet by default, or
+    CSV) and its metadata (JSON) into OUT, both at once."""
+    from pkmctl.io.atomic import check_output_folder, discard, staged_folder
+    from pkmctl.io.results import FORMATS, save_result
     from pkmctl.sim.simulate import simulate as run
 
-    if fmt not in ("parquet", "csv"):
-        _fail(f"--format = {fmt!r}: must be parquet or csv")
-    if controller not in names("controller"):
-        _fail(f"--controller = {controller!r}: must be one of {', '.join(names('controller'))}")
+    if fmt not in FORMATS:
+        _fail(f"--format = {fmt!r}: must be one of {', '.join(FORMATS)}")
+    if controller not in _part_names("controller"):
+        _fail(
+            f"--controller = {controller!r}: must be one of {', '.join(_part_names('controller'))}"
+        )
     try:
-        sc = _load_scenario(scenario_file)
-    except (PkmctlError, ValueError) as exc:
-        _fail(str(exc))
+        out = check_output_folder(out, what="--out")
+    except Exception as exc:
+        _handle(ctx, exc)
+    existed = out.is_dir()
+    sc = _scenario(ctx, scenario_file, seed, duration, _untouched(out, existed))
     try:
-        with console.status(f"simulating {controller} on {sc.name!r}"), _announce_compiles():
-            result = run(sc, controller=controller)
-    except PkmctlError as exc:
-        _fail(str(exc), code=1)
-    table_path, json_path = save_result(result, out, fmt=fmt)
+        with (
+            staged_folder(out) as stage,
+            console.status(Text(f"simulating {controller} on {sc.name!r}")) as status,
+            (compiles := _Compiles(status=status)).listen(),
+        ):
+
+            def work():
+                result = run(sc, controller=controller)
+                return result, save_result(result, stage, fmt=fmt)
+
+            def interrupted() -> str:
+                discard(stage)
+                status.stop()
+                return _untouched(out, existed) + compiles.kept()
+
+            result, paths = _interruptible(work, interrupted)
+    except Exception as exc:
+        _handle(ctx, exc, suffix="; " + _untouched(out, existed))
     console.print(_rmse_table({controller: result}, f"RMSE, scenario {sc.name!r}"))
-    console.print(f"wrote {table_path} and {json_path}")
+    console.print(Text(f"wrote {out / paths[0].name} and {out / paths[1].name}"))
 
 
 @app.command()
 def scenario(
-    name: Annotated[str, typer.Argument(help="Built-in scenario name.")] = "paper",
+    ctx: typer.Context,
+    name: Annotated[
+        str, typer.Argument(help=f"Built-in scenario name ({_SCENARIO_NAMES}).")
+    ] = "paper",
 ) -> None:
-    """Print a built-in scenario as TOML (edit it and pass it to reproduce or simulate)."""
-    from pkmctl.errors import PkmctlError
+    """Print a built-in scenario as TOML (edit it and pass it to reproduce or simulate).
+
+    Built-in scenarios: paper (T_c = 50 us), paper-1khz (T_c = 1 ms).
+    """
     from pkmctl.sim.scenario import Scenario
 
     try:
         sys.stdout.write(Scenario.builtin(name).to_toml())
-    except PkmctlError as exc:
-        _fail(str(exc))
+    except Exception as exc:
+        _handle(ctx, exc)
 
 
 @app.command()
 def bench(
+    ctx: typer.Context,
     quick: Annotated[bool, typer.Option(help="Short runs (a smoke test).")] = False,
-    json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON.")] = None,
+    json_out: Annotated[
+        str | None, typer.Option("--json", help="Also write the results to this JSON file.")
+    ] = None,
 ) -> None:
     """Measure speed on this machine: steps/s, FLC, latency, batch, and peers in one run.
 
@@ -198,28 +461,43 @@ def bench(
     ``benchmarks/`` folder, which this command finds from the current directory or
     beside an editable install.
     """
+    from pkmctl.io.atomic import check_output_file
+
+    if json_out is not None:
+        try:
+            json_out = check_output_file(json_out, what="--json")
+        except Exception as exc:
+            _handle(ctx, exc)
     _import_benchmarks()
     from benchmarks.bench import machine_line, rows, run_all
 
+    def say(m: str) -> None:
+        err_console.print(Text(m, style="dim"), soft_wrap=True)
+
     try:
-        results = run_all(quick=quick, progress=lambda m: err_console.print(f"[dim]{m}[/]"))
-    except RuntimeError as exc:
-        _fail(str(exc), code=1)
+        results = _interruptible(
+            lambda: run_all(quick=quick, progress=say), lambda: "nothing written"
+        )
+    except Exception as exc:
+        _handle(ctx, exc)
     table = Table(title=machine_line(results), title_justify="left")
     for col, justify in (("measurement", "left"), ("result", "right"), ("target", "right")):
         table.add_column(col, justify=justify, no_wrap=True)
     table.add_column("held", justify="center", no_wrap=True)
     for label, text, target, held in rows(results):
-        table.add_row(label, text, target, f"[red]{held}[/]" if held == "NO" else held)
+        table.add_row(label, text, target, Text(held, style="red") if held == "NO" else held)
     console.print(table)
     if json_out is not None:
         import json
 
         from pkmctl.io.atomic import atomic_write
 
-        with atomic_write(json_out) as fh:
-            json.dump(results, fh, indent=2)
-        console.print(f"wrote {json_out}")
+        try:
+            with atomic_write(json_out) as fh:
+                json.dump(results, fh, indent=2)
+        except Exception as exc:
+            _handle(ctx, exc)
+        console.print(Text(f"wrote {json_out}"))
 
 
 def _import_benchmarks() -> None:

@@ -8,7 +8,10 @@ from __future__ import annotations
 
 __all__ = [
     "ConvergenceError",
+    "InsufficientMemory",
     "InvalidPoseError",
+    "NonFiniteInputError",
+    "OutputError",
     "PkmctlError",
     "SimulationDiverged",
 ]
@@ -20,6 +23,18 @@ class PkmctlError(Exception):
 
 class InvalidPoseError(PkmctlError, ValueError):
     """A pose X = [z, alpha, beta] outside the valid set (z <= 0, |angle| >= pi/2, singular J)."""
+
+
+class NonFiniteInputError(PkmctlError, ValueError):
+    """An input holding NaN or inf (e.g. to :meth:`Controller.step`); nothing was changed."""
+
+
+class OutputError(PkmctlError, OSError):
+    """An output location that cannot be written (one line: the path and why)."""
+
+
+class InsufficientMemory(PkmctlError, MemoryError):
+    """A run whose arrays would not fit in the memory available (one line: needs, has)."""
 
 
 class ConvergenceError(PkmctlError, RuntimeError):

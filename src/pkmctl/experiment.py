@@ -8,7 +8,10 @@
 - ``timeseries/<controller>.parquet`` and ``.json`` (every control sample, scenario,
   metrics; see :mod:`pkmctl.io.results`).
 
-Every file is written to a temporary name and renamed.
+The files are written into a staging folder and moved into ``out`` when all are
+complete (:func:`pkmctl.io.atomic.staged_folder`): a failed or interrupted run leaves
+the previous results untouched and no partial set. ``out`` is checked, and the memory
+the five runs need, before anything is computed.
 """
 
 from __future__ import annotations
@@ -20,16 +23,18 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from pkmctl.io.atomic import atomic_write
+from pkmctl.io.atomic import atomic_write, check_output_folder, staged_folder
 from pkmctl.io.results import save_result
 from pkmctl.sim.result import Result
 from pkmctl.sim.scenario import Scenario
-from pkmctl.sim.simulate import precompile, simulate
+from pkmctl.sim.simulate import check_memory, memory_needed, precompile, simulate
 
 __all__ = ["CONTROLLER_ORDER", "ReproduceOutput", "reproduce"]
 
 #: The controllers ``pkmctl reproduce`` runs: the paper's three and the two baselines.
 CONTROLLER_ORDER = ("smc", "fsmc", "afsmc", "pd", "ctc")
+#: Columns of the largest controller log among them (AFSMC's Theta^).
+_MAX_CONTROLLER_LOG = 36
 
 
 @dataclass(frozen=True)
@@ -57,48 +62,70 @@ def reproduce(
 
     say = progress or (lambda _msg: None)
     t0 = time.perf_counter()
-    out = Path(out)
+    out = check_output_folder(out)
+    if not isinstance(scenario, Scenario):
+        raise TypeError(f"scenario: expected a pkmctl.Scenario, got {scenario!r}")
+    if duration is not None:
+        scenario = scenario.replace(**{"timing.duration": float(duration)})
+    n = int(round(scenario.timing.duration / scenario.timing.control_period))
+    # All five runs' results are kept for the tables and figures: they must fit together.
+    runs = len(CONTROLLER_ORDER)
+    check_memory(
+        memory_needed(n, _MAX_CONTROLLER_LOG, runs=runs),
+        f"reproduce ({runs} runs of {scenario.timing.duration:g} s)",
+    )
 
     def compiling(todo: list[str], n: int) -> None:
         say(f"compiling {len(todo)} control loops in {n} processes (once per machine)…")
 
     if not precompile(scenario, CONTROLLER_ORDER, on_start=compiling):
         say("compiled loops found in the cache")
-    # The compiled loop releases the GIL: the three runs share the machine's cores.
+    with staged_folder(out) as stage:
+        results, names = _run_all(scenario, seed, say), []
+        say("writing time series")
+        for res in results.values():
+            names += save_result(res, stage / "timeseries")
+        say("writing Table 4")
+        for fname, text in (
+            ("table4.csv", tables.table4_csv(results)),
+            ("table4.md", tables.table4_markdown(results)),
+        ):
+            with atomic_write(stage / fname) as fh:
+                fh.write(text)
+            names.append(stage / fname)
+        say("drawing figures 10-26")
+        figs = figures.make_figures(results, stage / "figures")
+        names += figs
+        say("writing report")
+        wall = time.perf_counter() - t0
+        report = render_report(
+            results,
+            figures=[f.relative_to(stage) for f in figs],
+            scenario_name=next(iter(results.values())).scenario.name,
+            wall_time_s=wall,
+        )
+        with atomic_write(stage / "report.md") as fh:
+            fh.write(report)
+        names.append(stage / "report.md")
+        files = [out / p.relative_to(stage) for p in names]
+    return ReproduceOutput(results=results, files=files, wall_time_s=time.perf_counter() - t0)
+
+
+def _run_all(scenario: Scenario, seed: int | None, say: Callable[[str], None]) -> dict:
+    # The compiled loop releases the GIL: the runs share the machine's cores.
     workers = min(len(CONTROLLER_ORDER), os.cpu_count() or 1)
     with ThreadPoolExecutor(max_workers=workers) as pool:
         futures = {
-            name: pool.submit(simulate, scenario, controller=name, duration=duration, seed=seed)
+            name: pool.submit(simulate, scenario, controller=name, seed=seed)
             for name in CONTROLLER_ORDER
         }
-        results: dict[str, Result] = {}
-        for name in CONTROLLER_ORDER:
-            say(f"simulating {name}")
-            results[name] = futures[name].result()
-    files: list[Path] = []
-    say("writing time series")
-    for res in results.values():
-        files += save_result(res, out / "timeseries")
-    say("writing Table 4")
-    for fname, text in (
-        ("table4.csv", tables.table4_csv(results)),
-        ("table4.md", tables.table4_markdown(results)),
-    ):
-        with atomic_write(out / fname) as fh:
-            fh.write(text)
-        files.append(out / fname)
-    say("drawing figures 10-26")
-    figs = figures.make_figures(results, out / "figures")
-    files += figs
-    say("writing report")
-    wall = time.perf_counter() - t0
-    report = render_report(
-        results,
-        figures=[f.relative_to(out) for f in figs],
-        scenario_name=next(iter(results.values())).scenario.name,
-        wall_time_s=wall,
-    )
-    with atomic_write(out / "report.md") as fh:
-        fh.write(report)
-    files.append(out / "report.md")
-    return ReproduceOutput(results=results, files=files, wall_time_s=time.perf_counter() - t0)
+        try:
+            results: dict[str, Result] = {}
+            for name in CONTROLLER_ORDER:
+                say(f"simulating {name}")
+                results[name] = futures[name].result()
+        except BaseException:
+            for f in futures.values():  # a failed run: start no more of them
+                f.cancel()
+            raise
+    return results

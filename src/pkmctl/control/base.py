@@ -6,7 +6,10 @@ Contract of a :class:`Controller` (like SciPy's ``OdeSolver``):
    plant's), :class:`~pkmctl.Gains` and the control period, and runs the compiled step
    of a registered controller part (:mod:`pkmctl.parts`): the same code as the loop.
 2. ``step(X, Xdot, X_d, Xdot_d, Xddot_d)`` returns the task-space force F (3,) and
-   advances the controller's state by one period.
+   advances the controller's state by one period. A non-finite input (NaN, inf) raises
+   :class:`~pkmctl.errors.NonFiniteInputError` and leaves the state as it was: one bad
+   sample from a sensor must not poison the s-dot filter or Theta^ for good. (The
+   compiled closed loop checks its state in its own way and does not pay for this.)
 3. Its whole state is :attr:`Controller.state` (a copy); :meth:`Controller.reset`
    restores the initial state.
 """
@@ -23,6 +26,7 @@ import numpy as np
 from pkmctl._jit import specialise
 from pkmctl.control.gains import Gains
 from pkmctl.control.sliding import SLIDING_STATE
+from pkmctl.errors import NonFiniteInputError
 from pkmctl.fuzzy import FLC, MamdaniSystem
 from pkmctl.model.mechanism import Mechanism
 from pkmctl.parts import PartContext, controller_step, get_part, names
@@ -57,12 +61,20 @@ class ControllerState:
 
 
 def _entry(p, state, work, y, ref, X, Xdot, X_d, Xdot_d, Xddot_d, F):
-    """One controller step from Python's five vectors (copied into y and ref here, in
-    compiled code: cheaper than five NumPy slice assignments)."""
+    """One step from Python's five vectors, or none (returns False) if an input is
+    non-finite: the state untouched. The vectors are copied into y and ref here, in
+    compiled code (cheaper than five NumPy slice assignments)."""
     for i in range(3):
         y[i], y[3 + i] = X[i], Xdot[i]
         ref[i], ref[3 + i], ref[6 + i] = X_d[i], Xdot_d[i], Xddot_d[i]
+    for i in range(y.shape[0]):
+        if not math.isfinite(y[i]):
+            return False
+    for i in range(ref.shape[0]):
+        if not math.isfinite(ref[i]):
+            return False
     controller_step(p, state, work, y, ref, F)
+    return True
 
 
 def _as_vec3(a, name: str) -> np.ndarray:
@@ -74,6 +86,18 @@ def _as_vec3(a, name: str) -> np.ndarray:
     if a.shape != (3,):
         raise ValueError(f"{name}: expected shape (3,), got {a.shape}")
     return a
+
+
+_STEP_INPUTS = (("X", 0), ("Xdot", 3), ("X_d", 6), ("Xdot_d", 9), ("Xddot_d", 12))
+
+
+def _non_finite(buf: np.ndarray) -> str:
+    """The first non-finite input of ``buf`` = [X, Xdot, X_d, Xdot_d, Xddot_d], for messages."""
+    for name, i in _STEP_INPUTS:
+        v = buf[i : i + 3]
+        if not np.isfinite(v).all():
+            return f"{name} = [{', '.join(repr(float(x)) for x in v)}]"
+    return "an input"
 
 
 class Controller:
@@ -109,8 +133,13 @@ class Controller:
         self.params, self._initial, self._work = self.part.make(ctx)
         self._state = self._initial.copy()
         self._steps = 0
-        self._y, self._ref = np.empty(6), np.empty(9)
+        self._new_buffers()
         self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False)
+
+    def _new_buffers(self) -> None:
+        # One buffer [y | ref], so a message can name the first non-finite input.
+        self._io = np.empty(15)
+        self._y, self._ref = self._io[0:6], self._io[6:15]
         self._fast = None  # the compiled entry point, once known (see step)
 
     @property
@@ -135,14 +164,20 @@ class Controller:
         )
 
     def step(self, X, Xdot, X_d, Xdot_d, Xddot_d) -> np.ndarray:
-        """One control period: the task-space force F (3,) for the measured (X, Xdot)."""
+        """One control period: the task-space force F (3,) for the measured (X, Xdot).
+
+        Raises :class:`~pkmctl.errors.NonFiniteInputError` (the state unchanged) if any
+        input holds NaN or inf, and ``ValueError`` if one is not of shape (3,).
+        """
         args = (
             self.params, self._state, self._work, self._y, self._ref,
             _as_vec3(X, "X"), _as_vec3(Xdot, "Xdot"), _as_vec3(X_d, "X_d"),
             _as_vec3(Xdot_d, "Xdot_d"), _as_vec3(Xddot_d, "Xddot_d"), np.empty(3),
         )  # fmt: skip
+        # The compiled entry checks the 15 inputs before it steps (a few ns; the loop
+        # has its own fast path and never calls it).
         if self._fast is None:
-            self._step(*args)
+            ok = self._step(*args)
             # Every later call has the same argument types (the vectors are made so by
             # _as_vec3), so call the compiled entry point for them directly: Numba's
             # dispatcher would spend ~2.5 us per call re-deriving the bundle's type.
@@ -150,7 +185,12 @@ class Controller:
             cres = self._step.overloads.get(sig)
             self._fast = cres.entry_point if cres is not None else self._step
         else:
-            self._fast(*args)
+            ok = self._fast(*args)
+        if not ok:
+            raise NonFiniteInputError(
+                f"{self.name} step: {_non_finite(self._io)} is not finite "
+                f"(the controller's state is unchanged)"
+            )
         self._steps += 1
         return args[-1]
 
@@ -161,8 +201,7 @@ class Controller:
         twin = copy.copy(self)
         twin._state, twin._initial = self._state.copy(), self._initial.copy()
         twin._work = copy.deepcopy(self._work, memo)
-        twin._y, twin._ref = np.empty(6), np.empty(9)
-        twin._fast = None
+        twin._new_buffers()
         return twin
 
     def __getstate__(self) -> dict:
@@ -174,7 +213,7 @@ class Controller:
         self.__dict__.update(d)
         self.part = get_part("controller", self.name)
         self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False)
-        self._fast = None
+        self._new_buffers()  # pickle does not keep _y and _ref as views of _io
 
 
 class SMC(Controller):

@@ -423,7 +423,11 @@ def read_fis(
         text, name = source, "<string>"
     else:
         name = str(source)
-        text = _decode(Path(source).read_bytes(), name)
+        try:
+            data = Path(source).read_bytes()
+        except OSError as exc:  # missing, a folder, unreadable: one line with the name
+            raise FISError(name, 0, exc.strerror or str(exc)) from None
+        text = _decode(data, name)
     reader = _Reader(text, name)
     system = None
     with contextlib.suppress(_Fatal):

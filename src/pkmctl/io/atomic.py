@@ -1,9 +1,14 @@
-"""The one atomic writer: a file appears whole under its name, or not at all.
+"""The one atomic writer: a file, or a set of files, appears whole or not at all.
 
 Text or bytes go to a temporary file beside the target, which is flushed, given the
 permissions a plain ``open`` would give under the current umask (``mkstemp`` makes
 it 0600), and renamed over the target only on success. On any error, Ctrl-C
 included, the temporary file is removed and the target is untouched.
+
+A set of files (a run's outputs) is written into a staging folder by
+:func:`staged_folder` and moved into place when complete, so an interrupted or failed
+run leaves the previous results as they were; :func:`check_output_folder` refuses a bad
+location (empty, a file, unwritable, a name too long) before any work starts.
 """
 
 from __future__ import annotations
@@ -15,14 +20,26 @@ from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import IO
 
-__all__ = ["atomic_write", "file_mode"]
+__all__ = [
+    "atomic_write",
+    "check_output_file",
+    "check_output_folder",
+    "discard",
+    "file_mode",
+    "publish",
+    "staged_folder",
+]
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def file_mode() -> int:
     """The mode a new regular file gets from ``open``: 0o666 less the process umask."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask
+    return 0o666 & ~_umask()
 
 
 @contextmanager
@@ -48,3 +65,146 @@ def atomic_write(path: str | os.PathLike[str], mode: str = "w") -> Iterator[IO]:
         with suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+# ---------------------------------------------------------------- a set of files at once
+_STAGE_PREFIX = ".pkmctl-"
+
+
+def _name_max(folder: Path) -> int:
+    try:
+        return os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        return 255
+
+
+def check_output_folder(path: str | os.PathLike[str], *, what: str = "output folder") -> Path:
+    """Check, before any work, that ``path`` can be an output folder: not empty, not an
+    existing file, no component too long, and the folder (or the nearest existing folder
+    above it) writable. Returns ``path`` as a :class:`~pathlib.Path`.
+
+    Raises :class:`~pkmctl.errors.OutputError` with one line naming the path and why.
+    """
+    from pkmctl.errors import OutputError
+
+    text = os.fspath(path)
+    if not str(text).strip():
+        raise OutputError(f"{what} = {text!r}: empty path (name a folder, e.g. pkmctl-out)")
+    path = Path(text)
+    shown = repr(text if len(text) <= 80 else text[:60] + "..." + text[-10:])
+    limit = _name_max(Path("/"))
+    for part in path.parts:
+        if len(os.fsencode(part)) > limit:  # before any stat(), which would fail unclearly
+            raise OutputError(
+                f"{what} {shown}: the name {part[:20] + '...'!r} is longer than {limit} bytes"
+            )
+    if path.exists() and not path.is_dir():
+        raise OutputError(f"{what} {shown}: exists and is not a folder")
+    probe = path.absolute()
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir():
+        raise OutputError(f"{what} {shown}: {str(probe)!r} is a file, not a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise OutputError(f"{what} {shown}: {str(probe)!r} is not writable")
+    return path
+
+
+def _stage_parent(dest: Path) -> Path:
+    # An existing folder holds its own staging folder (the same file system as the files
+    # it replaces, and its parent need not be writable); a new one is staged beside it.
+    return dest if dest.is_dir() else dest.absolute().parent
+
+
+@contextmanager
+def staged_folder(dest: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield an empty temporary folder to write a set of files into; when the block ends
+    without an error, its entries replace those of the same name in ``dest`` (created if
+    needed) in a few renames. On an error or Ctrl-C the temporary folder is removed and
+    ``dest`` is untouched: never a mix of old and new files.
+
+    ``dest`` is checked first (:func:`check_output_folder`), so a bad location fails
+    before any work. Other entries of an existing ``dest`` are left alone.
+    """
+    dest = check_output_folder(dest)
+    parent = _stage_parent(dest)
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        stage = Path(tempfile.mkdtemp(prefix=_STAGE_PREFIX, suffix=".tmp", dir=parent))
+        os.chmod(stage, 0o777 & ~_umask())  # mkdtemp's 0700 would become dest's mode
+    except OSError as exc:
+        from pkmctl.errors import OutputError
+
+        raise OutputError(f"output folder {str(dest)!r}: {exc.strerror}") from None
+    try:
+        yield stage
+        publish(stage, dest)
+    except BaseException:
+        discard(stage)
+        raise
+
+
+def discard(stage: Path) -> None:
+    """Remove a staging folder and what it holds (never raises)."""
+    import shutil
+
+    shutil.rmtree(stage, ignore_errors=True)
+
+
+def publish(stage: Path, dest: Path) -> None:
+    """Move every entry of ``stage`` into ``dest``, replacing entries of the same name,
+    then remove ``stage``. A new ``dest`` is one rename; an existing one two renames per
+    entry, with Ctrl-C held off until the set is in place."""
+    import shutil
+
+    with _sigint_deferred():
+        if not dest.exists():
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            os.rename(stage, dest)
+            return
+        trash = Path(tempfile.mkdtemp(prefix=_STAGE_PREFIX + "old-", suffix=".tmp", dir=dest))
+        for entry in sorted(stage.iterdir()):
+            target = dest / entry.name
+            if target.exists() or target.is_symlink():
+                os.rename(target, trash / entry.name)
+            os.rename(entry, target)
+        stage.rmdir()
+    shutil.rmtree(trash, ignore_errors=True)
+
+
+@contextmanager
+def _sigint_deferred() -> Iterator[None]:
+    """Hold a Ctrl-C that arrives inside the block until its end (main thread only)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+    previous = signal.signal(signal.SIGINT, lambda *a: caught.append(a))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_DFL if previous is None else previous)
+    if caught:
+        raise KeyboardInterrupt
+
+
+def check_output_file(path: str | os.PathLike[str], *, what: str = "output file") -> Path:
+    """Check, before any work, that a file can be written at ``path`` (not empty, not a
+    folder, its folder creatable and writable). Raises :class:`~pkmctl.errors.OutputError`."""
+    from pkmctl.errors import OutputError
+
+    text = os.fspath(path)
+    if not str(text).strip():
+        raise OutputError(f"{what} = {text!r}: empty path")
+    path = Path(text)
+    if len(os.fsencode(path.name)) > _name_max(Path("/")):
+        raise OutputError(f"{what} {text[:60]!r}...: the name is too long")
+    if path.is_dir():
+        raise OutputError(f"{what} {str(path)!r}: is a folder, not a file")
+    if path.exists() and not os.access(path, os.W_OK):
+        raise OutputError(f"{what} {str(path)!r}: not writable")
+    check_output_folder(path.absolute().parent, what=what)
+    return path

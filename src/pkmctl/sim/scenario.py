@@ -35,14 +35,27 @@ class ScenarioError(PkmctlError, ValueError):
     """An invalid scenario (one line: field, value, allowed range)."""
 
 
-Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
-Vec4 = Annotated[list[float], Field(min_length=4, max_length=4)]
-PosVec3 = Annotated[list[Annotated[float, Field(gt=0)]], Field(min_length=3, max_length=3)]
-NonNegVec3 = Annotated[list[Annotated[float, Field(ge=0)]], Field(min_length=3, max_length=3)]
+# Every float is finite (allow_inf_nan=False below) and bounded: 1e300 in a velocity
+# or an amplitude would pass a bare float check and end as a "diverged" run.
+def _vec(n: int, **bounds: float):
+    return Annotated[list[Annotated[float, Field(**bounds)]], Field(min_length=n, max_length=n)]
+
+
+Vec3 = _vec(3, ge=-10, le=10)  # poses, offsets, amplitudes (m, rad)
+PosVec3 = _vec(3, gt=0, le=1e12)  # gains
+NonNegVec3 = _vec(3, ge=0, le=1e12)
+LengthVec4 = _vec(4, ge=0, le=10)  # m
+Theta36 = _vec(36, gt=0, le=1e6)
+OmegaVec3 = _vec(3, ge=-1e4, le=1e4)  # rad/s
+PhaseVec3 = _vec(3, ge=-1e3, le=1e3)  # rad
+VelocityVec3 = _vec(3, ge=-100, le=100)  # m/s, rad/s
+ForceVec3 = _vec(3, ge=0, le=1e6)  # N, N m
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, frozen=True, populate_by_name=True)
+    model_config = ConfigDict(
+        extra="forbid", strict=True, frozen=True, populate_by_name=True, allow_inf_nan=False
+    )
 
 
 def _paper_theta() -> list[float]:
@@ -54,16 +67,10 @@ class MechanismSpec(_Model):
 
     r_a: float = Field(PAPER_TABLE2["r_a"], gt=0, le=10)
     r_b: float = Field(PAPER_TABLE2["r_b"], gt=0, le=10)
-    l1: Annotated[list[Annotated[float, Field(ge=0)]], Field(min_length=4, max_length=4)] = Field(
-        default_factory=lambda: [PAPER_TABLE2["lower_limb"]["com"]] * 4
-    )
-    l2: Annotated[list[Annotated[float, Field(ge=0)]], Field(min_length=4, max_length=4)] = Field(
-        default_factory=lambda: [PAPER_TABLE2["upper_limb"]["com"]] * 4
-    )
+    l1: LengthVec4 = Field(default_factory=lambda: [PAPER_TABLE2["lower_limb"]["com"]] * 4)
+    l2: LengthVec4 = Field(default_factory=lambda: [PAPER_TABLE2["upper_limb"]["com"]] * 4)
     g: float = Field(PAPER_TABLE2["g"], ge=0, le=100)
-    theta: Annotated[list[Annotated[float, Field(gt=0)]], Field(min_length=36, max_length=36)] = (
-        Field(default_factory=_paper_theta)
-    )
+    theta: Theta36 = Field(default_factory=_paper_theta)
 
     def build(self) -> Mechanism:
         return Mechanism(
@@ -90,7 +97,9 @@ class GainsSpec(_Model):
     Ku: NonNegVec3 = Field(default_factory=lambda: list(TABLE3["Ku"]))
     gamma: float = Field(Gains().gamma, ge=0, le=1e6)
     filter_periods: float = Field(Gains().filter_periods, ge=1, le=1e6)
-    theta_bounds: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.1, 10.0]
+    theta_bounds: Annotated[
+        list[Annotated[float, Field(ge=0, le=1e6)]], Field(min_length=2, max_length=2)
+    ] = [0.1, 10.0]
     pd_kp: NonNegVec3 = Field(default_factory=lambda: list(BASELINE_GAINS["pd_kp"]))
     pd_kd: NonNegVec3 = Field(default_factory=lambda: list(BASELINE_GAINS["pd_kd"]))
     ctc_kp: NonNegVec3 = Field(default_factory=lambda: list(BASELINE_GAINS["ctc_kp"]))
@@ -117,10 +126,10 @@ class TrajectorySpec(_Model):
     """A sinusoid per coordinate: offset + amplitude sin(omega t + phase) (eq. 54 by default)."""
 
     kind: Literal["sinusoid"] = "sinusoid"
-    offset: Vec3 = Field(default_factory=lambda: _paper_traj("offset"))
-    amplitude: Vec3 = Field(default_factory=lambda: _paper_traj("amplitude"))
-    omega: Vec3 = Field(default_factory=lambda: _paper_traj("omega"))
-    phase: Vec3 = Field(default_factory=lambda: _paper_traj("phase"))
+    offset: Vec3 = Field(default_factory=lambda: _paper_traj("offset"))  # m, rad
+    amplitude: Vec3 = Field(default_factory=lambda: _paper_traj("amplitude"))  # m, rad
+    omega: OmegaVec3 = Field(default_factory=lambda: _paper_traj("omega"))
+    phase: PhaseVec3 = Field(default_factory=lambda: _paper_traj("phase"))
 
     def build(self) -> Sinusoid:
         cls = TRAJECTORIES[self.kind]
@@ -130,14 +139,14 @@ class TrajectorySpec(_Model):
 class InitialSpec(_Model):
     """Initial state of the plant (at rest at home in the paper)."""
 
-    X: Vec3 = [0.7, 0.0, 0.0]
-    Xdot: Vec3 = [0.0, 0.0, 0.0]
+    X: Vec3 = [0.7, 0.0, 0.0]  # m, rad
+    Xdot: VelocityVec3 = [0.0, 0.0, 0.0]  # m/s, rad/s
 
 
 class DisturbanceSpec(_Model):
     """tau_d' = amplitude * U(-1, 1) per component, redrawn every ``hold`` s, seeded."""
 
-    amplitude: NonNegVec3 = [2.0, 2.0, 2.0]
+    amplitude: ForceVec3 = [2.0, 2.0, 2.0]  # N, N m
     hold: float = Field(1e-3, gt=0, le=1e3)
     seed: int = Field(0, ge=0, le=2**63 - 1)
 
@@ -186,7 +195,7 @@ class ActuatorSpec(_Model):
     force limit (N) per limb; none (unbounded) in the paper."""
 
     kind: str = "ideal"
-    force_limit: float | None = Field(None, gt=0)
+    force_limit: float | None = Field(None, gt=0, le=1e9)
 
     @field_validator("kind")
     @classmethod
@@ -270,16 +279,28 @@ class Scenario(_Model):
         """Read a scenario from a TOML file path (or TOML text if it contains a newline)."""
         if isinstance(source, Path) or "\n" not in str(source):
             path = Path(source)
+            where = f"scenario file {str(path)!r}"
             try:
                 text = path.read_text(encoding="utf-8")
             except OSError as exc:
-                raise ScenarioError(f"scenario file {str(path)!r}: {exc.strerror}") from None
+                raise ScenarioError(f"{where}: {exc.strerror or exc}") from None
+            except UnicodeDecodeError as exc:
+                raise ScenarioError(
+                    f"{where}: not UTF-8 text (byte {exc.object[exc.start]:#04x} "
+                    f"at offset {exc.start})"
+                ) from None
         else:
-            text = str(source)
+            text, where = str(source), "scenario TOML"
         try:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
-            raise ScenarioError(f"scenario TOML: {exc}") from None
+            raise ScenarioError(
+                f"{where.replace('scenario file', 'scenario TOML')}: {exc}"
+            ) from None
+        if not data:  # an empty file is a mistake, not "the defaults, silently"
+            raise ScenarioError(
+                f"{where}: empty (no field set; `pkmctl scenario paper` prints a full one)"
+            )
         return cls.from_dict(data)
 
     def to_toml(self) -> str:
@@ -297,9 +318,10 @@ class Scenario(_Model):
             *path, last = key.split(".")
             node = data
             for p in path:
-                node = node[p]
-            if last not in node:
-                raise ScenarioError(f"{key}: unknown field")
+                node = node.get(p) if isinstance(node, dict) else None
+            if not isinstance(node, dict) or last not in node:
+                sections = ", ".join(k for k, v in data.items() if isinstance(v, dict))
+                raise ScenarioError(f"{key}: unknown field (sections: {sections})")
             node[last] = value
         return Scenario.from_dict(data)
 

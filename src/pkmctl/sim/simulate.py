@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pkmctl._jit import kernel
-from pkmctl.errors import SimulationDiverged
+from pkmctl.errors import InsufficientMemory, SimulationDiverged
 from pkmctl.fuzzy import FLC, MamdaniSystem
 from pkmctl.model.dynamics import (
     JQ,
@@ -31,7 +31,66 @@ from pkmctl.sim.loop import STATUS, LogBuffers, is_compiled, run_parts
 from pkmctl.sim.result import Result
 from pkmctl.sim.scenario import Scenario, ScenarioError
 
-__all__ = ["desired_forces", "precompile", "simulate", "simulate_many"]
+__all__ = [
+    "check_memory",
+    "desired_forces",
+    "memory_needed",
+    "precompile",
+    "simulate",
+    "simulate_many",
+]
+
+# Doubles per control period: what _prepare keeps (t, reference 9, q_d 4, tau_d 4) plus
+# the trajectory's temporaries (3 x 3), and the loop's logs (LogBuffers: 26 columns).
+_PREPARED_COLUMNS = 1 + 9 + 4 + 4 + 9
+_LOG_COLUMNS = 3 + 3 + 6 + 3 + 4 + 4 + 3
+
+
+def memory_needed(periods: int, controller_log: int = 0, *, runs: int = 1) -> int:
+    """Bytes of the arrays ``runs`` runs of ``periods`` control periods allocate (their
+    prepared reference, their logs and a controller log of ``controller_log`` columns)."""
+    return 8 * periods * (_PREPARED_COLUMNS + runs * (_LOG_COLUMNS + controller_log))
+
+
+def _available_memory() -> int | None:
+    """Bytes this process can still allocate: MemAvailable, capped by a cgroup limit."""
+    avail = None
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    avail = int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        try:
+            avail = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        except (ValueError, OSError, AttributeError):
+            return None
+    try:  # a container's limit (cgroup v2)
+        with open("/sys/fs/cgroup/memory.max", encoding="ascii") as fh:
+            limit = fh.read().strip()
+        with open("/sys/fs/cgroup/memory.current", encoding="ascii") as fh:
+            used = int(fh.read().strip())
+        if limit != "max":
+            avail = min(avail if avail is not None else 2**63, int(limit) - used)
+    except (OSError, ValueError):
+        pass
+    return avail
+
+
+def _gib(n: int) -> str:
+    return f"{n / 2**30:.2f} GiB" if n >= 2**28 else f"{n / 2**20:.0f} MiB"
+
+
+def check_memory(need: int, what: str) -> None:
+    """Raise :class:`~pkmctl.errors.InsufficientMemory` (one line) if ``need`` bytes do not
+    fit in the memory available, before anything is allocated."""
+    have = _available_memory()
+    if have is not None and need > have:
+        raise InsufficientMemory(
+            f"{what} needs {_gib(need)} of memory for its arrays, this machine has "
+            f"{_gib(max(have, 0))} available: shorten timing.duration or lengthen "
+            f"timing.control_period"
+        )
 
 
 def desired_forces(plant: Mechanism, Xd, Xdd, Xddd) -> tuple[np.ndarray, np.ndarray]:
@@ -96,6 +155,8 @@ def _prepare(scenario: Scenario | str, duration: float | None) -> _Prepared:
     n = int(round(scenario.timing.duration / Tc))
     if n < 1:
         raise ScenarioError("timing.duration: shorter than one control period")
+    # Refuse what cannot fit before allocating any of it (a 1 h run at 20 kHz: ~27 GiB).
+    check_memory(memory_needed(n), f"a {n * Tc:g} s run at T_c = {Tc:g} s")
     t = np.arange(n) * Tc
     Xdes, Xddes, Xdddes = scenario.trajectory.build().evaluate(t)
     q_des, tau_des = desired_forces(plant, Xdes, Xddes, Xdddes)
@@ -176,6 +237,9 @@ def _run(
     x0 = np.concatenate([scenario.initial.X, scenario.initial.Xdot]).astype(float)
     bundles = _build(parts, ctx, x0)
     n = prep.t.size
+    if buffers is None:  # the prepared arrays exist already: only the logs are new
+        n_log = int(parts["controller"].log_size(bundles["controller"][0]))
+        check_memory(8 * n * (_LOG_COLUMNS + n_log), f"the logs of a {n * Tc:g} s run")
     dvals, didx = _disturbance(scenario, n, Tc)
     out = run_parts(
         parts,
@@ -292,6 +356,17 @@ def simulate_many(
         return list(pool.map(one, seeds))
 
 
+def _die_with_parent() -> None:
+    """A compiling worker ends when the process that started it does (Ctrl-C, a kill)."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL(None).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG (Linux)
+    except (OSError, AttributeError):
+        pass
+
+
 def _compile_group(scenario_toml: str, controllers: list[str]) -> str:
     """In a worker process: run each controller for one period, which compiles its loop
     into the disk cache. Returns "" or the first error (the caller will meet it again)."""
@@ -352,6 +427,7 @@ def precompile(
     if on_start is not None:
         on_start(todo, n)
     text = scenario.to_toml()
-    with ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("spawn")) as pool:
+    spawn = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(n, mp_context=spawn, initializer=_die_with_parent) as pool:
         list(pool.map(_compile_group, [text] * n, groups))
     return todo

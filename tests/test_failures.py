@@ -1,0 +1,401 @@
+"""Every failure a user can cause ends in one line, before work is lost (issue 14).
+
+Each case checks the exit status, that the message is one line naming the cause, and
+that nothing half-written remains (no staging folder, no .tmp file, previous results
+untouched). The interrupt test sends SIGINT to a real ``pkmctl reproduce`` that is
+compiling (a fresh, empty kernel cache).
+"""
+
+import errno
+import os
+import queue
+import signal
+import stat
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import pkmctl
+from pkmctl.cli import app
+from pkmctl.errors import NonFiniteInputError, PkmctlError
+from pkmctl.fuzzy.fis import FISError, read_fis
+from pkmctl.sim.scenario import ScenarioError
+
+runner = CliRunner()
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+# What a run prints as it goes when stderr is not a terminal (a log): not a message.
+PROGRESS = ("simulating ", "writing ", "drawing ", "compiling ", "compiled ")
+
+
+def one_line(res, code: int) -> str:
+    assert res.exit_code == code, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip() and not ln.startswith(PROGRESS)]
+    assert len(lines) == 1, res.output
+    assert "Traceback" not in res.output
+    return lines[0]
+
+
+def leftovers(root: Path) -> list[Path]:
+    return [p for p in root.rglob("*") if p.name.startswith(".pkmctl-") or ".tmp" in p.name]
+
+
+@pytest.fixture
+def old_results(tmp_path):
+    """An output folder holding a previous run's report and a user's own file."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "report.md").write_text("old report, seed 0\n")
+    (out / "notes.txt").write_text("mine\n")
+    return out
+
+
+def untouched(out: Path) -> bool:
+    files = sorted(p.name for p in out.iterdir())
+    return files == ["notes.txt", "report.md"] and (out / "report.md").read_text().startswith(
+        "old report"
+    )
+
+
+def scenario_file(tmp_path, name="s.toml", **changes) -> Path:
+    sc = pkmctl.Scenario.builtin("paper").replace(**{"timing.duration": 0.05, **changes})
+    path = tmp_path / name
+    path.write_text(sc.to_toml())
+    return path
+
+
+# ---------------------------------------------------------------- output locations
+def test_empty_out_is_refused_and_writes_nothing(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    line = one_line(runner.invoke(app, ["reproduce", "--out", "", "--duration", "0.05"]), 2)
+    assert "--out = ''" in line and "empty" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", ["reproduce", "simulate"])
+def test_out_naming_a_file_is_refused_before_work(tmp_path, command):
+    target = tmp_path / "afile"
+    target.write_text("keep")
+    args = [command] + (["paper"] if command == "simulate" else []) + ["--out", str(target)]
+    t0 = time.perf_counter()
+    line = one_line(runner.invoke(app, args), 2)
+    assert time.perf_counter() - t0 < 5  # before any computation (a run takes longer)
+    assert "exists and is not a folder" in line and "afile" in line
+    assert target.read_text() == "keep" and not leftovers(tmp_path)
+
+
+def test_out_below_a_file_is_refused(tmp_path):
+    (tmp_path / "afile").write_text("keep")
+    line = one_line(runner.invoke(app, ["reproduce", "--out", str(tmp_path / "afile" / "x")]), 2)
+    assert "is a file, not a folder" in line
+
+
+def test_out_name_too_long_is_refused(tmp_path):
+    line = one_line(runner.invoke(app, ["reproduce", "--out", str(tmp_path / ("x" * 300))]), 2)
+    assert "longer than" in line and not leftovers(tmp_path)
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root may write anywhere")
+def test_unwritable_out_is_refused(tmp_path):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(stat.S_IRUSR | stat.S_IXUSR)
+    try:
+        line = one_line(runner.invoke(app, ["reproduce", "--out", str(ro / "out")]), 2)
+    finally:
+        ro.chmod(0o755)
+    assert "not writable" in line
+
+
+def test_unwritable_out_is_refused_whoever_runs(tmp_path, monkeypatch):
+    # os.access is what the check asks; as root a chmod would not make a folder unwritable
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda p, m: False if Path(p) == tmp_path else real(p, m))
+    line = one_line(runner.invoke(app, ["reproduce", "--out", str(tmp_path / "out")]), 2)
+    assert "is not writable" in line and str(tmp_path) in line
+
+
+@pytest.mark.parametrize("target", ["", "."])
+def test_bench_json_checked_before_running(tmp_path, monkeypatch, target):
+    monkeypatch.chdir(tmp_path)
+    t0 = time.perf_counter()
+    line = one_line(runner.invoke(app, ["bench", "--quick", "--json", target]), 2)
+    assert time.perf_counter() - t0 < 5 and "--json" in line
+
+
+def test_disk_full_while_writing_keeps_previous_results(old_results, monkeypatch):
+    from pkmctl.report import tables
+
+    def full(*_a, **_k):
+        raise OSError(errno.ENOSPC, "No space left on device", "table4.csv")
+
+    monkeypatch.setattr(tables, "table4_csv", full)
+    line = one_line(
+        runner.invoke(app, ["reproduce", "--out", str(old_results), "--duration", "0.05"]), 2
+    )
+    assert "No space left on device" in line and "keeps its previous results" in line
+    assert untouched(old_results) and not leftovers(old_results.parent)
+
+
+def test_diverged_run_exits_1_and_keeps_previous_results(tmp_path, old_results):
+    path = scenario_file(tmp_path, **{"gains.K": [1e9, 1e9, 1e9], "timing.duration": 0.2})
+    line = one_line(
+        runner.invoke(app, ["reproduce", "--scenario", str(path), "--out", str(old_results)]), 1
+    )
+    assert "diverged at t = " in line and "keeps its previous results" in line
+    assert untouched(old_results) and not leftovers(tmp_path)
+
+
+def test_simulate_diverged_creates_nothing(tmp_path):
+    path = scenario_file(tmp_path, **{"gains.K": [1e9, 1e9, 1e9], "timing.duration": 0.2})
+    out = tmp_path / "new"
+    line = one_line(
+        runner.invoke(app, ["simulate", str(path), "--controller", "smc", "--out", str(out)]), 1
+    )
+    assert "diverged" in line and "was not created" in line
+    assert not out.exists() and not leftovers(tmp_path)
+
+
+def test_a_complete_run_replaces_its_files_and_keeps_the_users(old_results):
+    res = runner.invoke(
+        app, ["reproduce", "--out", str(old_results), "--duration", "0.05", "--seed", "3"]
+    )
+    assert res.exit_code == 0, res.output
+    assert (old_results / "notes.txt").read_text() == "mine\n"
+    assert "old report" not in (old_results / "report.md").read_text()
+    assert (old_results / "figures" / "fig26.png").is_file()
+    assert not leftovers(old_results.parent)
+
+
+@pytest.mark.parametrize(
+    ("mask", "file_mode", "dir_mode"), [(0o022, 0o644, 0o755), (0o027, 0o640, 0o750)]
+)
+def test_outputs_follow_the_umask(tmp_path, mask, file_mode, dir_mode):
+    previous = os.umask(mask)
+    try:
+        res = runner.invoke(app, ["reproduce", "--out", str(tmp_path / "o"), "--duration", "0.05"])
+    finally:
+        os.umask(previous)
+    assert res.exit_code == 0, res.output
+    paths = [tmp_path / "o", *(tmp_path / "o").rglob("*")]
+    files = {stat.S_IMODE(p.stat().st_mode) for p in paths if p.is_file()}
+    dirs = {stat.S_IMODE(p.stat().st_mode) for p in paths if p.is_dir()}
+    assert files == {file_mode} and dirs == {dir_mode}
+    assert len([p for p in paths if p.is_file()]) == 30
+
+
+# ---------------------------------------------------------------- memory
+@pytest.mark.parametrize("command", [["reproduce"], ["simulate", "paper"]])
+def test_what_does_not_fit_in_memory_is_refused_in_one_line(tmp_path, monkeypatch, command):
+    from pkmctl.sim import simulate as sim
+
+    monkeypatch.setattr(sim, "_available_memory", lambda: 64 * 2**20)
+    out = tmp_path / "out"
+    args = [*command, "--out", str(out), "--duration", "60"]
+    line = one_line(runner.invoke(app, args), 2)
+    assert "needs" in line and "64 MiB available" in line
+    assert not out.exists() and not leftovers(tmp_path)
+
+
+def test_memory_estimate_is_the_size_of_the_logs():
+    from pkmctl.sim.loop import LogBuffers
+    from pkmctl.sim.simulate import memory_needed
+
+    n = 1000
+    logs = sum(a.nbytes for a in LogBuffers(n, 36).arrays) + LogBuffers(n, 36).controller.nbytes
+    assert memory_needed(n, 36) - memory_needed(0, 36) >= logs
+    # a one-hour run at 20 kHz needs tens of GiB: the refusal is what a user meets
+    assert memory_needed(72_000_000, 36) > 20 * 2**30
+
+
+# ---------------------------------------------------------------- bad input
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (["reproduce", "--seed", "abc"], "Invalid value for '--seed'"),
+        (["reproduce", "--bogus"], "No such option: --bogus"),
+        (["simulate"], "Missing argument"),
+        (["simulate", "paper", "--format", "xls"], "--format = 'xls'"),
+        (["reproduce", "--duration", "1e300"], "timing.duration = 1e+300"),
+        (["reproduce", "--duration", "nan"], "timing.duration = nan"),
+        (["simulate", "[abc].toml"], "'[abc].toml': No such file"),
+    ],
+)
+def test_bad_arguments_one_line(args, match, tmp_path):
+    line = one_line(
+        runner.invoke(app, [*args, "--out", str(tmp_path / "o")] if args[1:] else args), 2
+    )
+    assert match in line
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "match"),
+    [
+        (
+            "initial.Xdot",
+            [float("nan"), 0.0, 0.0],
+            "initial.Xdot.0 = nan: Input should be a finite",
+        ),
+        ("initial.Xdot", [1e300, 0.0, 0.0], "initial.Xdot.0 = 1e+300"),
+        ("trajectory.amplitude", [0.0, float("inf"), 0.0], "trajectory.amplitude.1 = inf"),
+        ("trajectory.omega", [1e300, 0.0, 0.0], "trajectory.omega.0 = 1e+300"),
+        ("trajectory.phase", [0.0, 0.0, float("nan")], "trajectory.phase.2 = nan"),
+        ("disturbance.amplitude", [1e300, 2.0, 2.0], "disturbance.amplitude.0 = 1e+300"),
+        ("initial.X", [0.7, 2.0, 0.0], "initial.X = [0.7, 2.0, 0.0]: not a valid pose"),
+    ],
+)
+def test_scenario_values_finite_in_range_and_shown_verbatim(tmp_path, field, value, match):
+    section, key = field.split(".")
+    # the bad value in a file as a user writes it (TOML spells nan and inf as words)
+    shown = "[" + ", ".join(repr(v) for v in value) + "]"
+    text = f"[timing]\nduration = 0.05\n\n[{section}]\n{key} = {shown}\n"
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    line = one_line(runner.invoke(app, ["simulate", str(path), "--out", str(tmp_path / "o")]), 2)
+    assert match in line  # brackets and all: no markup eaten
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    ("content", "match"),
+    [
+        (b"", "empty"),
+        (b"# only a comment\n", "empty"),
+        (b'name = "caf\xe9"\n', "not UTF-8"),
+        (b"\x00\x01\x02\xff", "not UTF-8"),
+        (b"[timing\n", "scenario TOML"),
+    ],
+)
+def test_bad_scenario_files_one_line_with_the_name(tmp_path, content, match):
+    path = tmp_path / "[my].toml"
+    path.write_bytes(content)
+    line = one_line(runner.invoke(app, ["reproduce", "--scenario", str(path)]), 2)
+    assert match in line and "[my].toml" in line
+
+
+def test_library_errors_are_one_line():
+    with pytest.raises(ScenarioError, match=r"^nope\.x: unknown field \(sections: ") as e1:
+        pkmctl.Scenario.builtin("paper").replace(**{"nope.x": 1})
+    with pytest.raises(ScenarioError, match="timing.duration.x: unknown field"):
+        pkmctl.Scenario.builtin("paper").replace(**{"timing.duration.x": 1})
+    with pytest.raises(TypeError, match="expected a pkmctl.Scenario") as e2:
+        pkmctl.simulate(None)
+    with pytest.raises(FISError, match=r"^no-such\[1\]\.fis: No such file") as e3:
+        read_fis("no-such[1].fis")
+    for e in (e1, e2, e3):
+        assert "\n" not in str(e.value)
+
+
+# ---------------------------------------------------------------- Controller.step
+@pytest.mark.parametrize("name", ["smc", "fsmc", "afsmc", "pd", "ctc"])
+@pytest.mark.parametrize("bad", [0, 1, 2, 4])  # X, Xdot, X_d, Xddot_d
+def test_non_finite_step_input_raises_and_leaves_the_state(name, bad):
+    robot = pkmctl.Mechanism.paper()
+    model = robot.with_theta(0.85 * robot.theta)
+    rng = np.random.default_rng(bad)
+    a = pkmctl.make_controller(name, model, period=5e-5)
+    b = pkmctl.make_controller(name, model, period=5e-5)
+
+    def inputs():
+        X = np.array([0.7, 0.1, -0.1]) + 0.01 * rng.standard_normal(3)
+        return [
+            X,
+            0.1 * rng.standard_normal(3),
+            np.array([0.7, 0.12, -0.08]),
+            np.zeros(3),
+            np.zeros(3),
+        ]
+
+    for _ in range(20):
+        args = inputs()
+        assert np.array_equal(a.step(*args), b.step(*args))
+    args = inputs()
+    args[bad] = args[bad].copy()
+    args[bad][1] = np.nan if bad % 2 else np.inf
+    before = a.state.raw
+    with pytest.raises(NonFiniteInputError, match="is not finite") as err:
+        a.step(*args)
+    assert isinstance(err.value, PkmctlError) and "\n" not in str(err.value)
+    assert np.array_equal(a.state.raw, before) and a.state.steps == b.state.steps
+    for _ in range(20):
+        args = inputs()
+        assert np.array_equal(a.step(*args), b.step(*args))  # bit for bit
+    assert np.array_equal(a.state.raw, b.state.raw)
+
+
+# ---------------------------------------------------------------- first-run honesty
+def test_version_and_help_texts():
+    res = runner.invoke(app, ["--version"])
+    assert res.exit_code == 0 and res.output.strip() == f"pkmctl {pkmctl.__version__}"
+    for args, words in (
+        (["scenario", "--help"], ["paper-1khz"]),
+        (["reproduce", "--help"], ["paper-1khz", "Parquet"]),
+        (
+            ["simulate", "--help"],
+            ["afsmc, ctc, fsmc, pd, smc", "parquet (the default)", "--seed", "--duration"],
+        ),
+    ):
+        res = runner.invoke(app, args)
+        flat = " ".join(res.output.replace("│", " ").split())
+        assert res.exit_code == 0 and all(w in flat for w in words), res.output
+
+
+def test_simulate_seed_and_duration(tmp_path):
+    res = runner.invoke(
+        app, ["simulate", "paper", "--controller", "pd", "--seed", "4", "--duration", "0.01",
+              "--out", str(tmp_path), "--format", "csv"],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    meta = pkmctl.io.results.load_result(tmp_path / "pd.json")
+    assert meta.t.size == 200 and meta.scenario.disturbance.seed == 4
+    assert not leftovers(tmp_path)
+
+
+# ---------------------------------------------------------------- Ctrl-C
+def _read_lines(stream, q):
+    for line in stream:
+        q.put(line)
+    q.put(None)
+
+
+def test_sigint_while_compiling_stops_at_once_and_keeps_previous_results(tmp_path, old_results):
+    cache = tempfile.mkdtemp(prefix="pkmctl-cache-", dir=tmp_path)  # empty: it must compile
+    env = dict(os.environ, PKMCTL_CACHE_DIR=cache, PYTHONPATH=str(SRC))
+    cmd = ["reproduce", "--duration", "0.05", "--out", str(old_results)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pkmctl", *cmd],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    lines: queue.Queue = queue.Queue()
+    threading.Thread(target=_read_lines, args=(proc.stderr, lines), daemon=True).start()
+    seen = []
+    deadline = time.monotonic() + 180
+    try:
+        while not any("compiling" in ln for ln in seen):  # a plain line, not a terminal
+            line = lines.get(timeout=max(0.1, deadline - time.monotonic()))
+            assert line is not None, "".join(seen)
+            seen.append(line)
+        time.sleep(1.0)  # well inside the compilation (it takes minutes from scratch)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=10)
+        waited = time.monotonic() - t0
+    finally:
+        proc.kill()
+    while (line := lines.get(timeout=5)) is not None:
+        seen.append(line)
+    assert proc.returncode == 130, "".join(seen)
+    assert waited < 2.0, waited
+    last = seen[-1]
+    assert last.startswith("interrupted after ") and "keeps its previous results" in last
+    assert "Traceback" not in "".join(seen)
+    assert untouched(old_results) and not leftovers(old_results.parent)
