@@ -13,7 +13,7 @@ from numba import njit
 from numba.core.registry import CPUDispatcher
 
 import pkmctl
-from pkmctl._jit import JIT_OPTIONS, NO_REFCOUNT, cache_dir, source_stamp
+from pkmctl._jit import JIT_OPTIONS, NO_REFCOUNT, cache_dir, cache_root, source_stamp
 from pkmctl.model.dynamics import dynamics_kernel, make_work
 from pkmctl.parts import get_part
 from pkmctl.sim.loop import loop_for
@@ -139,7 +139,9 @@ def test_an_edited_kernel_is_never_run_stale(tmp_path):
     before = _run(_COUNT_COMPILES, path=tmp_path).split()
     dyn = pkg / "model" / "dynamics.py"
     original = dyn.read_text()
-    old, new = "    g = geom[10]\n    M[0, 0]", "    g = 1.01 * geom[10]\n    M[0, 0]"
+    # a factor of its own per run: an earlier run's compiled copy must not stand in
+    factor = 1.01 + np.random.default_rng().integers(1, 10**9) * 1e-12
+    old, new = "    g = geom[10]\n    M[0, 0]", f"    g = {factor!r} * geom[10]\n    M[0, 0]"
     edited = original.replace(old, new)
     assert edited != original
     dyn.write_text(edited)
@@ -150,6 +152,8 @@ def test_an_edited_kernel_is_never_run_stale(tmp_path):
     assert after_edit[1] != before[1]  # ... and the new code ran
     assert reverted[1:] == before[1:]  # the old numbers, bit for bit, from the old cache
     assert reverted[0] == "0"
+    for folder in cache_root().glob(f"{after_edit[2]}*"):  # the edited copy's compiled code
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def test_compilations_are_announced_with_their_time():

@@ -60,6 +60,7 @@ __all__ = [
     "REFCOUNT",
     "announce",
     "cache_dir",
+    "cache_root",
     "kernel",
     "source_stamp",
     "specialise",
@@ -110,6 +111,11 @@ _STAMP = _compute_stamp()
 def source_stamp() -> str:
     """The content hash of pkmctl's kernel sources (and of Numba's and Python's versions)."""
     return _STAMP
+
+
+def cache_root() -> Path:
+    """The folder that holds one cache folder per source hash (see the module docstring)."""
+    return _cache_root()
 
 
 def _cache_root() -> Path:
