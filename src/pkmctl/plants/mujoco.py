@@ -56,6 +56,8 @@ bodies and is 3 to 4 orders of magnitude closer.
 
 from __future__ import annotations
 
+import math
+
 try:
     import mujoco
 except ImportError:  # one line, the fix in it
@@ -732,12 +734,16 @@ class MujocoMachine:
         j = _slides(self.model)
         self._slide_qadr = self.model.jnt_qposadr[j]
         self._slide_offset = np.linalg.norm(self.model.body_pos[self.model.jnt_bodyid[j]], axis=1)
-        self._body = int(mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "platform"))
-        self._R = np.empty(9)
+        body = int(mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "platform"))
+        d = self.data  # views, valid for the life of d (efc_* are reallocated every step)
+        self._qpos, self._qvel, self._ctrl = d.qpos, d.qvel, d.ctrl
+        self._xfrc = d.xfrc_applied[body]
+        self._warnings = d.warning.number
+        self._fatal = np.array([int(w) for w in _FATAL_WARNINGS])
 
     def reset(self, x: np.ndarray) -> None:
         """Put the machine at x = [X, Xdot] (6,), every closure satisfied and at rest."""
-        mujoco.mj_resetData(self.model, self.data)
+        mujoco.mj_resetData(self.model, self.data)  # in place: the views stay valid
         qpos = initial_qpos(self.model, self.robot, x[:3])
         self.data.qpos[:] = qpos
         self.data.qvel[:] = initial_qvel(self.model, qpos, x[:3], x[3:6])
@@ -745,29 +751,34 @@ class MujocoMachine:
 
     def step(self, tau: np.ndarray, dist: np.ndarray) -> None:
         """One RK4 step under limb forces tau (4,) and disturbance dist (3,), held."""
-        d = self.data
-        d.ctrl[:] = tau
-        # alpha from R's second column (0, cos a, sin a): (w_y, w_z) = (cos a, sin a)
-        mujoco.mju_quat2Mat(self._R, d.qpos[self._qadr + 3 : self._qadr + 7])
-        f = d.xfrc_applied[self._body]
-        f[2] = dist[0]
-        f[3], f[4], f[5] = dist[1], dist[2] * self._R[4], dist[2] * self._R[7]
-        mujoco.mj_step(self.model, d)
+        self._ctrl[:] = tau
+        # w = R e_y = (0, cos a, sin a), from the platform's quaternion
+        qw, qx, qy, qz = self._qpos[self._qadr + 3 : self._qadr + 7].tolist()
+        wy, wz = 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz + qw * qx)
+        self._xfrc[2:6] = (dist[0], dist[1], dist[2] * wy, dist[2] * wz)
+        mujoco.mj_step(self.model, self.data)
 
     def read(self, x: np.ndarray, q: np.ndarray) -> int:
         """Write [X, Xdot] into x (6,) and the limb lengths into q (4,); return a status:
-        0, or 1 non-finite, 3 a MuJoCo warning or a closure residual over
-        :data:`CLOSURE_LIMIT` (the pose check, status 2, is the loop's)."""
-        d = self.data
-        for w in _FATAL_WARNINGS:
-            if d.warning[w].number:
-                return 3
-        qpos, qvel = d.qpos, d.qvel
-        if not (np.all(np.isfinite(qpos)) and np.all(np.isfinite(qvel))):
+        0, or 1 non-finite, 3 a MuJoCo warning (MuJoCo then resets its state) or a closure
+        residual over :data:`CLOSURE_LIMIT` (the pose check, status 2, is the loop's).
+
+        The maps of :func:`platform_pose` and :func:`platform_rate` on scalars, through
+        views made once (this runs once a period; the binding's accessors cost ~1 us each).
+        """
+        if self._warnings[self._fatal].any():
+            return 3
+        a, v = self._qadr, self._dadr
+        qp = self._qpos.tolist()
+        qv = self._qvel.tolist()
+        if not (math.isfinite(sum(qp)) and math.isfinite(sum(qv))):
             return 1
-        x[0:3] = platform_pose(self.model, qpos)
-        x[3:6] = platform_rate(self.model, qpos, qvel)
-        q[:] = qpos[self._slide_qadr] + self._slide_offset
-        if d.nefc and np.max(np.abs(d.efc_pos[: d.nefc])) > CLOSURE_LIMIT:
+        qw, qx, qy, qz = qp[a + 3 : a + 7]
+        alpha = math.atan2(2.0 * (qy * qz + qw * qx), 1.0 - 2.0 * (qx * qx + qz * qz))
+        beta = math.atan2(2.0 * (qx * qz + qw * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+        cb, sb = math.cos(beta), math.sin(beta)
+        x[0:6] = (qp[a + 2], alpha, beta, qv[v + 2], qv[v + 3] * cb + qv[v + 5] * sb, qv[v + 4])
+        q[:] = self._qpos[self._slide_qadr] + self._slide_offset
+        if abs(self.data.efc_pos).max(initial=0.0) > CLOSURE_LIMIT:
             return 3
         return 0

@@ -30,6 +30,7 @@ from pkmctl.parts import Part, PartContext, PartError, get_part
 from pkmctl.sim.loop import STATUS, LogBuffers, run_parts
 from pkmctl.sim.result import Result
 from pkmctl.sim.scenario import Scenario, ScenarioError
+from pkmctl.sim.stepped import run_stepped
 
 __all__ = ["desired_forces", "simulate", "simulate_many"]
 
@@ -177,9 +178,11 @@ def _run(
     bundles = _build(parts, ctx, x0)
     n = prep.t.size
     dvals, didx = _disturbance(scenario, n, Tc)
-    out = run_parts(
+    stepped = parts["plant"].stepper is not None
+    out = (run_stepped if stepped else run_parts)(
         parts,
         bundles,
+        *((ctx,) if stepped else ()),
         period=Tc,
         substeps=scenario.timing.substeps,
         reference=prep.reference,
