@@ -135,3 +135,27 @@ def test_pkmctl_imports_without_mujoco_and_says_how_to_get_it():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == 'pkmctl.plants.mujoco needs MuJoCo: pip install "pkmctl[mujoco]"'
+
+
+def test_mujoco_model_command_writes_a_loadable_model(tmp_path):
+    from typer.testing import CliRunner
+
+    from pkmctl.cli import app
+
+    runner = CliRunner()
+    out = tmp_path / "m" / "pkm.xml"
+    res = runner.invoke(app, ["mujoco-model", "--out", str(out), "--rotor-inertia", "2.77e-5",
+                              "--friction-viscous", "300"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    model = mujoco.MjModel.from_xml_path(str(out))
+    assert (model.nv, model.neq, model.nu) == (14, 4, 4)
+    assert np.isclose(model.dof_armature.max(), 2.77e-5 * (2 * np.pi / 0.01) ** 2)
+    assert [p.name for p in tmp_path.joinpath("m").iterdir()] == ["pkm.xml"]  # no temp left
+    for args, match in (
+        (["--out", str(tmp_path)], "is a folder"),
+        (["--out", "/proc/no/such/pkm.xml"], "cannot write"),
+        (["--out", str(out), "--friction-coulomb", "30"], "frictionloss"),
+    ):
+        res = runner.invoke(app, ["mujoco-model", *args])
+        assert res.exit_code == 2, res.output
+        assert match in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr

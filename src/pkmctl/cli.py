@@ -4,6 +4,7 @@
     pkmctl simulate SCENARIO.toml [--controller NAME] [--out DIR] [--format parquet|csv]
     pkmctl scenario [NAME]
     pkmctl bench [--quick] [--json PATH]
+    pkmctl mujoco-model --out FILE.xml [--scenario NAME|FILE] [--rotor-inertia J] ...
 
 Bad input exits with status 2 and a one-line message on stderr.
 """
@@ -220,6 +221,51 @@ def bench(
         with atomic_write(json_out) as fh:
             json.dump(results, fh, indent=2)
         console.print(f"wrote {json_out}")
+
+
+@app.command("mujoco-model")
+def mujoco_model(
+    out: Annotated[Path, typer.Option(help="The MJCF file to write (FILE.xml).")],
+    scenario: Annotated[
+        str, typer.Option(help="Built-in scenario name or TOML file: its true plant.")
+    ] = "paper",
+    rotor_inertia: Annotated[
+        float, typer.Option(help="Rotor inertia per motor, kg m^2 (slide armature).")
+    ] = 0.0,
+    screw_lead: Annotated[float, typer.Option(help="Ball-screw lead, m.")] = 0.01,
+    friction_viscous: Annotated[
+        float, typer.Option(help="Viscous friction, N s/m (slide damping).")
+    ] = 0.0,
+    friction_coulomb: Annotated[
+        float, typer.Option(help="Coulomb friction, N: refused unless 0 (see the message).")
+    ] = 0.0,
+) -> None:
+    """Write the scenario's machine as a MuJoCo model (MJCF), e.g. for MuJoCo's viewer."""
+    from pkmctl.errors import PkmctlError
+    from pkmctl.io.atomic import atomic_write
+
+    try:
+        from pkmctl.plants.mujoco import build_mjcf
+    except ImportError as exc:
+        _fail(str(exc))
+    if out.is_dir():
+        _fail(f"--out {out}: is a folder, give a file name (FILE.xml)")
+    try:
+        text = build_mjcf(
+            _load_scenario(scenario).plant(),
+            rotor_inertia=rotor_inertia,
+            screw_lead=screw_lead,
+            friction_viscous=friction_viscous,
+            friction_coulomb=friction_coulomb,
+        )
+    except (PkmctlError, ValueError) as exc:
+        _fail(str(exc))
+    try:
+        with atomic_write(out) as fh:
+            fh.write(text)
+    except OSError as exc:
+        _fail(f"--out {out}: cannot write: {exc.strerror or exc}")
+    console.print(f"wrote {out}")
 
 
 def _import_benchmarks() -> None:
