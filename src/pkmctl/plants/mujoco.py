@@ -169,6 +169,7 @@ def build_mjcf(
     screw_lead: float = 0.01,
     friction_viscous: float = 0.0,
     friction_coulomb: float = 0.0,
+    integrator: str = "RK4",
 ) -> str:
     """An MJCF model of ``robot``; the module docstring says how each joint is built.
 
@@ -182,6 +183,8 @@ def build_mjcf(
         Geometry, inertial parameters, g and the home pose come from here.
     timestep : float
         RK4 step (s).
+    integrator : str
+        MuJoCo's integrator: "RK4" (the loop's) or "Euler" (semi-implicit, for timing).
     solref, solimp : tuple of float
         Softness of every equality constraint (MuJoCo's ``solref`` and ``solimp``).
     rotor_inertia : float
@@ -212,6 +215,8 @@ def build_mjcf(
     RuntimeError
         If the geometry rebuilt here disagrees with ``robot.inverse_kinematics``.
     """
+    if integrator not in ("RK4", "Euler"):
+        raise ValueError(f"integrator = {integrator!r}: must be 'RK4' or 'Euler'")
     if friction_coulomb != 0.0:
         raise ValueError(
             f"friction_coulomb = {friction_coulomb!r}: MuJoCo's dry friction (frictionloss) is "
@@ -281,7 +286,7 @@ def build_mjcf(
     m0 = theta[0]
     return f"""<mujoco model="pkmctl 2RPU-2SPR">
   <compiler angle="radian"/>
-  <option timestep="{_f(timestep)}" integrator="RK4" gravity="0 0 {_f(-robot.g)}"
+  <option timestep="{_f(timestep)}" integrator="{integrator}" gravity="0 0 {_f(-robot.g)}"
           jacobian="dense">
     <flag contact="disable"/>
   </option>
