@@ -159,3 +159,13 @@ def test_mujoco_model_command_writes_a_loadable_model(tmp_path):
         res = runner.invoke(app, ["mujoco-model", *args])
         assert res.exit_code == 2, res.output
         assert match in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr
+
+
+def test_render_poses_draws_the_machine(robot):
+    try:
+        images = mj.render_poses(robot, [robot.home, robot.home + [0.0, 0.3, -0.3]], width=160,
+                                 height=120)  # fmt: skip
+    except RuntimeError as exc:
+        pytest.skip(f"no offscreen GL backend here: {exc}")
+    assert [im.shape for im in images] == [(120, 160, 3)] * 2
+    assert images[0].std() > 10 and np.abs(images[0].astype(int) - images[1]).mean() > 1

@@ -57,7 +57,10 @@ bodies and is 3 to 4 orders of magnitude closer.
 from __future__ import annotations
 
 import math
+import os
 
+# headless rendering: EGL unless the user chose (MuJoCo reads this on import)
+os.environ.setdefault("MUJOCO_GL", "egl")
 try:
     import mujoco
 except ImportError:  # one line, the fix in it
@@ -77,6 +80,7 @@ __all__ = [
     "initial_qpos",
     "initial_qvel",
     "limb_lengths",
+    "render_poses",
     "platform_pose",
     "platform_rate",
     "platform_task_acceleration",
@@ -787,3 +791,37 @@ class MujocoMachine:
         if abs(self.data.efc_pos).max(initial=0.0) > CLOSURE_LIMIT:
             return 3
         return 0
+
+
+def render_poses(robot: Mechanism, poses: np.ndarray, *, width: int = 640, height: int = 480):
+    """Offscreen images of the machine at task poses X (k, 3).
+
+    Returns
+    -------
+    list of ndarray, each shape (height, width, 3), uint8
+
+    Raises
+    ------
+    RuntimeError
+        One line, if no OpenGL backend renders here (``MUJOCO_GL`` = egl or osmesa).
+    """
+    model = build_model(robot)
+    data = mujoco.MjData(model)
+    try:
+        renderer = mujoco.Renderer(model, height, width)
+    except Exception as exc:  # the GL backends raise many types
+        gl = os.environ.get("MUJOCO_GL", "default")
+        raise RuntimeError(f"MuJoCo cannot render here (MUJOCO_GL={gl}): {exc}") from None
+    cam = mujoco.MjvCamera()
+    cam.lookat[:] = (0.0, 0.0, 0.45 * float(robot.home[0]))
+    cam.distance, cam.azimuth, cam.elevation = 2.6 * float(robot.home[0]), 60.0, -15.0
+    images = []
+    try:
+        for X in np.asarray(poses, dtype=float).reshape(-1, 3):
+            data.qpos[:] = initial_qpos(model, robot, X)
+            mujoco.mj_forward(model, data)
+            renderer.update_scene(data, camera=cam)
+            images.append(renderer.render().copy())
+    finally:
+        renderer.close()
+    return images
