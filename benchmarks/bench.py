@@ -381,10 +381,10 @@ def rows(res: dict) -> list[tuple[str, str, str, str]]:
     if "steps_per_s" in mj:
         afsmc = res["steps"]["afsmc"]["loop_steps_per_s"]
         for key, label in (
-            ("steps_per_s", "MuJoCo RK4, same machine and step, open loop"),
-            ("euler_steps_per_s", "MuJoCo Euler, same machine and step, open loop"),
-            ("python_afsmc_steps_per_s", "MuJoCo RK4 + AFSMC called from Python"),
-            ("loop_afsmc_steps_per_s", "AFSMC loop on plant.kind = mujoco"),
+            ("steps_per_s", "MuJoCo RK4 (same step), open loop"),
+            ("euler_steps_per_s", "MuJoCo Euler (same step), open loop"),
+            ("python_afsmc_steps_per_s", "MuJoCo RK4 + AFSMC from Python"),
+            ("loop_afsmc_steps_per_s", "AFSMC loop, plant.kind = mujoco"),
         ):
             if key in mj:
                 rate = mj[key]

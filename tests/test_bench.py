@@ -18,10 +18,10 @@ def test_bench_quick_smoke(tmp_path):
     assert data["mujoco"]["steps_per_s"] > 0  # the test command installs MuJoCo
     labels = [r[0] for r in rows(data)]
     for label in (
-        "MuJoCo RK4, same machine and step, open loop",
-        "MuJoCo Euler, same machine and step, open loop",
-        "MuJoCo RK4 + AFSMC called from Python",
-        "AFSMC loop on plant.kind = mujoco",
+        "MuJoCo RK4 (same step), open loop",
+        "MuJoCo Euler (same step), open loop",
+        "MuJoCo RK4 + AFSMC from Python",
+        "AFSMC loop, plant.kind = mujoco",
     ):
         assert label in labels
     assert labels.count("  closed-form AFSMC loop / this") == 4

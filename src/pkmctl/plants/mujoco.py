@@ -805,6 +805,13 @@ def render_poses(robot: Mechanism, poses: np.ndarray, *, width: int = 640, heigh
     RuntimeError
         One line, if no OpenGL backend renders here (``MUJOCO_GL`` = egl or osmesa).
     """
+    backend = getattr(mujoco, "GLContext", None)
+    headless = backend is not None and backend.__module__.split(".")[-1] in ("egl", "osmesa")
+    if not headless and not os.environ.get("DISPLAY"):  # GLFW would abort the process
+        raise RuntimeError(
+            "MuJoCo cannot render here: no display and no offscreen backend "
+            "(set MUJOCO_GL=egl or osmesa before MuJoCo is first imported)"
+        )
     model = build_model(robot)
     data = mujoco.MjData(model)
     try:
