@@ -237,15 +237,33 @@ def bench_flc(quick: bool) -> dict[str, float]:
     return run_fuzzy(quick=quick)
 
 
-def bench_mujoco(quick: bool) -> dict[str, float] | None:
-    """MuJoCo stepping the same machine (benchmarks/mujoco_peer.py) open loop with RK4 at
-    the same 50 us step, if MuJoCo is installed (``pip install "pkmctl[mujoco]"``)."""
+def bench_mujoco(quick: bool) -> dict[str, float]:
+    """MuJoCo stepping the same machine at the same 50 us step, if MuJoCo is installed
+    (``pip install "pkmctl[mujoco]"``): open loop with RK4 and with Euler
+    (benchmarks/mujoco_peer.py); AFSMC called from Python before every ``mj_step``; and the
+    ``mujoco`` plant of the loop (compiled parts, MuJoCo stepped between periods)."""
     try:
-        from benchmarks.mujoco_peer import steps_per_second
+        from benchmarks.mujoco_peer import python_afsmc_steps_per_second, steps_per_second
     except ImportError as exc:
         return {"error": f"not run: {exc}"}
-    r = steps_per_second(0.1 if quick else 1.0, 1 if quick else 3)
-    return {k: float(v) for k, v in r.items() if isinstance(v, int | float)}
+    import pkmctl
+
+    duration, repeats = (0.1, 1) if quick else (1.0, 3)
+    r = steps_per_second(duration, repeats)
+    out = {k: float(v) for k, v in r.items() if isinstance(v, int | float)}
+    out["euler_steps_per_s"] = steps_per_second(duration, repeats, integrator="Euler")[
+        "steps_per_s"
+    ]
+    out["python_afsmc_steps_per_s"] = python_afsmc_steps_per_second(duration, repeats)
+    sc = pkmctl.Scenario.builtin("paper").replace(**{"plant.kind": "mujoco"})
+    pkmctl.simulate(sc, "afsmc", duration=0.01)  # compile (or load the cache)
+    n = round(duration / sc.timing.control_period)
+    loop = min(
+        pkmctl.simulate(sc, "afsmc", duration=duration).info["kernel_seconds"]
+        for _ in range(repeats)
+    )
+    out["loop_afsmc_steps_per_s"] = n / loop
+    return out
 
 
 def bench_reproduce(quick: bool) -> dict[str, float]:
@@ -354,13 +372,16 @@ def rows(res: dict) -> list[tuple[str, str, str, str]]:
     mj = res.get("mujoco") or {}
     if "steps_per_s" in mj:
         afsmc = res["steps"]["afsmc"]["loop_steps_per_s"]
-        row("MuJoCo RK4, same machine, open loop", f"{mj['steps_per_s']:,.0f} steps/s")
-        row("  AFSMC closed loop / MuJoCo open loop", f"{afsmc / mj['steps_per_s']:.1f}x")
-        if "steps_per_s_python_control" in mj:
-            row(
-                "  MuJoCo with a Python control step",
-                f"{mj['steps_per_s_python_control']:,.0f} steps/s",
-            )
+        for key, label in (
+            ("steps_per_s", "MuJoCo RK4 (same step), open loop"),
+            ("euler_steps_per_s", "MuJoCo Euler (same step), open loop"),
+            ("python_afsmc_steps_per_s", "MuJoCo RK4 + AFSMC from Python"),
+            ("loop_afsmc_steps_per_s", "AFSMC loop, plant.kind = mujoco"),
+        ):
+            if key in mj:
+                rate = mj[key]
+                row(label, f"{rate:,.0f} steps/s")
+                row("  closed-form AFSMC loop / this", f"{afsmc / rate:.1f}x")
     else:
         row("MuJoCo", str(mj.get("error", "not run")))
     if "my-law" in res["steps"] and "pd" in res["steps"]:

@@ -1,55 +1,10 @@
-"""The 2RPU-2SPR manipulator as a MuJoCo model, checked against the closed form (DESIGN.md §10).
+"""MuJoCo stepping the 2RPU-2SPR machine: timing (DESIGN.md §10).
 
     python benchmarks/mujoco_peer.py
 
-:func:`build_mjcf` writes an MJCF model of a :class:`pkmctl.Mechanism` from the Mechanism's
-own data (radii, centre-of-mass distances, the 36 inertial parameters, g, home pose);
-:func:`initial_qpos` and :func:`initial_qvel` put it in a consistent state for a task pose
-X = [z, alpha, beta] and rate Xdot; :func:`agreement` compares it with the closed-form
-kinematics and dynamics; :func:`steps_per_second` times open-loop stepping.
-
-Model
------
-- Platform: a body with a free joint (6 dofs; none of the closed form's reduction to 3 is
-  built in, the closures remove the other 3). Its frame is R, the centre of mass is at its
-  origin p, the inertia diagonal in that frame.
-- Limb bodies: each MuJoCo body frame is the limb frame R_i = [x_i, u_i x x_i, u_i] of
-  DESIGN.md §1, so both limb inertias are ``diaginertia`` (no ``fullinertia`` needed) at
-  ``(0, 0, l1)`` from the base joint (lower) and ``(0, 0, -l2)`` from the platform joint
-  (upper).
-- RPU limbs 1, 3: a chain from the base: a hinge about e_x at b_i, the lower body, a slide
-  along u_i driven by a ``motor`` (gear 1, no ctrlrange), the upper body, closed to the
-  platform by one ``connect`` at a_i. The universal joint's one rotational constraint (the
-  platform's y axis perpendicular to e_x) is implied by the two RPU point closures (a_1 and
-  a_3 both stay in the plane x = 0, so p_x = 0 and (R e_y)_x = 0), so a point closure gives
-  the same mechanism without two redundant rows.
-- SPR limbs 2, 4: the chain hangs from the platform: a hinge about the platform's y axis w
-  at a_i, the upper body, the slide with its motor (axis -u_i, so positive force still
-  extends the limb), the lower body, closed to the base by one ``connect`` at b_i. A
-  spherical joint is exactly a point constraint, so every joint of the machine is exact,
-  with the one-axis joints in the tree and every closure a point (DESIGN.md §10).
-- Equality constraints: ``solimp`` at MuJoCo's stiffest impedance, d = 0.9999 (the
-  regulariser is then 1e-4 of the diagonal constraint-space inverse inertia), ``solref``
-  time constant 0.5 ms (10 steps; MuJoCo's floor is 2 steps), damping ratio 1. The time
-  constant sets how fast the closures take up their load and so the trajectory error, about
-  in proportion to its square: 1.2e-8, 2.9e-9, 7.3e-10, 1.2e-10 after 20 ms at 2, 1, 0.5,
-  0.2 ms (10 states); at 0.1 ms (MuJoCo's floor) the acceleration error stayed near 3e-6
-  instead of settling.
-- Contacts off, RK4, timestep 5e-5 s, gravity -g along z with the Mechanism's g, dense
-  constraint Jacobian.
-
-Why the SPR chains do not start at the base: the literal alternative (a ball at b_i, the
-slide, the upper body, then a knuckle body carrying the platform revolute, ``weld`` ed to the
-platform) was built and measured. MuJoCo rejects a massless knuckle, and with any knuckle
-small enough not to change the dynamics the weld's rotational rows are regularised by the
-knuckle's tiny inverse inertia: relative acceleration errors of 5.6e-2 (knuckle 0.1 kg,
-1e-4 kg m^2) to 4.8e-1 (1e-3 kg, 1e-7 kg m^2) at d = 0.9999, saturating rather than
-scaling with 1 - d. Carving 0.5 kg knuckles out of the platform's mass still gave 5.5e-2,
-and heavier ones break the flat platform's inertia triangle inequality (I_xx + I_yy only
-just exceeds I_zz). The platform-rooted SPR chain of this module has the same joints and
-bodies and is 3 to 4 orders of magnitude closer.
-
-Findings are in the docstring of :func:`agreement` and :func:`steps_per_second`.
+The model, its state helpers and the agreement checks live in :mod:`pkmctl.plants.mujoco`
+(the module docstring has the model decisions and measured agreement); this file only
+times open-loop stepping of it (:func:`steps_per_second`) and prints both.
 """
 
 from __future__ import annotations
@@ -60,509 +15,18 @@ from collections.abc import Callable
 import mujoco
 import numpy as np
 from mujoco import rollout
-from scipy.integrate import solve_ivp
 
 import pkmctl
-from pkmctl.errors import InvalidPoseError
-from pkmctl.model.kinematics import LIMB_ANGLES_DEG
-
-__all__ = [
-    "agreement",
-    "build_mjcf",
-    "build_model",
-    "initial_qpos",
-    "initial_qvel",
-    "limb_lengths",
-    "platform_pose",
-    "platform_task_acceleration",
-    "steps_per_second",
-]
-
-#: Zero-based indices of the RPU limbs (1, 3) and SPR limbs (2, 4), DESIGN.md §1.
-RPU_LIMBS = (0, 2)
-SPR_LIMBS = (1, 3)
-#: RK4 step (s): the plant's sub-step of DESIGN.md §4.
-TIMESTEP = 5e-5
-#: Equality-constraint softness: (time constant s, damping ratio), and MuJoCo's stiffest
-#: impedance (its mjMAXIMP = 0.9999) at every violation.
-SOLREF = (5e-4, 1.0)
-SOLIMP = (0.9999, 0.9999, 1e-3, 0.5, 2.0)
-
-
-# ---------------------------------------------------------------------- geometry (DESIGN §1)
-def _platform_frame(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Platform centre p = [0, -z tan(alpha), z] and orientation R = R_x(alpha) R_y(beta)."""
-    z, a, b = (float(v) for v in X)
-    ca, sa, cb, sb = np.cos(a), np.sin(a), np.cos(b), np.sin(b)
-    rx = np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]])
-    ry = np.array([[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]])
-    return np.array([0.0, -z * np.tan(a), z]), rx @ ry
-
-
-def _limb_geometry(robot: pkmctl.Mechanism, X: np.ndarray) -> dict[str, np.ndarray]:
-    """Joint points, limb lengths and limb frames of DESIGN.md §1 at pose X.
-
-    Returns
-    -------
-    dict
-        ``p`` (3,), ``R`` (3, 3), ``a`` (4, 3) platform points in A, ``b`` (4, 3) base
-        points in B, ``q`` (4,) limb lengths, ``frames`` (4, 3, 3) limb frames
-        R_i = [x_i, u_i x x_i, u_i] as columns.
-    """
-    th = np.deg2rad(np.asarray(LIMB_ANGLES_DEG, dtype=float))
-    dirs = np.stack([np.cos(th), np.sin(th), np.zeros(4)], axis=1)
-    dirs[np.abs(dirs) < 1e-15] = 0.0  # exact zeros, as the compiled kernels use
-    a, b = robot.r_a * dirs, robot.r_b * dirs
-    p, R = _platform_frame(X)
-    d = p + a @ R.T - b
-    q = np.linalg.norm(d, axis=1)
-    u = d / q[:, None]
-    frames = np.empty((4, 3, 3))
-    for i in range(4):
-        x = R[:, 1] if i in SPR_LIMBS else np.array([1.0, 0.0, 0.0])  # w = R_x(alpha) e_y
-        frames[i] = np.column_stack([x, np.cross(u[i], x), u[i]])
-    return {"p": p, "R": R, "a": a, "b": b, "q": q, "frames": frames}
-
-
-# ---------------------------------------------------------------------- MJCF
-def _f(*values: float) -> str:
-    """Numbers in their shortest exact (round-trip) form, space separated; -0 printed as 0."""
-    return " ".join(repr(float(v) + 0.0) for v in np.ravel(values))
-
-
-def _quat(R: np.ndarray) -> str:
-    quat = np.empty(4)
-    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R, dtype=float).ravel())
-    return _f(*quat)
-
-
-def _inertial(theta_b: np.ndarray, com_z: float) -> str:
-    m, ixx, iyy, izz = theta_b
-    return f'<inertial pos="0 0 {_f(com_z)}" mass="{_f(m)}" diaginertia="{_f(ixx, iyy, izz)}"/>'
-
-
-def build_mjcf(
-    robot: pkmctl.Mechanism,
-    *,
-    timestep: float = TIMESTEP,
-    solref: tuple[float, float] = SOLREF,
-    solimp: tuple[float, ...] = SOLIMP,
-) -> str:
-    """An MJCF model of ``robot``; the module docstring says how each joint is built.
-
-    The model is defined at the Mechanism's home pose, so ``qpos0`` is consistent, and a
-    slide joint measures its limb's length from there: q_i = qpos(slide_i) + q_i(home)
-    (see :func:`limb_lengths`).
-
-    Parameters
-    ----------
-    robot : pkmctl.Mechanism
-        Geometry, inertial parameters, g and the home pose come from here.
-    timestep : float
-        RK4 step (s).
-    solref, solimp : tuple of float
-        Softness of every equality constraint (MuJoCo's ``solref`` and ``solimp``).
-
-    Returns
-    -------
-    str
-        The MJCF text. Names: body and free joint ``platform``; bodies ``lower{i}`` and
-        ``upper{i}``, joints ``base{i}`` (RPU) or ``top{i}`` (SPR) and ``slide{i}``,
-        actuators ``limb{i}`` and equality constraints ``closure{i}``, i = 1..4.
-
-    Raises
-    ------
-    RuntimeError
-        If the geometry rebuilt here disagrees with ``robot.inverse_kinematics``.
-    """
-    home = robot.home
-    geo = _limb_geometry(robot, home)
-    q_ik = robot.inverse_kinematics(home)
-    if not np.allclose(geo["q"], q_ik, rtol=0.0, atol=1e-12):
-        raise RuntimeError(f"limb geometry disagrees with the Mechanism: {geo['q']} vs {q_ik}")
-    theta = np.asarray(robot.theta, dtype=float).reshape(9, 4)
-    p, R, a, b, frames, q0 = (geo[k] for k in ("p", "R", "a", "b", "frames", "q"))
-
-    platform: list[str] = []  # inside the platform body
-    world: list[str] = []  # inside worldbody
-    equality: list[str] = []
-    actuators: list[str] = []
-    for i in range(4):
-        n = i + 1
-        lower, upper = theta[1 + i], theta[5 + i]
-        l1, l2 = float(robot.l1[i]), float(robot.l2[i])
-        actuators.append(f'<motor name="limb{n}" joint="slide{n}" gear="1"/>')
-        if i in RPU_LIMBS:
-            world += [
-                f'<body name="lower{n}" pos="{_f(*b[i])}" quat="{_quat(frames[i])}">',
-                f'  <joint name="base{n}" type="hinge" axis="1 0 0"/>',
-                f"  {_inertial(lower, l1)}",
-                f'  <body name="upper{n}" pos="0 0 {_f(q0[i])}">',
-                f'    <joint name="slide{n}" type="slide" axis="0 0 1"/>',
-                f"    {_inertial(upper, -l2)}",
-                f'    <site name="tip{n}"/>',
-                "  </body>",
-                "</body>",
-            ]
-            platform.append(f'<site name="joint{n}" pos="{_f(*a[i])}"/>')
-            equality.append(f'<connect name="closure{n}" site1="tip{n}" site2="joint{n}"/>')
-        else:
-            platform += [
-                f'<body name="upper{n}" pos="{_f(*a[i])}" quat="{_quat(R.T @ frames[i])}">',
-                f'  <joint name="top{n}" type="hinge" axis="1 0 0"/>',
-                f"  {_inertial(upper, -l2)}",
-                f'  <body name="lower{n}" pos="0 0 {_f(-q0[i])}">',
-                f'    <joint name="slide{n}" type="slide" axis="0 0 -1"/>',
-                f"    {_inertial(lower, l1)}",
-                f'    <site name="foot{n}"/>',
-                "  </body>",
-                "</body>",
-            ]
-            world.append(f'<site name="base{n}" pos="{_f(*b[i])}"/>')
-            equality.append(f'<connect name="closure{n}" site1="foot{n}" site2="base{n}"/>')
-
-    def block(lines: list[str], indent: int) -> str:
-        return ("\n" + " " * indent).join(lines)
-
-    m0 = theta[0]
-    return f"""<mujoco model="pkmctl 2RPU-2SPR">
-  <compiler angle="radian"/>
-  <option timestep="{_f(timestep)}" integrator="RK4" gravity="0 0 {_f(-robot.g)}"
-          jacobian="dense">
-    <flag contact="disable"/>
-  </option>
-  <default>
-    <equality solref="{_f(*solref)}" solimp="{_f(*solimp)}"/>
-  </default>
-  <worldbody>
-    <body name="platform" pos="{_f(*p)}" quat="{_quat(R)}">
-      <freejoint name="platform"/>
-      <inertial pos="0 0 0" mass="{_f(m0[0])}" diaginertia="{_f(*m0[1:])}"/>
-      {block(platform, 6)}
-    </body>
-    {block(world, 4)}
-  </worldbody>
-  <equality>
-    {block(equality, 4)}
-  </equality>
-  <actuator>
-    {block(actuators, 4)}
-  </actuator>
-</mujoco>
-"""
-
-
-def build_model(robot: pkmctl.Mechanism, **kwargs) -> mujoco.MjModel:
-    """Compile :func:`build_mjcf` (keyword arguments are passed on)."""
-    return mujoco.MjModel.from_xml_string(build_mjcf(robot, **kwargs))
-
-
-# ---------------------------------------------------------------------- state
-def _joint(model: mujoco.MjModel, name: str) -> int:
-    return int(mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name))
-
-
-def _platform_adr(model: mujoco.MjModel) -> tuple[int, int]:
-    """qpos and dof addresses of the platform's free joint."""
-    j = _joint(model, "platform")
-    return int(model.jnt_qposadr[j]), int(model.jnt_dofadr[j])
-
-
-def _slides(model: mujoco.MjModel) -> np.ndarray:
-    return np.array([_joint(model, f"slide{n}") for n in range(1, 5)])
-
-
-def _equality_rows(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
-    """Residual (nefc,) and Jacobian (nefc, nv) of the equality constraints at data.qpos."""
-    mujoco.mj_fwdPosition(model, data)
-    ne = data.nefc
-    return data.efc_pos[:ne].copy(), data.efc_J[: ne * model.nv].reshape(ne, model.nv).copy()
-
-
-def limb_lengths(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
-    """Limb lengths (4,) of a configuration: the slide positions plus their offsets.
-
-    A slide's body sits ``|body_pos|`` from its parent's joint point along the slide axis
-    when the slide is at zero, so that is the offset (the limb length at home, ``qpos0``).
-    """
-    j = _slides(model)
-    offset = np.linalg.norm(model.body_pos[model.jnt_bodyid[j]], axis=1)
-    return np.asarray(qpos)[model.jnt_qposadr[j]] + offset
-
-
-def platform_pose(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
-    """Task pose [z, alpha, beta] of the platform's free joint in ``qpos``.
-
-    R = R_x(alpha) R_y(beta) has second column (0, cos a, sin a) and first row
-    (cos b, 0, sin b).
-    """
-    qadr, _ = _platform_adr(model)
-    R = np.empty(9)
-    mujoco.mju_quat2Mat(R, np.asarray(qpos[qadr + 3 : qadr + 7], dtype=float))
-    R = R.reshape(3, 3)
-    return np.array([qpos[qadr + 2], np.arctan2(R[2, 1], R[1, 1]), np.arctan2(R[0, 2], R[0, 0])])
-
-
-def initial_qpos(
-    model: mujoco.MjModel,
-    robot: pkmctl.Mechanism,
-    X: np.ndarray,
-    *,
-    tol: float = 1e-13,
-    max_iter: int = 50,
-) -> np.ndarray:
-    """A configuration with the platform at pose X and every closure satisfied.
-
-    The platform's free joint is set from X (p and R of DESIGN.md §1). The limb joints are
-    then solved from the home configuration by Gauss-Newton on MuJoCo's own equality
-    residual and Jacobian (``efc_pos``, ``efc_J``) over the limb dofs only, so the limb
-    lengths come from the MuJoCo geometry, not from the closed form.
-
-    Parameters
-    ----------
-    model : mujoco.MjModel
-        A model from :func:`build_mjcf`.
-    robot : pkmctl.Mechanism
-        Checks that X is a valid pose.
-    X : array_like, shape (3,)
-        Task pose [z, alpha, beta].
-    tol : float
-        Largest closure residual accepted (m).
-    max_iter : int
-        Gauss-Newton iterations allowed.
-
-    Returns
-    -------
-    ndarray, shape (nq,)
-
-    Raises
-    ------
-    pkmctl.errors.InvalidPoseError
-        If the Mechanism rejects X.
-    RuntimeError
-        If the residual does not reach ``tol``.
-    """
-    X = np.asarray(X, dtype=float)
-    robot.check_pose(X)
-    qadr, dadr = _platform_adr(model)
-    p, R = _platform_frame(X)
-    qpos = model.qpos0.copy()
-    qpos[qadr : qadr + 3] = p
-    quat = np.empty(4)
-    mujoco.mju_mat2Quat(quat, R.ravel())
-    qpos[qadr + 3 : qadr + 7] = quat
-    limb = np.setdiff1d(np.arange(model.nv), np.arange(dadr, dadr + 6))
-    data = mujoco.MjData(model)
-    res = np.inf
-    for _ in range(max_iter):
-        data.qpos[:] = qpos
-        r, J = _equality_rows(model, data)
-        res = float(np.max(np.abs(r)))
-        if res < tol:
-            return qpos
-        dq = np.zeros(model.nv)
-        dq[limb] = -np.linalg.lstsq(J[:, limb], r, rcond=None)[0]
-        mujoco.mj_integratePos(model, qpos, dq, 1.0)
-    raise RuntimeError(f"closure not reached for X = {X.tolist()}: residual {res:.3e} m")
-
-
-def _platform_qvel(X: np.ndarray, Xdot: np.ndarray) -> np.ndarray:
-    """Free-joint velocity from Xdot: world linear velocity of p, angular velocity in A.
-
-    omega = alpha_dot e_x + beta_dot R_x(alpha) e_y, so
-    R^T omega = (alpha_dot cos b, beta_dot, alpha_dot sin b).
-    """
-    z, a, b = X
-    zd, ad, bd = Xdot
-    pyd = -zd * np.tan(a) - z * ad / np.cos(a) ** 2
-    return np.array([0.0, pyd, zd, ad * np.cos(b), bd, ad * np.sin(b)], dtype=float)
-
-
-def initial_qvel(model: mujoco.MjModel, qpos: np.ndarray, X, Xdot) -> np.ndarray:
-    """Joint velocities with the platform at rate Xdot and every closure at rest.
-
-    The limb joint rates are the least-squares solution of J_eq qvel = 0 (MuJoCo's
-    constraint Jacobian at ``qpos``) given the platform's free-joint velocity.
-
-    Parameters
-    ----------
-    model : mujoco.MjModel
-        A model from :func:`build_mjcf`.
-    qpos : ndarray, shape (nq,)
-        A consistent configuration (:func:`initial_qpos`) at pose X.
-    X, Xdot : array_like, shape (3,)
-        Task pose and rate.
-
-    Returns
-    -------
-    ndarray, shape (nv,)
-    """
-    _, dadr = _platform_adr(model)
-    plat = np.arange(dadr, dadr + 6)
-    limb = np.setdiff1d(np.arange(model.nv), plat)
-    data = mujoco.MjData(model)
-    data.qpos[:] = qpos
-    _, J = _equality_rows(model, data)
-    qvel = np.zeros(model.nv)
-    qvel[plat] = _platform_qvel(np.asarray(X, dtype=float), np.asarray(Xdot, dtype=float))
-    qvel[limb] = -np.linalg.lstsq(J[:, limb], J[:, plat] @ qvel[plat], rcond=None)[0]
-    return qvel
-
-
-def platform_task_acceleration(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
-    """[z_ddot, alpha_ddot, beta_ddot] from ``data.qacc`` of the platform's free joint.
-
-    Differentiating R^T omega = (alpha_dot cos b, beta_dot, alpha_dot sin b) gives
-    alpha_ddot = wdot_x cos b + wdot_z sin b (the beta_dot terms cancel) and
-    beta_ddot = wdot_y; z_ddot is the world z acceleration of p.
-    """
-    _, dadr = _platform_adr(model)
-    beta = platform_pose(model, data.qpos)[2]
-    acc = data.qacc[dadr : dadr + 6]
-    return np.array([acc[2], acc[3] * np.cos(beta) + acc[5] * np.sin(beta), acc[4]])
-
-
-# ---------------------------------------------------------------------- checks
-def agreement(
-    robot: pkmctl.Mechanism,
-    n: int = 20,
-    seed: int = 0,
-    *,
-    horizon: float = 0.02,
-    **model_kwargs,
-) -> dict[str, float | int | list[float]]:
-    """Compare the MuJoCo model with the closed form at ``n`` random states.
-
-    States: z uniform in [0.7, 1.3] times the home z, alpha and beta uniform in
-    [-0.3, 0.3] rad (poses the Mechanism rejects are drawn again), Xdot uniform in
-    +-(0.1 m/s, 1 rad/s, 1 rad/s), actuator forces tau = the gravity-compensating forces
-    plus uniform +-100 N per limb.
-
-    (a) Limb lengths: the slide positions plus their offsets (:func:`limb_lengths`), with
-    the closure solved on MuJoCo's residual (:func:`initial_qpos`), against
-    ``robot.inverse_kinematics(X)``. (b) Task accelerations of ``mj_forward``
-    (:func:`platform_task_acceleration`) against Xddot = M^-1 (J^T tau - C Xdot - G).
-    (c) Trajectories: from the same state with tau held, ``horizon`` seconds of ``mj_step``
-    against the closed form integrated by ``solve_ivp`` (DOP853, rtol 1e-12).
-
-    Findings (MuJoCo 4.0.0, the paper's machine, n = 20, seed 0):
-
-    - Limb lengths agree to 2e-15 m; closure residuals are <= 5e-15 m and closure velocity
-      residuals <= 1e-15 m/s.
-    - Accelerations agree to 8e-4 m/s^2 (z), 3.8e-3 rad/s^2 (alpha), 6e-5 rad/s^2 (beta),
-      at most 3.6e-4 of the largest component of Xddot (accelerations up to 15 m/s^2,
-      12 rad/s^2, 160 rad/s^2). The error is MuJoCo's regulariser alone: the Newton
-      solver converges in one iteration (the problem is quadratic), tightening its
-      tolerance changes nothing, and the error scales exactly with 1 - d (2.0e-3, 2.0e-4,
-      2.0e-5 relative at d = 0.99, 0.999, 0.9999 at one state, with or without velocity).
-      d = 0.9999 is MuJoCo's ceiling, so about 1e-5 to 1e-4 relative is as close as this
-      model can get.
-    - MuJoCo 4 includes J_dot v in the constraint acceleration of connect constraints
-      (``efc_aref`` is non-zero at consistent states with velocity), so there is no
-      velocity-dependent bias: the error is the same at rest and at 2 rad/s.
-    - Trajectories agree far better than (b) suggests: after 20 ms the poses differ by at
-      most 9.6e-10 (m or rad; the platform moving up to 0.04), and after 0.2 s of larger
-      motions (up to 0.18) by 2.6e-10. The (b) error exists only while the closures carry
-      no deflection, as at a state set by hand: within a few solref time constants they take
-      up a deflection of ~1e-9 m whose spring force carries the regulariser's share, and
-      the relative acceleration error falls from ~4e-6 to ~1e-8. So for simulation the
-      error to quote is that sag (``closure_residual_end`` of :func:`steps_per_second`) and
-      (c), not (b).
-
-    Parameters
-    ----------
-    robot : pkmctl.Mechanism
-        The machine modelled and the reference.
-    n : int
-        Number of random states.
-    seed : int
-        Seed of the generator.
-    horizon : float
-        Duration of each trajectory of (c) (s).
-    **model_kwargs
-        Passed to :func:`build_mjcf`.
-
-    Returns
-    -------
-    dict
-        ``n``, ``nv``, ``neq``, ``nefc``; ``q_err_max_m`` (max |q_mujoco - q_closed_form|);
-        ``closure_residual_max`` (m) and ``closure_velocity_max`` (m/s) of the initial
-        states; ``xddot_err_max`` (max abs error per component: m/s^2, rad/s^2, rad/s^2);
-        ``xddot_rel_err_max`` (max over states of |error|_inf / |Xddot|_inf);
-        ``xddot_scale`` (max |Xddot| per component); ``traj_err_max`` (max over states and
-        components of |X_mujoco(horizon) - X_closed_form(horizon)|, m or rad) and
-        ``traj_motion_max`` (max |X(horizon) - X(0)| of the closed form, for scale).
-    """
-    model = build_model(robot, **model_kwargs)
-    data = mujoco.MjData(model)
-    rng = np.random.default_rng(seed)
-    z0 = float(robot.home[0])
-    q_err = res_max = vel_max = rel_max = traj_err = traj_motion = 0.0
-    nsteps = max(1, round(horizon / model.opt.timestep))
-    acc_err = np.zeros(3)
-    acc_scale = np.zeros(3)
-    done = 0
-    while done < n:
-        X = np.array([z0 * rng.uniform(0.7, 1.3), *rng.uniform(-0.3, 0.3, 2)])
-        try:
-            robot.check_pose(X)
-        except InvalidPoseError:
-            continue
-        Xdot = rng.uniform(-1.0, 1.0, 3) * np.array([0.1, 1.0, 1.0])
-        tau = robot.actuator_forces(X, robot.gravity(X)) + rng.uniform(-100.0, 100.0, 4)
-        qpos = initial_qpos(model, robot, X)
-        qvel = initial_qvel(model, qpos, X, Xdot)
-        data.qpos[:], data.qvel[:], data.ctrl[:] = qpos, qvel, tau
-        r, J = _equality_rows(model, data)
-        res_max = max(res_max, float(np.max(np.abs(r))))
-        vel_max = max(vel_max, float(np.max(np.abs(J @ qvel))))
-        dq = limb_lengths(model, qpos) - robot.inverse_kinematics(X)
-        q_err = max(q_err, float(np.max(np.abs(dq))))
-
-        mujoco.mj_forward(model, data)
-        xdd_mj = platform_task_acceleration(model, data)
-        F = robot.jacobian(X).T @ tau - robot.coriolis_matrix(X, Xdot) @ Xdot - robot.gravity(X)
-        xdd = np.linalg.solve(robot.mass_matrix(X), F)
-        err = np.abs(xdd_mj - xdd)
-        acc_err = np.maximum(acc_err, err)
-        acc_scale = np.maximum(acc_scale, np.abs(xdd))
-        rel_max = max(rel_max, float(err.max() / np.abs(xdd).max()))
-
-        for _ in range(nsteps):
-            mujoco.mj_step(model, data)
-        X_cf = _closed_form_trajectory(robot, X, Xdot, tau, nsteps * model.opt.timestep)
-        traj_err = max(traj_err, float(np.max(np.abs(platform_pose(model, data.qpos) - X_cf))))
-        traj_motion = max(traj_motion, float(np.max(np.abs(X_cf - X))))
-        done += 1
-    return {
-        "n": n,
-        "nv": int(model.nv),
-        "neq": int(model.neq),
-        "nefc": int(data.nefc),
-        "q_err_max_m": q_err,
-        "closure_residual_max": res_max,
-        "closure_velocity_max": vel_max,
-        "xddot_err_max": acc_err.tolist(),
-        "xddot_rel_err_max": rel_max,
-        "xddot_scale": acc_scale.tolist(),
-        "traj_err_max": traj_err,
-        "traj_motion_max": traj_motion,
-    }
-
-
-def _closed_form_trajectory(robot, X, Xdot, tau, duration: float) -> np.ndarray:
-    """Pose after ``duration`` s of the closed-form dynamics with actuator forces ``tau``."""
-
-    def rhs(_t: float, y: np.ndarray) -> np.ndarray:
-        x, xd = y[:3], y[3:]
-        F = robot.jacobian(x).T @ tau - robot.coriolis_matrix(x, xd) @ xd - robot.gravity(x)
-        return np.concatenate([xd, np.linalg.solve(robot.mass_matrix(x), F)])
-
-    y0 = np.concatenate([X, Xdot])
-    sol = solve_ivp(rhs, (0.0, duration), y0, method="DOP853", rtol=1e-12, atol=1e-12)
-    if not sol.success:
-        raise RuntimeError(f"closed-form integration failed: {sol.message}")
-    return sol.y[:3, -1]
+from pkmctl.plants.mujoco import (
+    _equality_rows,
+    _slides,
+    agreement,
+    build_model,
+    initial_qpos,
+    platform_pose,
+)
+
+__all__ = ["python_afsmc_steps_per_second", "steps_per_second"]
 
 
 def _best_of(repeats: int, run: Callable[[], None]) -> float:
@@ -682,6 +146,45 @@ def steps_per_second(
         "drift_X_max": drift,
         "closure_residual_end": float(np.max(np.abs(r_end))),
     }
+
+
+def python_afsmc_steps_per_second(duration: float = 1.0, repeats: int = 3) -> float:
+    """Steps/s of MuJoCo with AFSMC called from Python every step, as a MuJoCo user would.
+
+    The paper scenario's trajectory, gains and controller model; every 50 us step reads
+    X and Xdot from MuJoCo, calls ``pkmctl.make_controller("afsmc", ...).step`` (the
+    compiled law behind a Python call), splits F into limb forces
+    (``robot.actuator_forces``) and calls ``mj_step``. No disturbance, no logging.
+    """
+    from pkmctl.plants.mujoco import MujocoMachine
+
+    sc = pkmctl.Scenario.builtin("paper")
+    robot, Tc = sc.plant(), sc.timing.control_period
+    traj = sc.trajectory.build()
+    n = max(1, round(duration / Tc))
+    Xd, Xdd, Xddd = traj.evaluate(np.arange(n) * Tc)
+    machine = MujocoMachine(robot, timestep=Tc)
+    x, q, zero = np.empty(6), np.empty(4), np.zeros(3)
+
+    def make():
+        return pkmctl.make_controller(
+            "afsmc", sc.controller_mechanism(), sc.controller_gains(), period=Tc
+        )
+
+    make().step(Xd[0], zero, Xd[0], Xdd[0], Xddd[0])  # compile (or load the cache) untimed
+    robot.actuator_forces(Xd[0], zero)
+
+    fresh = iter([make() for _ in range(repeats)])  # built untimed, one per run
+
+    def run() -> None:
+        ctrl = next(fresh)
+        machine.reset(np.concatenate([sc.initial.X, sc.initial.Xdot]))
+        for k in range(n):
+            machine.read(x, q)
+            F = ctrl.step(x[:3], x[3:], Xd[k], Xdd[k], Xddd[k])
+            machine.step(robot.actuator_forces(x[:3], F), zero)
+
+    return n / _best_of(repeats, run)
 
 
 def _main() -> None:

@@ -1,3 +1,7 @@
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen, before anything imports MuJoCo
+
 import numpy as np
 import pytest
 

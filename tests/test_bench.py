@@ -17,7 +17,14 @@ def test_bench_quick_smoke(tmp_path):
     assert set(data["steps"]) == {"smc", "fsmc", "afsmc", "pd", "ctc", "my-law"}
     assert data["mujoco"]["steps_per_s"] > 0  # the test command installs MuJoCo
     labels = [r[0] for r in rows(data)]
-    assert "  AFSMC closed loop / MuJoCo open loop" in labels
+    for label in (
+        "MuJoCo RK4 (same step), open loop",
+        "MuJoCo Euler (same step), open loop",
+        "MuJoCo RK4 + AFSMC from Python",
+        "AFSMC loop, plant.kind = mujoco",
+    ):
+        assert label in labels
+    assert labels.count("  closed-form AFSMC loop / this") == 4
     assert "  user's my-law / built-in pd" in labels
     assert data["flc"]["compiled_us"] > 0 and data["batch"]["workers"] >= 1
     assert data["flops"]["flops_per_step"] > data["flops"]["plant_eval_flops"] * 4

@@ -6,6 +6,7 @@
                     [--seed N] [--duration S]
     pkmctl scenario [NAME]
     pkmctl bench [--quick] [--json PATH]
+    pkmctl mujoco-model --out FILE.xml [--scenario NAME|FILE] [--rotor-inertia J] ...
 
 Every error a user can cause ends in one line on stderr naming the cause (the value,
 the field or the path) and exit status 2 for bad input or environment (output
@@ -325,7 +326,7 @@ def reproduce(
         _handle(ctx, exc)
     existed = out.is_dir()
     sc = _scenario(ctx, scenario, seed, duration, _untouched(out, existed))
-    steps = ["compile", *CONTROLLER_ORDER, "series", "table", "figures", "report"]
+    steps = ["compile", *CONTROLLER_ORDER, "series", "table", "figures", "report", "machine"]
     with Progress(
         SpinnerColumn(),
         TextColumn("{task.description}"),
@@ -498,6 +499,51 @@ def bench(
         except Exception as exc:
             _handle(ctx, exc)
         console.print(Text(f"wrote {json_out}"))
+
+
+@app.command("mujoco-model")
+def mujoco_model(
+    out: Annotated[Path, typer.Option(help="The MJCF file to write (FILE.xml).")],
+    scenario: Annotated[
+        str, typer.Option(help="Built-in scenario name or TOML file: its true plant.")
+    ] = "paper",
+    rotor_inertia: Annotated[
+        float, typer.Option(help="Rotor inertia per motor, kg m^2 (slide armature).")
+    ] = 0.0,
+    screw_lead: Annotated[float, typer.Option(help="Ball-screw lead, m.")] = 0.01,
+    friction_viscous: Annotated[
+        float, typer.Option(help="Viscous friction, N s/m (slide damping).")
+    ] = 0.0,
+    friction_coulomb: Annotated[
+        float, typer.Option(help="Coulomb friction, N: refused unless 0 (see the message).")
+    ] = 0.0,
+) -> None:
+    """Write the scenario's machine as a MuJoCo model (MJCF), e.g. for MuJoCo's viewer."""
+    from pkmctl.errors import PkmctlError
+    from pkmctl.io.atomic import atomic_write
+
+    try:
+        from pkmctl.plants.mujoco import build_mjcf
+    except ImportError as exc:
+        _fail(str(exc))
+    if out.is_dir():
+        _fail(f"--out {out}: is a folder, give a file name (FILE.xml)")
+    try:
+        text = build_mjcf(
+            _load_scenario(scenario).plant(),
+            rotor_inertia=rotor_inertia,
+            screw_lead=screw_lead,
+            friction_viscous=friction_viscous,
+            friction_coulomb=friction_coulomb,
+        )
+    except (PkmctlError, ValueError) as exc:
+        _fail(str(exc))
+    try:
+        with atomic_write(out) as fh:
+            fh.write(text)
+    except OSError as exc:
+        _fail(f"--out {out}: cannot write: {exc.strerror or exc}")
+    console.print(f"wrote {out}")
 
 
 def _import_benchmarks() -> None:

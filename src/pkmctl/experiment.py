@@ -23,6 +23,8 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from pkmctl.io.atomic import atomic_write, check_output_folder, staged_folder
 from pkmctl.io.results import save_result
 from pkmctl.sim.result import Result
@@ -104,6 +106,10 @@ def reproduce(
             scenario_name=next(iter(results.values())).scenario.name,
             wall_time_s=wall,
         )
+        say("rendering the machine")
+        images, note = _machine_images(results, stage / "figures")
+        names += [p[0] for p in images]
+        report += _machine_section(images, note, stage)
         with atomic_write(stage / "report.md") as fh:
             fh.write(report)
         names.append(stage / "report.md")
@@ -129,3 +135,38 @@ def _run_all(scenario: Scenario, seed: int | None, say: Callable[[str], None]) -
                 f.cancel()
             raise
     return results
+
+
+def _machine_images(results: dict[str, Result], folder: Path) -> tuple[list[Path], str]:
+    """MuJoCo images of the AFSMC run at home (t = 0), at its largest tilt and at the end;
+    ([], the one-line reason) where MuJoCo or an offscreen GL backend is missing."""
+    try:
+        from pkmctl.plants.mujoco import render_poses
+    except ImportError as exc:
+        return [], f"No images of the machine: {exc}."
+    res = results.get("afsmc") or next(iter(results.values()))
+    tilt = np.abs(res.X[:, 1]) + np.abs(res.X[:, 2])
+    picks = {"home": 0, "largest-tilt": int(np.argmax(tilt)), "end": res.t.size - 1}
+    try:
+        images = render_poses(res.scenario.plant(), res.X[list(picks.values())])
+    except RuntimeError as exc:
+        return [], f"No images of the machine: {exc}."
+    import matplotlib.image
+
+    paths = []
+    for (name, k), im in zip(picks.items(), images, strict=True):
+        path = folder / f"machine_{name}.png"
+        with atomic_write(path, "wb") as fh:
+            matplotlib.image.imsave(fh, im, format="png")
+        paths.append((path, name, float(res.t[k]), res.X[k]))
+    return paths, f"{res.controller.upper()} run, drawn by MuJoCo (pkmctl.plants.mujoco)."
+
+
+def _machine_section(images, note: str, out: Path) -> str:
+    lines = ["", "## The machine", "", note, ""]
+    for path, name, t, X in images:
+        a, b = np.degrees(X[1:3])
+        x = f"z = {X[0]:.3f} m, alpha = {a:.1f} deg, beta = {b:.1f} deg"
+        lines.append(f"![{name}]({path.relative_to(out).as_posix()}) {name}, t = {t:.3f} s: {x}")
+        lines.append("")
+    return "\n".join(lines)

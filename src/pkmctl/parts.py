@@ -31,6 +31,13 @@ Every control period the loop runs sensor → controller → actuator → plant 
               ``derivative(p, state, cmd, dstate)`` (a drive's torque lag).
    ========== ================================================================
 
+   A plant may instead be *stepped* outside compiled code (another engine, e.g. MuJoCo):
+   it registers a ``stepper(p, ctx, h)`` that returns an object with ``reset(x)``,
+   ``step(tau, dist)`` (one sub-step of h seconds under held tau (4,) and dist (3,)) and
+   ``read(x, q) -> status``, and no ``derivative``; the loop of :mod:`pkmctl.sim.stepped`
+   then runs the compiled sensor, controller, actuator and ``observe`` once a period and
+   the stepper between periods.
+
    A controller may also log a row per period (``log(p, state, row)``, ``log_size``
    and ``log_name``; AFSMC logs Θ̂ as ``theta_hat``).
 
@@ -132,6 +139,7 @@ class Part:
     adaptive: bool = False
     sources: tuple[str, ...] = ()
     builtin: bool = False
+    stepper: Callable[[Any, PartContext, float], Any] | None = None
     compiled: dict[str, Any] = field(default_factory=dict)
 
     def make(self, ctx: PartContext) -> tuple[Any, np.ndarray, np.ndarray]:
@@ -227,6 +235,7 @@ def _register(
     surface_gain: Callable | None = None,
     adaptive: bool = False,
     builtin: bool = False,
+    stepper: Callable | None = None,
 ) -> Part:
     reg = _REGISTRY[kind]
     if not isinstance(name, str) or not name or name != name.strip():
@@ -246,7 +255,11 @@ def _register(
         raise PartError(
             f"{kind} {name!r}: give build=... or a classmethod {params.__name__}.from_context(ctx)"
         )
+    if stepper is not None and kind != "plant":
+        raise PartError(f"{kind} {name!r}: only a plant can have a stepper")
     for role in _REQUIRED[kind]:
+        if role == "derivative" and stepper is not None:
+            continue  # a stepped plant is advanced by its stepper, not integrated by the loop
         if role not in functions:
             raise PartError(f"{kind} {name!r}: missing its {role!r} function")
     sources = set()
@@ -293,6 +306,7 @@ def _register(
         adaptive=bool(adaptive),
         sources=tuple(sorted(sources)),
         builtin=builtin,
+        stepper=stepper,
     )
     reg[name] = part
     _BY_TYPE[(kind, params)] = part

@@ -40,7 +40,11 @@ from pkmctl.parts import (
 __all__ = ["LoopOutput", "STATUS", "is_compiled", "loop_for", "run_parts"]
 
 #: Why a loop stopped early, by its status code.
-STATUS = {1: "the state became non-finite", 2: "the pose left the valid set"}
+STATUS = {
+    1: "the state became non-finite",
+    2: "the pose left the valid set",
+    3: "the stepped plant blew up (MuJoCo: a fatal warning or a closure residual over 1 um)",
+}
 
 
 @kernel(inline="always", refcount=False)

@@ -30,6 +30,7 @@ from pkmctl.parts import Part, PartContext, PartError, get_part
 from pkmctl.sim.loop import STATUS, LogBuffers, is_compiled, run_parts
 from pkmctl.sim.result import Result
 from pkmctl.sim.scenario import Scenario, ScenarioError
+from pkmctl.sim.stepped import run_stepped
 
 __all__ = [
     "check_memory",
@@ -241,9 +242,11 @@ def _run(
         n_log = int(parts["controller"].log_size(bundles["controller"][0]))
         check_memory(8 * n * (_LOG_COLUMNS + n_log), f"the logs of a {n * Tc:g} s run")
     dvals, didx = _disturbance(scenario, n, Tc)
-    out = run_parts(
+    stepped = parts["plant"].stepper is not None
+    out = (run_stepped if stepped else run_parts)(
         parts,
         bundles,
+        *((ctx,) if stepped else ()),
         period=Tc,
         substeps=scenario.timing.substeps,
         reference=prep.reference,

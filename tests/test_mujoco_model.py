@@ -1,0 +1,171 @@
+"""The MuJoCo model of the machine against the closed form (DESIGN.md §10, issue 13 point 2)."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+mujoco = pytest.importorskip("mujoco", reason="MuJoCo is not installed (pkmctl[mujoco])")
+mj = pytest.importorskip("pkmctl.plants.mujoco")
+
+from pkmctl.errors import InvalidPoseError  # noqa: E402
+
+N_STATES = 200
+
+
+def _states(robot, n: int, seed: int):
+    """(X, Xdot, tau) at n random valid states: z in [0.7, 1.3] home z, |angles| <= 0.3 rad,
+    Xdot within (0.1 m/s, 1 rad/s, 1 rad/s), tau = gravity forces + U(-100, 100) N."""
+    rng = np.random.default_rng(seed)
+    out = []
+    while len(out) < n:
+        X = np.array([robot.home[0] * rng.uniform(0.7, 1.3), *rng.uniform(-0.3, 0.3, 2)])
+        try:
+            robot.check_pose(X)
+        except InvalidPoseError:
+            continue
+        Xdot = rng.uniform(-1.0, 1.0, 3) * np.array([0.1, 1.0, 1.0])
+        tau = robot.actuator_forces(X, robot.gravity(X)) + rng.uniform(-100.0, 100.0, 4)
+        out.append((X, Xdot, tau))
+    return out
+
+
+def _closed_form(robot, X, Xdot, tau, m_r=0.0, f_v=0.0):
+    """Xddot of §2, with §7's reflected rotor inertia m_r and viscous friction F_v:
+    (M + J^T m_r J) Xddot = J^T (tau - F_v J Xdot - m_r Jdot Xdot) - C Xdot - G."""
+    J = robot.jacobian(X)
+    h = 1e-6
+    Jdot_Xdot = (robot.jacobian(X + h * Xdot) - robot.jacobian(X - h * Xdot)) @ Xdot / (2 * h)
+    M = robot.mass_matrix(X) + m_r * J.T @ J
+    f = J.T @ (tau - f_v * J @ Xdot - m_r * Jdot_Xdot)
+    return np.linalg.solve(M, f - robot.coriolis_matrix(X, Xdot) @ Xdot - robot.gravity(X))
+
+
+def _set(model, data, robot, X, Xdot, tau):
+    qpos = mj.initial_qpos(model, robot, X)
+    data.qpos[:], data.ctrl[:] = qpos, tau
+    data.qvel[:] = mj.initial_qvel(model, qpos, X, Xdot)
+    mujoco.mj_forward(model, data)
+
+
+@pytest.fixture(scope="module")
+def model(robot):
+    return mj.build_model(robot)
+
+
+def test_limb_lengths_and_rates_from_the_mujoco_state(robot, model):
+    data = mujoco.MjData(model)
+    for X, Xdot, tau in _states(robot, N_STATES, seed=1):
+        _set(model, data, robot, X, Xdot, tau)
+        q = mj.limb_lengths(model, data.qpos)
+        assert np.max(np.abs(q - robot.inverse_kinematics(X))) <= 1e-12
+        np.testing.assert_allclose(mj.platform_pose(model, data.qpos), X, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(
+            mj.platform_rate(model, data.qpos, data.qvel), Xdot, rtol=0, atol=1e-12
+        )
+
+
+def test_exact_constrained_acceleration_equals_the_closed_form(robot, model):
+    data = mujoco.MjData(model)
+    worst = 0.0
+    for X, Xdot, tau in _states(robot, N_STATES, seed=2):
+        _set(model, data, robot, X, Xdot, tau)
+        xdd = _closed_form(robot, X, Xdot, tau)
+        err = np.max(np.abs(mj.task_acceleration(model, data) - xdd)) / np.max(np.abs(xdd))
+        worst = max(worst, err)
+    assert worst <= 1e-9, worst
+
+
+def test_soft_acceleration_is_off_by_the_regulariser_alone(robot, model):
+    """mj_forward's qacc is within 1e-3 (relative) of the closed form; the residual is the
+    regulariser of MuJoCo's soft closures: it scales with 1 - d of solimp (0.9999 here)."""
+    data = mujoco.MjData(model)
+    worst = 0.0
+    for X, Xdot, tau in _states(robot, N_STATES, seed=3):
+        _set(model, data, robot, X, Xdot, tau)
+        xdd = _closed_form(robot, X, Xdot, tau)
+        err = mj.platform_task_acceleration(model, data) - xdd
+        worst = max(worst, np.max(np.abs(err)) / np.max(np.abs(xdd)))
+    assert worst <= 1e-3, worst
+    X, Xdot, tau = _states(robot, 1, seed=4)[0]
+    xdd = _closed_form(robot, X, Xdot, tau)
+    errs = []
+    for d in (0.99, 0.999, 0.9999):
+        m = mj.build_model(robot, solimp=(d, d, 1e-3, 0.5, 2.0))
+        dat = mujoco.MjData(m)
+        _set(m, dat, robot, X, Xdot, tau)
+        errs.append(np.max(np.abs(mj.platform_task_acceleration(m, dat) - xdd)))
+        # and the exact solve does not depend on the softness at all
+        assert np.max(np.abs(mj.task_acceleration(m, dat) - xdd)) <= 1e-9 * np.max(np.abs(xdd))
+    ratios = np.array(errs[:-1]) / np.array(errs[1:])
+    np.testing.assert_allclose(ratios, 10.0, rtol=0.05)
+
+
+def test_rotor_inertia_and_viscous_friction_map_to_armature_and_damping(robot):
+    J_m, lead, f_v = 2.77e-5, 0.01, 300.0
+    m_r = J_m * (2 * np.pi / lead) ** 2  # 10.9 kg per limb (DESIGN.md §7)
+    model = mj.build_model(robot, rotor_inertia=J_m, screw_lead=lead, friction_viscous=f_v)
+    joint = mujoco.mjtObj.mjOBJ_JOINT
+    slides = [mujoco.mj_name2id(model, joint, f"slide{n}") for n in (1, 2, 3, 4)]
+    dofs = model.jnt_dofadr[slides]
+    np.testing.assert_allclose(model.dof_armature[dofs], m_r, rtol=1e-15)
+    np.testing.assert_array_equal(model.dof_damping[dofs], f_v)
+    data = mujoco.MjData(model)
+    for X, Xdot, tau in _states(robot, 50, seed=5):
+        _set(model, data, robot, X, Xdot, tau)
+        xdd = _closed_form(robot, X, Xdot, tau, m_r=m_r, f_v=f_v)
+        err = np.max(np.abs(mj.task_acceleration(model, data) - xdd)) / np.max(np.abs(xdd))
+        assert err <= 1e-9, err
+
+
+def test_coulomb_friction_is_refused_with_the_reason(robot):
+    with pytest.raises(ValueError, match="frictionloss.*soft constraint.*tanh"):
+        mj.build_mjcf(robot, friction_coulomb=30.0)
+    with pytest.raises(ValueError, match="screw_lead"):
+        mj.build_mjcf(robot, rotor_inertia=1e-5, screw_lead=0.0)
+
+
+def test_pkmctl_imports_without_mujoco_and_says_how_to_get_it():
+    code = (
+        "import sys; sys.modules['mujoco'] = None\n"
+        "import pkmctl; pkmctl.simulate\n"
+        "try:\n    import pkmctl.plants.mujoco\n"
+        "except ImportError as e:\n    print(e)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == 'pkmctl.plants.mujoco needs MuJoCo: pip install "pkmctl[mujoco]"'
+
+
+def test_mujoco_model_command_writes_a_loadable_model(tmp_path):
+    from typer.testing import CliRunner
+
+    from pkmctl.cli import app
+
+    runner = CliRunner()
+    out = tmp_path / "m" / "pkm.xml"
+    res = runner.invoke(app, ["mujoco-model", "--out", str(out), "--rotor-inertia", "2.77e-5",
+                              "--friction-viscous", "300"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    model = mujoco.MjModel.from_xml_path(str(out))
+    assert (model.nv, model.neq, model.nu) == (14, 4, 4)
+    assert np.isclose(model.dof_armature.max(), 2.77e-5 * (2 * np.pi / 0.01) ** 2)
+    assert [p.name for p in tmp_path.joinpath("m").iterdir()] == ["pkm.xml"]  # no temp left
+    for args, match in (
+        (["--out", str(tmp_path)], "is a folder"),
+        (["--out", "/proc/no/such/pkm.xml"], "cannot write"),
+        (["--out", str(out), "--friction-coulomb", "30"], "frictionloss"),
+    ):
+        res = runner.invoke(app, ["mujoco-model", *args])
+        assert res.exit_code == 2, res.output
+        assert match in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr
+
+
+def test_render_poses_draws_the_machine(robot):
+    try:
+        images = mj.render_poses(robot, [robot.home, robot.home + [0.0, 0.3, -0.3]], width=160,
+                                 height=120)  # fmt: skip
+    except RuntimeError as exc:
+        pytest.skip(f"no offscreen GL backend here: {exc}")
+    assert [im.shape for im in images] == [(120, 160, 3)] * 2
+    assert images[0].std() > 10 and np.abs(images[0].astype(int) - images[1]).mean() > 1

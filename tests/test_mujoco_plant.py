@@ -1,0 +1,70 @@
+"""The loop on the MuJoCo plant (DESIGN.md §10, issue 13 point 3)."""
+
+import os
+from typing import NamedTuple
+
+import numpy as np
+import pytest
+
+import pkmctl
+
+pytest.importorskip("mujoco", reason="MuJoCo is not installed (pkmctl[mujoco])")
+
+FULL = os.environ.get("PKMCTL_FULL") == "1"
+CONTROLLERS = ("smc", "fsmc", "afsmc", "pd", "ctc")
+
+
+def _on_mujoco(scenario):
+    return scenario.replace(**{"plant.kind": "mujoco"})
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("controller", CONTROLLERS)
+def test_paper_scenario_gives_the_closed_form_rmse(controller):
+    """Every RMSE within 1 % of the closed-form plant's (CI: the first 0.1 s; PKMCTL_FULL=1:
+    the paper's 10 s)."""
+    sc = pkmctl.Scenario.builtin("paper")
+    duration = None if FULL else 0.1
+    rigid = pkmctl.simulate(sc, controller, duration=duration)
+    mj = pkmctl.simulate(_on_mujoco(sc), controller, duration=duration)
+    assert mj.parts["plant"] == "mujoco" and mj.success
+    a, b = rigid.rmse(), mj.rmse()
+    for k in a:
+        assert abs(b[k] - a[k]) <= 0.01 * abs(a[k]), (k, a[k], b[k])
+    # and the runs themselves: the closures' sag (~1e-9 m) is all that differs
+    assert np.max(np.abs(mj.X - rigid.X)) <= 1e-7
+    np.testing.assert_allclose(mj.tau, rigid.tau, rtol=0, atol=1e-3 * np.abs(rigid.tau).max())
+
+
+class _Kick(NamedTuple):
+    force: float
+
+
+@pkmctl.register_controller("x-mujoco-kick", params=_Kick, build=lambda ctx: _Kick(1e7))
+def _kick(p, state, work, y, ref, F):
+    F[0] = p.force  # 10 MN along z: the platform leaves the workspace within a few periods
+    F[1] = 0.0
+    F[2] = 0.0
+
+
+def test_divergence_is_reported_not_logged_as_nan():
+    with pytest.raises(pkmctl.SimulationDiverged, match="x-mujoco-kick") as info:
+        pkmctl.simulate(_on_mujoco(pkmctl.Scenario.builtin("paper")), "x-mujoco-kick",
+                        duration=0.05)  # fmt: skip
+    partial = info.value.partial
+    assert 0 < partial.t.size < 1000
+    assert np.all(np.isfinite(partial.X)) and np.all(np.isfinite(partial.q))
+
+
+def test_a_blown_up_mujoco_state_is_status_3(robot):
+    from pkmctl.plants.mujoco import MujocoMachine
+
+    machine = MujocoMachine(robot)
+    x, q = np.empty(6), np.empty(4)
+    machine.reset(np.r_[robot.home, 0.0, 0.0, 0.0])
+    assert machine.read(x, q) == 0
+    np.testing.assert_allclose(x, np.r_[robot.home, 0, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(q, robot.inverse_kinematics(robot.home), atol=1e-12)
+    machine.data.qvel[0] = np.nan  # MuJoCo warns and resets its state to qpos0
+    machine.step(np.zeros(4), np.zeros(3))
+    assert machine.read(x, q) == 3
