@@ -123,7 +123,7 @@ def platform_point(z, ta, zs, sec2, ca, sa, R, ox, oy, oz, Xd, v):
     return rx, ry, rz, p02, p10, p11, p12, p21, p22, t0 + s0, av1 + t1 + s1, t2 + s2
 
 
-@kernel(refcount=False)
+@kernel(refcount=False, llvm_inline=True)
 def limb_jacobian_rate(geom, X, Xd, v, R, Jq, q, Jdv):
     """Limb lengths ``q`` (4,), Jacobian ``Jq`` (4, 3) and ``Jdv`` (4,) = (dJ/dt along Xd) v.
 

@@ -60,7 +60,7 @@ def add_rotor_inertia(m_r, Jq, Jdv, M, Cv):
     M[1, 0], M[2, 0], M[2, 1] = M[0, 1], M[0, 2], M[1, 2]
 
 
-@kernel(refcount=False)
+@kernel(refcount=False, llvm_inline=True)
 def add_payload(geom, mass, offset, X, Xd, v, R, M, Cv, G):
     """Add a point mass ``mass`` (kg) at ``offset`` (3,) in the platform frame to M (3, 3),
     C(X, Xd) v (3,) and G (3,). ``R`` (3, 3) is scratch (receives the orientation)."""
