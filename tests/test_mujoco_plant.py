@@ -56,7 +56,7 @@ def test_divergence_is_reported_not_logged_as_nan():
     assert np.all(np.isfinite(partial.X)) and np.all(np.isfinite(partial.q))
 
 
-def test_a_blown_up_mujoco_state_is_status_3(robot):
+def test_a_blown_up_mujoco_state_is_status_4(robot):
     from pkmctl.plants.mujoco import MujocoMachine
 
     machine = MujocoMachine(robot)
@@ -67,4 +67,4 @@ def test_a_blown_up_mujoco_state_is_status_3(robot):
     np.testing.assert_allclose(q, robot.inverse_kinematics(robot.home), atol=1e-12)
     machine.data.qvel[0] = np.nan  # MuJoCo warns and resets its state to qpos0
     machine.step(np.zeros(4), np.zeros(3))
-    assert machine.read(x, q) == 3
+    assert machine.read(x, q) == 4

@@ -39,7 +39,13 @@ Every control period the loop runs sensor → controller → actuator → plant 
    the stepper between periods.
 
    A controller may also log a row per period (``log(p, state, row)``, ``log_size``
-   and ``log_name``; AFSMC logs Θ̂ as ``theta_hat``).
+   and ``log_name``; AFSMC logs Θ̂ as ``theta_hat``), and so may a sensor, right after
+   ``measure`` (the encoder logs its quantised lengths q̂ as ``q_measured``). A sensor
+   that cannot measure (forward kinematics failed) writes NaN into y: the loop stops
+   there and :func:`pkmctl.simulate` raises ``SimulationDiverged`` naming the time.
+5. optionally a **report**, ``report(p, final_state) -> dict``, plain Python, run once
+   after the loop: what the part counted (the drive: speed-limit violations), put into
+   ``Result.info``.
 
 Each kind has a registry (name → :class:`Part`); scenarios and the CLI choose parts by
 name. A user adds one from their own module with a decorator
@@ -82,7 +88,7 @@ __all__ = [
 
 #: The four kinds of part, in the order the loop runs them, and their step functions.
 ROLES: dict[str, dict[str, int]] = {
-    "sensor": {"measure": 5},
+    "sensor": {"measure": 5, "log": 3},
     "controller": {"step": 6, "log": 3},
     "actuator": {"command": 6, "force": 4, "derivative": 4},
     "plant": {"derivative": 6, "observe": 6},
@@ -137,6 +143,7 @@ class Part:
     label: str = ""
     surface_gain: Callable[[Any, Any], np.ndarray] | None = None
     adaptive: bool = False
+    report: Callable[[Any, np.ndarray], dict] | None = None
     sources: tuple[str, ...] = ()
     builtin: bool = False
     stepper: Callable[[Any, PartContext, float], Any] | None = None
@@ -234,6 +241,7 @@ def _register(
     label: str = "",
     surface_gain: Callable | None = None,
     adaptive: bool = False,
+    report: Callable | None = None,
     builtin: bool = False,
     stepper: Callable | None = None,
 ) -> Part:
@@ -304,6 +312,7 @@ def _register(
         label=label or name.upper(),
         surface_gain=surface_gain,
         adaptive=bool(adaptive),
+        report=report,
         sources=tuple(sorted(sources)),
         builtin=builtin,
         stepper=stepper,
@@ -314,7 +323,7 @@ def _register(
 
 
 _SIGNATURES = {
-    "sensor": {"measure": "p, state, work, x, y"},
+    "sensor": {"measure": "p, state, work, x, y", "log": "p, state, row"},
     "controller": {"step": "p, state, work, y, ref, F", "log": "p, state, row"},
     "actuator": {
         "command": "p, state, work, y, F, cmd",
@@ -431,6 +440,7 @@ def _stub(kind: str, role: str):
 
 
 sensor_measure = _stub("sensor", "measure")
+sensor_log = _stub("sensor", "log")
 controller_step = _stub("controller", "step")
 controller_log = _stub("controller", "log")
 actuator_command = _stub("actuator", "command")

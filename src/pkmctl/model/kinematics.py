@@ -34,7 +34,9 @@ __all__ = [
     "body_jacobians",
     "forward_kinematics_kernel",
     "limb_jacobian",
+    "limb_jacobian_rate",
     "limb_kinematics",
+    "platform_point",
 ]
 
 #: Joint angles theta_i of limbs 1..4 around the z axis (DESIGN.md §1): +y, -x, -y, +x.
@@ -96,6 +98,69 @@ def limb_jacobian(geom, X, R, Jq, q):
         )
         q[i] = qi
         Jq[i, 0], Jq[i, 1], Jq[i, 2] = _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22)
+
+
+@kernel(inline="always", refcount=False)
+def platform_point(z, ta, zs, sec2, ca, sa, R, ox, oy, oz, Xd, v):
+    """A point fixed on the platform at ``o`` (platform frame): rho = R o, J_P = dP/dX and
+    dJ_P/dt v along Xd (the derivative of eq. 4-8's J_P, applied to one vector v).
+
+    Returns rho (3 scalars), the non-trivial entries p02, p10, p11, p12, p21, p22 of
+    J_P = [[0, 0, p02], [p10, p11, p12], [1, p21, p22]] and dJ_P v (3 scalars).
+    """
+    zd, ad, bd = Xd[0], Xd[1], Xd[2]
+    rx = R[0, 0] * ox + R[0, 1] * oy + R[0, 2] * oz
+    ry = R[1, 0] * ox + R[1, 1] * oy + R[1, 2] * oz
+    rz = R[2, 0] * ox + R[2, 1] * oy + R[2, 2] * oz
+    p02 = ca * rz - sa * ry
+    p10, p11, p12 = -ta, -zs - rz, sa * rx
+    p21, p22 = ry, -ca * rx
+    # dJ_P v = dJv0 v + (dJw0 v) x rho + (Jw0 v) x (omega x rho), as in body_jacobians
+    av1 = -sec2 * ad * v[0] - (zd * sec2 + 2.0 * z * sec2 * ta * ad) * v[1]
+    t0, t1, t2 = _cx(0.0, -sa * ad * v[2], ca * ad * v[2], rx, ry, rz)
+    rdx, rdy, rdz = _cx(ad, ca * bd, sa * bd, rx, ry, rz)
+    s0, s1, s2 = _cx(v[1], ca * v[2], sa * v[2], rdx, rdy, rdz)
+    return rx, ry, rz, p02, p10, p11, p12, p21, p22, t0 + s0, av1 + t1 + s1, t2 + s2
+
+
+@kernel(refcount=False, llvm_inline=True)
+def limb_jacobian_rate(geom, X, Xd, v, R, Jq, q, Jdv):
+    """Limb lengths ``q`` (4,), Jacobian ``Jq`` (4, 3) and ``Jdv`` (4,) = (dJ/dt along Xd) v.
+
+    With v = Xd, Jdv is the velocity part of the limb accelerations,
+    qddot = J Xddot + Jdot Xdot. Row i: J_i = u_i^T J_P,i (eq. 8), so
+    Jdot_i v = udot_i . (J_P,i v) + u_i . (dJ_P,i v) with udot = (I - u u^T) Pdot / q.
+    ``R`` (3, 3) receives the platform orientation. Allocates nothing.
+    """
+    r_a, r_b, z = geom[0], geom[1], X[0]
+    zd, ad, bd = Xd[0], Xd[1], Xd[2]
+    ca, sa, cb, sb = math.cos(X[1]), math.sin(X[1]), math.cos(X[2]), math.sin(X[2])
+    ta = sa / ca
+    sec2 = 1.0 / (ca * ca)
+    zs = z * sec2
+    R[0, 0], R[0, 1], R[0, 2] = cb, 0.0, sb
+    R[1, 0], R[1, 1], R[1, 2] = sa * sb, ca, -sa * cb
+    R[2, 0], R[2, 1], R[2, 2] = -ca * sb, sa, ca * cb
+    for i in range(4):
+        ox, oy = r_a * _LIMB_DIR[i, 0], r_a * _LIMB_DIR[i, 1]
+        rx, ry, rz, p02, p10, p11, p12, p21, p22, a0, a1, a2 = platform_point(
+            z, ta, zs, sec2, ca, sa, R, ox, oy, 0.0, Xd, v
+        )
+        d0, d1, d2 = rx - r_b * _LIMB_DIR[i, 0], -z * ta + ry - r_b * _LIMB_DIR[i, 1], z + rz
+        qi = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        u0, u1, u2 = d0 / qi, d1 / qi, d2 / qi
+        j0, j1, j2 = _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22)
+        q[i] = qi
+        Jq[i, 0], Jq[i, 1], Jq[i, 2] = j0, j1, j2
+        Pd0 = p02 * bd
+        Pd1 = p10 * zd + p11 * ad + p12 * bd
+        Pd2 = zd + p21 * ad + p22 * bd
+        Pv0 = p02 * v[2]
+        Pv1 = p10 * v[0] + p11 * v[1] + p12 * v[2]
+        Pv2 = v[0] + p21 * v[1] + p22 * v[2]
+        qd = u0 * Pd0 + u1 * Pd1 + u2 * Pd2
+        qv = u0 * Pv0 + u1 * Pv1 + u2 * Pv2
+        Jdv[i] = (Pd0 * Pv0 + Pd1 * Pv1 + Pd2 * Pv2 - qd * qv) / qi + (u0 * a0 + u1 * a1 + u2 * a2)
 
 
 @kernel(inline="always")

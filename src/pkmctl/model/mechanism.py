@@ -24,6 +24,7 @@ from pkmctl.model.dynamics import (
     regressor_kernel,
 )
 from pkmctl.model.kinematics import GEOM_SIZE, N_BODIES, forward_kinematics_kernel, limb_kinematics
+from pkmctl.model.machine import N_THETA_EXT, extended_regressor_kernel
 
 __all__ = ["BODY_NAMES", "Body", "Mechanism", "PAPER_TABLE2"]
 
@@ -332,6 +333,28 @@ class Mechanism:
         Y = _regressor_batch(self._geom, Xb, *args)
         return Y[0] if single else Y
 
+    def extended_regressor(
+        self, X, Xdot, Xr_dot, Xr_ddot, friction_velocity: float = 1e-3
+    ) -> np.ndarray:
+        """Extended regressor Y_ext (3, 48) or (N, 3, 48) of DESIGN.md §7.
+
+        Y_ext Theta_ext = M Xr_ddot + C(X, Xdot) Xr_dot + G
+        + J^T diag(m_r) (J Xr_ddot + Jdot Xr_dot) + J^T (F_c tanh(qdot / v_s) + F_v qdot),
+        qdot = J Xdot, with Theta_ext = [Theta (36), m_r (4, kg), F_c (4, N), F_v (4, N s/m)]
+        and v_s = ``friction_velocity`` (m/s).
+        """
+        if not (isinstance(friction_velocity, int | float) and 0 < friction_velocity < math.inf):
+            raise ValueError(
+                f"friction_velocity = {friction_velocity!r}: must be a finite number > 0 (m/s)"
+            )
+        Xb, single = _as_batch(X, "X")
+        args = [
+            _like(a, Xb, n) for a, n in ((Xdot, "Xdot"), (Xr_dot, "Xr_dot"), (Xr_ddot, "Xr_ddot"))
+        ]
+        _check_poses(self._geom, Xb)
+        Y = _extended_regressor_batch(self._geom, Xb, *args, float(friction_velocity))
+        return Y[0] if single else Y
+
     def actuator_forces(self, X: np.ndarray, F: np.ndarray) -> np.ndarray:
         """Minimum-norm actuator forces tau_a = J (J^T J)^-1 F, (4,) or (N, 4)."""
         Xb, single = _as_batch(X, "X")
@@ -451,4 +474,17 @@ def _regressor_batch(geom, Xb, Xdb, Xrdb, Xrddb):
     work = make_work()
     for k in range(n):
         regressor_kernel(geom, Xb[k], Xdb[k], Xrdb[k], Xrddb[k], work, Y[k])
+    return Y
+
+
+@kernel
+def _extended_regressor_batch(geom, Xb, Xdb, Xrdb, Xrddb, vs):
+    n = Xb.shape[0]
+    Y = np.empty((n, 3, N_THETA_EXT))
+    work = make_work()
+    R, Jq, q, Jdv = np.empty((3, 3)), np.empty((4, 3)), np.empty(4), np.empty(4)
+    for k in range(n):
+        extended_regressor_kernel(
+            geom, Xb[k], Xdb[k], Xrdb[k], Xrddb[k], vs, work, R, Jq, q, Jdv, Y[k]
+        )
     return Y

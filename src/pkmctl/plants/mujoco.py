@@ -72,6 +72,9 @@ from pkmctl.errors import InvalidPoseError
 from pkmctl.model.kinematics import LIMB_ANGLES_DEG
 from pkmctl.model.mechanism import Mechanism
 
+#: The loop's status code (pkmctl.sim.loop.STATUS) for a stepper whose state blew up.
+STEPPER_BLEW_UP = 4
+
 __all__ = [
     "MujocoMachine",
     "agreement",
@@ -769,14 +772,14 @@ class MujocoMachine:
 
     def read(self, x: np.ndarray, q: np.ndarray) -> int:
         """Write [X, Xdot] into x (6,) and the limb lengths into q (4,); return a status:
-        0, or 1 non-finite, 3 a MuJoCo warning (MuJoCo then resets its state) or a closure
-        residual over :data:`CLOSURE_LIMIT` (the pose check, status 2, is the loop's).
+        0, or 1 non-finite, 4 (STEPPER_BLEW_UP) a MuJoCo warning (MuJoCo then resets its
+        state) or a closure residual over :data:`CLOSURE_LIMIT` (the pose check, status 2, is the loop's).
 
         The maps of :func:`platform_pose` and :func:`platform_rate` on scalars, through
         views made once (this runs once a period; the binding's accessors cost ~1 us each).
         """
         if self._warnings[self._fatal].any():
-            return 3
+            return STEPPER_BLEW_UP
         a, v = self._qadr, self._dadr
         qp = self._qpos.tolist()
         qv = self._qvel.tolist()
@@ -789,7 +792,7 @@ class MujocoMachine:
         x[0:6] = (qp[a + 2], alpha, beta, qv[v + 2], qv[v + 3] * cb + qv[v + 5] * sb, qv[v + 4])
         q[:] = self._qpos[self._slide_qadr] + self._slide_offset
         if abs(self.data.efc_pos).max(initial=0.0) > CLOSURE_LIMIT:
-            return 3
+            return STEPPER_BLEW_UP
         return 0
 
 

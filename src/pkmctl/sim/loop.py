@@ -34,6 +34,7 @@ from pkmctl.parts import (
     controller_step,
     plant_derivative,
     plant_observe,
+    sensor_log,
     sensor_measure,
 )
 
@@ -43,7 +44,8 @@ __all__ = ["LoopOutput", "STATUS", "is_compiled", "loop_for", "run_parts"]
 STATUS = {
     1: "the state became non-finite",
     2: "the pose left the valid set",
-    3: "the stepped plant blew up (MuJoCo: a fatal warning or a closure residual over 1 um)",
+    3: "the sensor could not measure (its forward kinematics failed or met a singular pose)",
+    4: "the stepped plant blew up (MuJoCo: a fatal warning or a closure residual over 1 um)",
 }
 
 
@@ -59,7 +61,7 @@ def _valid(x):
 
 def _run_loop(
     plant, x, pw, sensor, ss, sw, ctrl, cs, cw, act, ast, aw, n_z, Tc, substeps,
-    ref, dist_values, dist_index, rk, ast_s, vec, logs, log_c,
+    ref, dist_values, dist_index, rk, ast_s, vec, logs, log_c, log_s,
 ):  # fmt: skip
     """The loop over len(ref) periods on preallocated arrays; returns (status, k).
 
@@ -67,8 +69,9 @@ def _run_loop(
     RK4 stages of the plant (rows 0-4) and of the actuator's continuous state (rows 5-9);
     ``vec`` (6, 6) the per-period vectors y, F, cmd, tau, q, J^T tau; ``logs`` the
     (n, .) arrays X, Xdot, y, F, tau, q, disturbance; ``log_c`` the controller's log
-    (n, m), or (0, m) for none. Returns status 0 when all periods ran, else the code of
-    :data:`STATUS` with k the first period whose state is invalid.
+    (n, m), or (0, m) for none, ``log_s`` the sensor's likewise. Returns status 0 when all
+    periods ran, else the code of :data:`STATUS` with k the first period whose state (or
+    measurement: status 3) is invalid.
     """
     n = ref.shape[0]
     nx = x.shape[0]
@@ -77,11 +80,17 @@ def _run_loop(
     log_X, log_Xd, log_y, log_F, log_tau, log_q, log_dist = logs
     h = Tc / substeps
     log_c_on = log_c.shape[0] == n
+    log_s_on = log_s.shape[0] == n
     for k in range(n):
         status = _valid(x)
         if status != 0:
             return status, k
         sensor_measure(sensor, ss, sw, x, y)
+        for i in range(6):
+            if not math.isfinite(y[i]):
+                return 3, k
+        if log_s_on:
+            sensor_log(sensor, ss, log_s[k])
         if log_c_on:
             controller_log(ctrl, cs, log_c[k])  # the state used for F_k
         r = ref[k]
@@ -135,6 +144,7 @@ class LoopOutput:
     steps: int
     logs: dict[str, np.ndarray]
     controller_log: np.ndarray | None
+    sensor_log: np.ndarray | None
     final_state: dict[str, np.ndarray]
     kernel_seconds: float
 
@@ -142,7 +152,7 @@ class LoopOutput:
 class LogBuffers:
     """The arrays one run logs into, (n, ...) each; reusable from run to run."""
 
-    def __init__(self, n: int, controller_log: int = 0) -> None:
+    def __init__(self, n: int, controller_log: int = 0, sensor_log: int = 0) -> None:
         self.n = n
         self.arrays = (
             np.empty((n, 3)),  # X
@@ -154,6 +164,7 @@ class LogBuffers:
             np.empty((n, 3)),  # disturbance
         )
         self.controller = np.empty((n if controller_log else 0, max(1, controller_log)))
+        self.sensor = np.empty((n if sensor_log else 0, max(1, sensor_log)))
 
 
 _LOG_NAMES = ("X", "Xdot", "y", "F", "tau", "q", "disturbance")
@@ -230,7 +241,10 @@ def run_parts(
     x, ss, cs, ast = x0.copy(), s0.copy(), c0.copy(), a0.copy()
     n_z = parts["actuator"].continuous
     n_log = int(parts["controller"].log_size(ctrl_p))
-    logs = LogBuffers(n, n_log) if buffers is None else buffers
+    n_slog = int(parts["sensor"].log_size(sensor_p))
+    logs = LogBuffers(n, n_log, n_slog) if buffers is None else buffers
+    if logs.sensor.shape != ((n, n_slog) if n_slog else (0, 1)):  # buffers of another sensor
+        logs.sensor = np.empty((n if n_slog else 0, max(1, n_slog)))
     rk = np.zeros((10, max(x.shape[0], n_z, 1)))
     vec = np.zeros((6, 6))
     ast_s = np.zeros(max(ast.shape[0], 1))[: ast.shape[0]]
@@ -240,7 +254,7 @@ def run_parts(
         status, k = loop(
             plant_p, x, pw, sensor_p, ss, sw, ctrl_p, cs, cw, act_p, ast, aw, n_z,
             float(period), int(substeps), reference, dist_values, dist_index, rk, ast_s, vec,
-            logs.arrays, logs.controller,
+            logs.arrays, logs.controller, logs.sensor,
         )  # fmt: skip
     except NumbaError as exc:
         raise PartError(f"{_describe(parts)} do not compile: {_reason(exc)}") from exc
@@ -252,6 +266,7 @@ def run_parts(
         steps=int(m),
         logs={name: a[:m] for name, a in zip(_LOG_NAMES, logs.arrays, strict=True)},
         controller_log=logs.controller[:m] if n_log else None,
+        sensor_log=logs.sensor[:m] if n_slog else None,
         final_state={"plant": x, "sensor": ss, "controller": cs, "actuator": ast},
         kernel_seconds=dt,
     )

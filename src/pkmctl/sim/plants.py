@@ -1,8 +1,13 @@
 """Plants: what the loop integrates (DESIGN.md §6). Built in: ``rigid``, the closed form of §2,
-and ``mujoco``, the same machine stepped in MuJoCo (§10, :mod:`pkmctl.sim.stepped`).
+with the options of §7 (reflected rotor inertia, joint friction, a payload), and
+``mujoco``, the same machine stepped in MuJoCo (§10, :mod:`pkmctl.sim.stepped`).
 
 A plant's state starts with [X (3), Xdot (3)] (the task-space pose and its rate);
 the sensor reads it there. See :mod:`pkmctl.parts` for the contract.
+
+With every option off (the default) the plant runs exactly the arithmetic of the rigid
+model: the options' terms sit behind one test of ``machine`` and add nothing, so the
+paper's numbers do not change in a single bit (tests/test_machine.py pins them).
 """
 
 from __future__ import annotations
@@ -20,31 +25,101 @@ from pkmctl.model.dynamics import (
     make_work,
     task_force,
 )
+from pkmctl.model.kinematics import limb_jacobian_rate
+from pkmctl.model.machine import add_payload, add_rotor_inertia, friction_law, reflected_inertia
 from pkmctl.parts import PartContext, PartError, builtin_part
 
-__all__ = ["MujocoPlant", "RigidPlant"]
+__all__ = ["MujocoPlant", "RigidPlant", "machine_dynamics", "rigid_plant"]
 
 
 def _rigid_work(p) -> tuple:
-    """(the dynamics workspace, M (3, 3), C Xdot, G, f (3,))."""
-    return make_work(), np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3)
+    """(the dynamics workspace, M (3, 3), C Xdot, G, f (3,), R (3, 3), Jq (4, 3), q, Jdv (4,))."""
+    e = np.empty
+    return make_work(), e((3, 3)), e(3), e(3), e(3), e((3, 3)), e((4, 3)), e(4), e(4)
 
 
 class RigidPlant(NamedTuple):
-    """The rigid closed-form machine: geometry (11,) and Theta (36,) of the true plant."""
+    """The rigid machine: geometry (11,) and Theta (36,) of the true plant, and the options of
+    DESIGN.md §7: reflected rotor inertia m_r (4,) kg, friction F_c (4,) N, F_v (4,) N s/m
+    and its smoothing velocity v_s (m/s), a payload (kg) at payload_offset (3,) m in the
+    platform frame. ``machine`` is 1.0 when any option is on, else 0.0 (the rigid model)."""
 
     geom: np.ndarray
     theta: np.ndarray
+    m_r: np.ndarray
+    f_c: np.ndarray
+    f_v: np.ndarray
+    v_s: float
+    payload: float
+    payload_offset: np.ndarray
+    machine: float
 
     @classmethod
     def from_context(cls, ctx: PartContext) -> RigidPlant:
-        return cls(ctx.plant.geometry, ctx.plant.theta)
+        sc = ctx.scenario
+        if sc is None:
+            return rigid_plant(ctx.plant)
+        ps, pl = sc.plant_spec, sc.payload
+        return rigid_plant(
+            ctx.plant,
+            rotor_inertia=ps.rotor_inertia,
+            screw_lead=ps.screw_lead,
+            friction_coulomb=ps.friction_coulomb,
+            friction_viscous=ps.friction_viscous,
+            friction_velocity=ps.friction_velocity,
+            payload_mass=pl.mass,
+            payload_offset=pl.offset,
+        )
+
+
+def rigid_plant(
+    mechanism,
+    *,
+    rotor_inertia: float = 0.0,
+    screw_lead: float = 0.01,
+    friction_coulomb: float = 0.0,
+    friction_viscous: float = 0.0,
+    friction_velocity: float = 1e-3,
+    payload_mass: float = 0.0,
+    payload_offset=(0.0, 0.0, 0.0),
+) -> RigidPlant:
+    """The bundle of the ``rigid`` plant for a :class:`~pkmctl.Mechanism` and the options of
+    DESIGN.md §7 (units: kg m^2, m, N, N s/m, m/s, kg, m); all off by default."""
+    m_r = reflected_inertia(float(rotor_inertia), float(screw_lead))
+    on = rotor_inertia > 0 or friction_coulomb > 0 or friction_viscous > 0 or payload_mass > 0
+    full = np.full
+    return RigidPlant(
+        mechanism.geometry,
+        mechanism.theta,
+        full(4, m_r),
+        full(4, float(friction_coulomb)),
+        full(4, float(friction_viscous)),
+        float(friction_velocity),
+        float(payload_mass),
+        np.array(payload_offset, dtype=float),
+        1.0 if on else 0.0,
+    )
+
+
+@kernel(inline="always", refcount=False)
+def _machine_terms(p, X, Xd, v, work, M, Cv, G, f):
+    """Add the options' terms: rotor inertia and payload to M, C v, G; friction to f."""
+    R, Jq, q, Jdv = work[5], work[6], work[7], work[8]
+    limb_jacobian_rate(p.geom, X, Xd, v, R, Jq, q, Jdv)
+    add_rotor_inertia(p.m_r, Jq, Jdv, M, Cv)
+    if p.payload > 0.0:
+        add_payload(p.geom, p.payload, p.payload_offset, X, Xd, v, R, M, Cv, G)
+    for i in range(4):
+        qd = Jq[i, 0] * Xd[0] + Jq[i, 1] * Xd[1] + Jq[i, 2] * Xd[2]
+        fr = friction_law(p.f_c[i], p.f_v[i], p.v_s, qd)
+        for a in range(3):
+            f[a] -= Jq[i, a] * fr
 
 
 @kernel(refcount=False)
 def rigid_derivative(p, x, tau, dist, work, dx):
-    """dx = [Xdot, M^-1 (J^T tau + tau_d' - C Xdot - G)] (eq. 24)."""
-    w, M, C, G, f = work
+    """dx = [Xdot, M^-1 (J^T tau + tau_d' - C Xdot - G)] (eq. 24), with the §7 terms if on."""
+    w, M, C, G, f = work[0], work[1], work[2], work[3], work[4]
     X, Xd = x[0:3], x[3:6]
     dynamics_kernel(p.geom, p.theta, X, Xd, Xd, w, M, C, G)  # C holds C Xdot
     Jq = w[JQ]
@@ -52,6 +127,8 @@ def rigid_derivative(p, x, tau, dist, work, dx):
         f[i] = Jq[0, i] * tau[0] + Jq[1, i] * tau[1] + Jq[2, i] * tau[2] + Jq[3, i] * tau[3]
         f[i] += dist[i]
         dx[i] = Xd[i]
+    if p.machine > 0.0:
+        _machine_terms(p, X, Xd, Xd, work, M, C, G, f)
     forward_dynamics(M, C, G, f, dx[3:6])
 
 
@@ -64,6 +141,30 @@ def rigid_observe(p, x, tau, work, q, F):
     task_force(w[JQ], tau, F)
 
 
+@kernel
+def _machine_dynamics(p, X, Xd, v):
+    work = _rigid_work_jit()
+    M, Cv, G, f = work[1], work[2], work[3], work[4]
+    dynamics_kernel(p.geom, p.theta, X, Xd, v, work[0], M, Cv, G)
+    f[:] = 0.0
+    if p.machine > 0.0:
+        _machine_terms(p, X, Xd, v, work, M, Cv, G, f)
+    return M.copy(), Cv.copy(), G.copy(), -f
+
+
+@kernel
+def _rigid_work_jit():
+    e = np.empty
+    return make_work(), e((3, 3)), e(3), e(3), e(3), e((3, 3)), e((4, 3)), e(4), e(4)
+
+
+def machine_dynamics(p: RigidPlant, X, Xdot, v) -> tuple[np.ndarray, ...]:
+    """The plant's own M (3, 3), C(X, Xdot) v (3,), G (3,) and the friction force J^T f (3,)
+    at one state, with every option of ``p`` (the same code as the plant's derivative)."""
+    a = [np.ascontiguousarray(z, dtype=float) for z in (X, Xdot, v)]
+    return _machine_dynamics(p, *a)
+
+
 builtin_part(
     "plant",
     "rigid",
@@ -72,7 +173,7 @@ builtin_part(
     build=None,
     state_size=6,
     work=_rigid_work,
-    description="the closed-form rigid machine of DESIGN.md §2",
+    description="the closed-form rigid machine of DESIGN.md §2 (options of §7)",
 )
 
 

@@ -18,7 +18,15 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import tomli_w
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from pkmctl.control.gains import BASELINE_GAINS, TABLE3, Gains
 from pkmctl.errors import InvalidPoseError, PkmctlError
@@ -159,6 +167,29 @@ class TimingSpec(_Model):
     duration: float = Field(10.0, gt=0, le=3600)
 
 
+def _in_range(lo: float, hi: float = math.inf, *, lo_open: bool = False, unit: str = ""):
+    """A validator: a finite number in [lo, hi] ((lo, hi] if lo_open), one-line message."""
+    left = f"> {lo:g}" if lo_open else f">= {lo:g}"
+    allowed = left if hi == math.inf else f"in {'(' if lo_open else '['}{lo:g}, {hi:g}]"
+    suffix = f" ({unit})" if unit else ""
+
+    def check(v: float) -> float:
+        ok = math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi
+        if not ok:
+            raise ValueError(f"= {v!r}: must be a finite number {allowed}{suffix}")
+        return float(v)
+
+    return AfterValidator(check)
+
+
+def _positive(unit: str, hi: float = math.inf):
+    return Annotated[float, _in_range(0.0, hi, lo_open=True, unit=unit)]
+
+
+def _nonneg(unit: str, hi: float = math.inf):
+    return Annotated[float, _in_range(0.0, hi, unit=unit)]
+
+
 def _check_kind(kind: str, name: str) -> str:
     from pkmctl.parts import names
 
@@ -169,9 +200,18 @@ def _check_kind(kind: str, name: str) -> str:
 
 
 class PlantSpec(_Model):
-    """The plant part (DESIGN.md §6): ``rigid``, the closed form of §2, or a registered one."""
+    """The plant part (DESIGN.md §6): ``rigid``, the closed form of §2, or a registered one,
+    and the machine's options of §7 (each 0 = off, the paper's ideal machine):
+    ``rotor_inertia`` J_m (kg m^2 per motor), ``screw_lead`` l (m), ``friction_coulomb``
+    F_c (N per actuated joint), ``friction_viscous`` F_v (N s/m), ``friction_velocity``
+    v_s (m/s) of the smooth sign tanh(qdot / v_s)."""
 
     kind: str = "rigid"
+    rotor_inertia: _nonneg("kg m^2", 1.0) = 0.0
+    screw_lead: _positive("m", 1.0) = 0.01
+    friction_coulomb: _nonneg("N", 1e5) = 0.0
+    friction_viscous: _nonneg("N s/m", 1e6) = 0.0
+    friction_velocity: _positive("m/s", 1.0) = 1e-3
 
     @field_validator("kind")
     @classmethod
@@ -179,10 +219,34 @@ class PlantSpec(_Model):
         return _check_kind("plant", v)
 
 
+class PayloadSpec(_Model):
+    """A point mass on the platform (DESIGN.md §8): ``mass`` (kg) at ``offset`` (m, platform
+    frame). None (0 kg) in the paper; the controllers' model does not know it."""
+
+    mass: _nonneg("kg", 1e3) = 0.0
+    offset: Vec3 = [0.0, 0.0, 0.0]
+
+    @field_validator("offset")
+    @classmethod
+    def _offset(cls, v: list[float]) -> list[float]:
+        if not all(math.isfinite(x) and abs(x) <= 10.0 for x in v):
+            raise ValueError(f"= {v!r}: must be 3 finite numbers in [-10, 10] (m)")
+        return v
+
+
 class SensorSpec(_Model):
-    """The sensor part: ``ideal`` (exact X, Xdot at the sample) or a registered one."""
+    """The sensor part: ``ideal`` (exact X, Xdot at the sample), ``encoder`` (DESIGN.md §7:
+    limb lengths quantised to screw_lead / counts_per_rev, optional Gaussian ``noise`` (m),
+    forward kinematics, Xdot^ = J^+ qdot^ with qdot^ a backward difference low-pass
+    filtered with time constant ``velocity_filter`` (s), ``delay_periods`` of sample
+    age), or a registered one. ``seed`` seeds the noise."""
 
     kind: str = "ideal"
+    counts_per_rev: int = Field(160_000, ge=1, le=2**40)
+    noise: _nonneg("m", 1e-2) = 0.0
+    delay_periods: int = Field(0, ge=0, le=1)
+    velocity_filter: _nonneg("s", 1.0) = 0.0
+    seed: int = Field(0, ge=0, le=2**63 - 1)
 
     @field_validator("kind")
     @classmethod
@@ -191,11 +255,19 @@ class SensorSpec(_Model):
 
 
 class ActuatorSpec(_Model):
-    """The actuator part (``ideal``: the minimum-norm split at the measured pose) and the
-    force limit (N) per limb; none (unbounded) in the paper."""
+    """The actuator part (``ideal``: the minimum-norm split at the measured pose, with a
+    ``force_limit`` (N) per limb, none in the paper; ``drive``: the servo drive of DESIGN.md
+    §7, torque ``peak_torque`` (N m), screw ``efficiency``, first-order torque ``lag`` (s),
+    ``max_speed`` (rpm, counted, not enforced), ``delay_periods`` of computation delay: the
+    command computed from the sample at t_k acts from t_k+1)."""
 
     kind: str = "ideal"
     force_limit: float | None = Field(None, gt=0, le=1e9)
+    peak_torque: _positive("N m", 1e4) = 3.82
+    efficiency: _positive("", 1.0) = 0.9
+    lag: _nonneg("s", 1.0) = 2e-4
+    max_speed: _positive("rpm", 1e6) = 5000.0
+    delay_periods: int = Field(0, ge=0, le=1)
 
     @field_validator("kind")
     @classmethod
@@ -217,6 +289,7 @@ class Scenario(_Model):
     timing: TimingSpec = TimingSpec()
     actuators: ActuatorSpec = ActuatorSpec()
     plant_spec: PlantSpec = Field(PlantSpec(), alias="plant")
+    payload: PayloadSpec = PayloadSpec()
     sensor: SensorSpec = SensorSpec()
 
     @model_validator(mode="after")
@@ -344,6 +417,8 @@ def _one_line(exc: ValidationError) -> str:
     loc = ".".join(str(p) for p in err["loc"]) or "scenario"
     msg = err["msg"].removeprefix("Value error, ")
     if err["type"] in ("value_error", "assertion_error"):
+        if msg.startswith("= "):  # a range check that shows the value: "field = v: ..."
+            return f"{loc} {msg}"
         return f"{loc}: {msg}" if loc != "scenario" else msg
     value = err.get("input")
     shown = repr(value)
@@ -352,6 +427,27 @@ def _one_line(exc: ValidationError) -> str:
     more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
     return f"{loc} = {shown}: {msg}{more}"
 
+
+#: The machine as built (DESIGN.md §7; docs/machine.md says which numbers are catalogue
+#: values and which are assumptions).
+PROTOTYPE_PLANT: dict[str, Any] = {
+    "kind": "rigid",
+    "rotor_inertia": 0.277e-4,  # kg m^2, ECMA-C20604SS (catalogue)
+    "screw_lead": 0.01,  # m (assumed)
+    "friction_coulomb": 30.0,  # N (assumed)
+    "friction_viscous": 300.0,  # N s/m (assumed)
+    "friction_velocity": 1e-3,  # m/s (assumed)
+}
+PROTOTYPE_DRIVE: dict[str, Any] = {
+    "kind": "drive",
+    "peak_torque": 3.82,  # N m (catalogue)
+    "efficiency": 0.9,  # (assumed)
+    "lag": 2e-4,  # s (assumed)
+    "max_speed": 5000.0,  # rpm (the paper)
+    "delay_periods": 1,
+}
+#: RK4 sub-steps per 1 ms period of the prototype, chosen by measurement (docs/machine.md).
+PROTOTYPE_SUBSTEPS = 10
 
 #: Built-in scenarios as data (DESIGN.md §4).
 BUILTINS: dict[str, dict[str, Any]] = {
@@ -364,5 +460,17 @@ BUILTINS: dict[str, dict[str, Any]] = {
         "name": "paper-1khz",
         "description": "The paper's experiment with the same gains on a 1 kHz servo loop.",
         "timing": {"control_period": 1e-3, "substeps": 20, "duration": 10.0},
+    },
+    "prototype": {
+        "name": "prototype",
+        "description": "The paper's experiment (trajectory, initial state, disturbance, Table 3 "
+        "gains, 15 % model error) on the machine as built (DESIGN.md §7): 1 kHz motion "
+        "controller, servo drives on ball screws (peak torque, torque lag), reflected rotor "
+        "inertia, joint friction, 17-bit encoders with forward kinematics, one period of "
+        "computation delay.",
+        "timing": {"control_period": 1e-3, "substeps": PROTOTYPE_SUBSTEPS, "duration": 10.0},
+        "plant": PROTOTYPE_PLANT,
+        "sensor": {"kind": "encoder", "counts_per_rev": 160_000},
+        "actuators": PROTOTYPE_DRIVE,
     },
 }

@@ -263,6 +263,17 @@ def _run(
             theta_hat = out.controller_log
         else:
             logs[ctrl.log_name or ctrl.name] = out.controller_log
+    q_measured = lg["q"]
+    if out.sensor_log is not None:
+        name = parts["sensor"].log_name or parts["sensor"].name
+        if name == "q_measured":
+            q_measured = out.sensor_log
+        else:
+            logs[name] = out.sensor_log
+    info = {"kernel_seconds": out.kernel_seconds, "steps": m}
+    for kind, part in parts.items():
+        if part.report is not None:
+            info.update(part.report(bundles[kind][0], out.final_state[kind]))
     ref = prep.reference
     result = Result(
         scenario=scenario,
@@ -281,13 +292,13 @@ def _run(
         theta_hat=theta_hat,
         X_measured=lg["y"][:, 0:3],
         Xdot_measured=lg["y"][:, 3:6],
-        q_measured=lg["q"],
+        q_measured=q_measured,
         logs=logs,
         final_state=out.final_state,
         parts={k: p.name for k, p in parts.items()},
         success=out.status == 0,
         message="ok" if out.status == 0 else STATUS[out.status],
-        info={"kernel_seconds": out.kernel_seconds, "steps": m},
+        info=info,
     )
     if out.status:
         tk = m * Tc

@@ -10,7 +10,7 @@ the held disturbance, and reads the state back. The limb forces are held over ea
 sub-step (the closed-form loop evaluates them at each RK4 stage: the same for an ideal
 actuator, whose forces are constant over the period).
 
-The status codes are those of :data:`pkmctl.sim.loop.STATUS`; a stepper adds 3 (its
+The status codes are those of :data:`pkmctl.sim.loop.STATUS`; a stepper adds 4 (its
 state blew up: for MuJoCo a fatal warning or a closure residual over 1 um).
 """
 
