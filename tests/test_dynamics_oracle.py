@@ -191,8 +191,11 @@ def test_mass_matrix_is_hessian_of_kinetic_energy(robot, seed):
     assert_close_in_norm(M, om.mass_matrix(X), rtol=RTOL_M, scale=scale)
     # and T itself at an arbitrary velocity (not only at the polarisation vectors)
     # oracle error scales with |M| |Xdot|^2, not with T (T can be small along soft directions)
+    # (floored at the smallest normal double: for a speed of ~1e-162 Xdot @ Xdot
+    # underflows to 0 while Xdot M Xdot leaves a subnormal 1e-323, as Hypothesis found)
+    tiny = np.finfo(float).tiny
     assert 0.5 * Xdot @ M @ Xdot == pytest.approx(
-        om.kinetic_energy(X, Xdot), rel=0.0, abs=RTOL_M * scale * (Xdot @ Xdot)
+        om.kinetic_energy(X, Xdot), rel=0.0, abs=RTOL_M * scale * (Xdot @ Xdot) + tiny
     )
 
 
@@ -388,8 +391,11 @@ def test_property_mass_matrix_spd_and_matches_oracle(robot, X, Xdot):
     np.testing.assert_allclose(M, M.T, rtol=0.0, atol=RTOL_EXACT * scale)
     assert np.linalg.eigvalsh(0.5 * (M + M.T)).min() > 0.0
     assert_close_in_norm(M, om.mass_matrix(X), rtol=RTOL_M, scale=scale)
+    # (floored at the smallest normal double: for a speed of ~1e-162 Xdot @ Xdot
+    # underflows to 0 while Xdot M Xdot leaves a subnormal 1e-323, as Hypothesis found)
+    tiny = np.finfo(float).tiny
     assert 0.5 * Xdot @ M @ Xdot == pytest.approx(
-        om.kinetic_energy(X, Xdot), rel=0.0, abs=RTOL_M * scale * (Xdot @ Xdot)
+        om.kinetic_energy(X, Xdot), rel=0.0, abs=RTOL_M * scale * (Xdot @ Xdot) + tiny
     )
 
 

@@ -56,8 +56,10 @@ def test_divergence_is_reported_not_logged_as_nan():
     assert np.all(np.isfinite(partial.X)) and np.all(np.isfinite(partial.q))
 
 
-def test_a_blown_up_mujoco_state_is_status_4(robot):
+def test_a_blown_up_mujoco_state_is_status_4(robot, tmp_path, monkeypatch):
     from pkmctl.plants.mujoco import MujocoMachine
+
+    monkeypatch.chdir(tmp_path)  # MuJoCo writes its warning to MUJOCO_LOG.TXT here
 
     machine = MujocoMachine(robot)
     x, q = np.empty(6), np.empty(4)

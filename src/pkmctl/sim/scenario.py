@@ -19,8 +19,8 @@ from typing import Annotated, Any, Literal
 import numpy as np
 import tomli_w
 from pydantic import (
-    AfterValidator,
     BaseModel,
+    BeforeValidator,
     ConfigDict,
     Field,
     ValidationError,
@@ -173,13 +173,17 @@ def _in_range(lo: float, hi: float = math.inf, *, lo_open: bool = False, unit: s
     allowed = left if hi == math.inf else f"in {'(' if lo_open else '['}{lo:g}, {hi:g}]"
     suffix = f" ({unit})" if unit else ""
 
-    def check(v: float) -> float:
+    def check(v):
+        # Before pydantic's own float check (allow_inf_nan=False), whose message would
+        # not give the allowed range; anything not a number is left to that check.
+        if not isinstance(v, int | float) or isinstance(v, bool):
+            return v
         ok = math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi
         if not ok:
             raise ValueError(f"= {v!r}: must be a finite number {allowed}{suffix}")
-        return float(v)
+        return v
 
-    return AfterValidator(check)
+    return BeforeValidator(check)
 
 
 def _positive(unit: str, hi: float = math.inf):
