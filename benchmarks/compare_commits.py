@@ -10,8 +10,10 @@ layout caches beside its sources (fresh), the new one in ``$PKMCTL_CACHE_DIR``
 (pointed at a fresh folder). Then, for each commit:
 
 1. ``pkmctl reproduce`` twice into temporary folders: the first run compiles, the
-   second finds everything cached; compile time = first - second. (The new layout runs
-   five controllers where the old ran three: the comparison is not in its favour.)
+   second finds everything cached; compile time = first - second, in wall time and in
+   CPU time (user + system, the worker processes included: the new layout compiles in
+   parallel processes, and CPU time is what a loaded machine disturbs least). The new
+   layout runs five controllers where the old ran three: not in its favour.
 2. The closed loop's speed: 10 s of the ``paper`` scenario per controller, best of
    ``--repeats`` runs, in steps per second, both commits alternating so that the
    machine's drift hits both.
@@ -27,6 +29,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import subprocess
 import sys
 import tempfile
@@ -87,11 +90,17 @@ class Checkout:
         done = _sh([self.python, "-c", code, *args], env=self.env, cwd=self.venv)
         return json.loads(done.stdout.strip().splitlines()[-1])
 
-    def reproduce(self) -> float:
+    def reproduce(self) -> tuple[float, float]:
+        """(wall, CPU) seconds of one ``pkmctl reproduce`` (CPU: user + system of the
+        process and the workers it waited for; less sensitive to a loaded machine)."""
         with tempfile.TemporaryDirectory() as out:
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
             t0 = time.perf_counter()
             _sh([self.python, "-m", "pkmctl", "reproduce", "--out", out], env=self.env)
-            return time.perf_counter() - t0
+            wall = time.perf_counter() - t0
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+            return wall, cpu
 
 
 def main() -> None:
@@ -107,11 +116,14 @@ def main() -> None:
             f"Python {platform.python_version()}",
         }
         for c in (base, head):
-            first = c.reproduce()
-            warm = c.reproduce()
-            res[c.commit] = {"reproduce_first_s": first, "reproduce_warm_s": warm,
-                             "compile_s": first - warm}  # fmt: skip
-            print(f"{c.commit}: reproduce first {first:.1f} s, warm {warm:.1f} s", flush=True)
+            (first, first_cpu), (warm, warm_cpu) = c.reproduce(), c.reproduce()
+            res[c.commit] = {
+                "reproduce_first_s": first, "reproduce_warm_s": warm, "compile_s": first - warm,
+                "reproduce_first_cpu_s": first_cpu, "reproduce_warm_cpu_s": warm_cpu,
+                "compile_cpu_s": first_cpu - warm_cpu,
+            }  # fmt: skip
+            print(f"{c.commit}: reproduce first {first:.1f} s ({first_cpu:.1f} s CPU), "
+                  f"warm {warm:.1f} s ({warm_cpu:.1f} s CPU)", flush=True)  # fmt: skip
         names = "smc,fsmc,afsmc"
         speeds: dict[str, dict[str, float]] = {base.commit: {}, head.commit: {}}
         for _ in range(args.repeats):
@@ -128,6 +140,7 @@ def main() -> None:
         ("first reproduce (s)", b["reproduce_first_s"], h["reproduce_first_s"]),
         ("warm reproduce (s)", b["reproduce_warm_s"], h["reproduce_warm_s"]),
         ("compile time = first - warm (s)", b["compile_s"], h["compile_s"]),
+        ("compile CPU = first - warm (s)", b["compile_cpu_s"], h["compile_cpu_s"]),
         *((f"loop {k} (steps/s)", b["loop_steps_per_s"][k], h["loop_steps_per_s"][k])
           for k in names.split(",")),
         ("FLC in compiled code (us)", b["flc_us"], h["flc_us"]),

@@ -18,7 +18,6 @@ kernels; :func:`flc_eval` is the scalar entry point for other ``@numba.njit`` co
 from __future__ import annotations
 
 import math
-import os
 import warnings
 from collections.abc import Sequence
 from dataclasses import KW_ONLY, dataclass, field
@@ -546,20 +545,6 @@ class MamdaniSystem:
         t = self._tables.unpack()
         centroid_batch(t["out_kind"], t["out_params"], *self.output.universe, flat, out)
         return out.reshape(L.shape[:-1])[()]
-
-    @classmethod
-    def from_fis(cls, source: str | os.PathLike[str]) -> MamdaniSystem:
-        """Read a MATLAB .fis file (a path, or the text itself); see
-        :func:`pkmctl.fuzzy.fis.read_fis`."""
-        from pkmctl.fuzzy.fis import read_fis
-
-        return read_fis(source)
-
-    def to_fis(self, path: str | os.PathLike[str]) -> None:
-        """Write this system as a MATLAB .fis file (atomically); see :mod:`pkmctl.fuzzy.fis`."""
-        from pkmctl.fuzzy.fis import write_fis
-
-        write_fis(self, path)
 
 
 # ---------------------------------------------------------------------------------------
