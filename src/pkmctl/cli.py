@@ -508,17 +508,27 @@ def mujoco_model(
         str, typer.Option(help="Built-in scenario name or TOML file: its true plant.")
     ] = "paper",
     rotor_inertia: Annotated[
-        float, typer.Option(help="Rotor inertia per motor, kg m^2 (slide armature).")
-    ] = 0.0,
-    screw_lead: Annotated[float, typer.Option(help="Ball-screw lead, m.")] = 0.01,
+        float | None,
+        typer.Option(help="Rotor inertia per motor, kg m^2 (slide armature); default: plant's."),
+    ] = None,
+    screw_lead: Annotated[
+        float | None, typer.Option(help="Ball-screw lead, m; default: the scenario's.")
+    ] = None,
     friction_viscous: Annotated[
-        float, typer.Option(help="Viscous friction, N s/m (slide damping).")
-    ] = 0.0,
+        float | None,
+        typer.Option(help="Viscous friction, N s/m (slide damping); default: the scenario's."),
+    ] = None,
     friction_coulomb: Annotated[
-        float, typer.Option(help="Coulomb friction, N: refused unless 0 (see the message).")
-    ] = 0.0,
+        float | None,
+        typer.Option(help="Coulomb friction, N: refused unless 0; default: the scenario's."),
+    ] = None,
 ) -> None:
-    """Write the scenario's machine as a MuJoCo model (MJCF), e.g. for MuJoCo's viewer."""
+    """Write the scenario's machine as a MuJoCo model (MJCF), e.g. for MuJoCo's viewer.
+
+    The [plant] options of the scenario (rotor inertia, viscous and Coulomb friction) are
+    mapped to MuJoCo's armature and damping; an option given here overrides the
+    scenario's. Coulomb friction is refused: MuJoCo's is a constraint, not the tanh law.
+    """
     from pkmctl.errors import PkmctlError
     from pkmctl.io.atomic import atomic_write
 
@@ -529,12 +539,18 @@ def mujoco_model(
     if out.is_dir():
         _fail(f"--out {out}: is a folder, give a file name (FILE.xml)")
     try:
+        sc = _load_scenario(scenario)
+        ps = sc.plant_spec
+
+        def pick(given: float | None, name: str) -> float:
+            return float(getattr(ps, name)) if given is None else given
+
         text = build_mjcf(
-            _load_scenario(scenario).plant(),
-            rotor_inertia=rotor_inertia,
-            screw_lead=screw_lead,
-            friction_viscous=friction_viscous,
-            friction_coulomb=friction_coulomb,
+            sc.plant(),
+            rotor_inertia=pick(rotor_inertia, "rotor_inertia"),
+            screw_lead=pick(screw_lead, "screw_lead"),
+            friction_viscous=pick(friction_viscous, "friction_viscous"),
+            friction_coulomb=pick(friction_coulomb, "friction_coulomb"),
         )
     except (PkmctlError, ValueError) as exc:
         _fail(str(exc))
