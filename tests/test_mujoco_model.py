@@ -155,10 +155,28 @@ def test_mujoco_model_command_writes_a_loadable_model(tmp_path):
         (["--out", str(tmp_path)], "is a folder"),
         (["--out", "/proc/no/such/pkm.xml"], "cannot write"),
         (["--out", str(out), "--friction-coulomb", "30"], "frictionloss"),
+        (["--out", str(out), "--scenario", "prototype"], "frictionloss"),  # the scenario's 30 N
     ):
         res = runner.invoke(app, ["mujoco-model", *args])
         assert res.exit_code == 2, res.output
         assert match in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr
+
+
+def test_mujoco_model_takes_the_scenarios_plant_options(tmp_path):
+    from typer.testing import CliRunner
+
+    import pkmctl
+    from pkmctl.cli import app
+
+    out = tmp_path / "proto.xml"
+    args = ["mujoco-model", "--out", str(out), "--scenario", "prototype", "--friction-coulomb", "0"]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+    plant = pkmctl.Scenario.builtin("prototype").plant_spec
+    model = mujoco.MjModel.from_xml_path(str(out))
+    m_r = plant.rotor_inertia * (2 * np.pi / plant.screw_lead) ** 2
+    assert m_r > 0 and np.isclose(model.dof_armature.max(), m_r)
+    assert np.isclose(model.dof_damping.max(), plant.friction_viscous)
 
 
 def test_render_poses_draws_the_machine(robot):
