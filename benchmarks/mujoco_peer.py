@@ -9,7 +9,6 @@ times open-loop stepping of it (:func:`steps_per_second`) and prints both.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 
 import mujoco
@@ -17,6 +16,7 @@ import numpy as np
 from mujoco import rollout
 
 import pkmctl
+from benchmarks.timing import best_time
 from pkmctl.plants.mujoco import (
     _equality_rows,
     _slides,
@@ -30,12 +30,7 @@ __all__ = ["python_afsmc_steps_per_second", "steps_per_second"]
 
 
 def _best_of(repeats: int, run: Callable[[], None]) -> float:
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        run()
-        best = min(best, time.perf_counter() - t0)
-    return best
+    return best_time(run, repeats)
 
 
 def steps_per_second(
