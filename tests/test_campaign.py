@@ -1,0 +1,223 @@
+"""Campaigns (issue 11): specs, local and Dask execution, the store, resume, report."""
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from typer.testing import CliRunner
+
+import pkmctl
+from pkmctl.campaign import CampaignSpec
+from pkmctl.campaign.execute import run_campaign
+from pkmctl.campaign.store import query, read_records
+from pkmctl.cli import app
+
+runner = CliRunner()
+
+SMALL = """
+name = "small"
+scenario = "paper"
+controllers = ["smc", "afsmc"]
+seeds = [3, 8]
+duration = 0.05
+metrics = ["rmse", "max_error"]
+
+[factors."payload.mass"]
+values = [0.0, 8.0]
+
+[factors."controller_model.theta_scale"]
+distribution = "uniform"
+low = 0.4
+high = 1.0
+samples = 2
+seed = 5
+"""
+
+
+@pytest.fixture(scope="module")
+def spec_file(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("spec") / "small.toml"
+    path.write_text(SMALL)
+    return path
+
+
+@pytest.fixture(scope="module")
+def reference(spec_file, tmp_path_factory):
+    """The uninterrupted campaign, in this process (one worker)."""
+    out = tmp_path_factory.mktemp("ref") / "camp"
+    done = run_campaign(CampaignSpec.from_toml(spec_file), out, workers=1)
+    assert done.complete and done.done_now == 16
+    return out, read_records(out, timing=False)
+
+
+@pytest.mark.parametrize(
+    ("change", "expected"),
+    [
+        ('[factors."payload.mas"]\nvalues = [1.0]\n', "payload.mas: unknown field"),
+        ('[factors."payload.mass"]\nvalues = [-1.0]\n', "payload.mass = -1.0: must be"),
+        ('[factors."timing.control_period"]\nvalues = []\n', "must be a non-empty list"),
+        ("seeds = 0\n", "seeds = 0: must be >= 1 (zero runs)"),
+        ('controllers = ["smc", "nope"]\n', "'nope' is not a registered controller"),
+        ('[factors."disturbance.amplitude"]\nvalues = [[1.0, 2.0]]\n', "disturbance.amplitude"),
+        (
+            '[factors."payload.mass"]\ndistribution = "uniform"\nlow = 1.0\nhigh = 2.0\n',
+            "samples = None: must be an integer >= 1",
+        ),
+    ],
+)
+def test_bad_specs_fail_in_one_line_before_anything_runs(tmp_path, change, expected):
+    spec = tmp_path / "bad.toml"
+    spec.write_text('scenario = "paper"\nduration = 0.05\n' + change)
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["campaign", "run", str(spec), "--out", str(out)])
+    assert res.exit_code == 2, res.output
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and expected in lines[0], lines
+    assert not out.exists()
+
+
+def test_spec_expands_to_paired_cells_and_deterministic_tasks(spec_file):
+    spec = CampaignSpec.from_toml(spec_file)
+    assert spec.n_runs == 16 and len(spec.cells) == 4
+    masses = [c["payload.mass"] for c in spec.cells]
+    assert masses == [0.0, 0.0, 8.0, 8.0]
+    draws = {c["controller_model.theta_scale"] for c in spec.cells}
+    assert len(draws) == 2 and all(0.4 <= d < 1.0 for d in draws)
+    again = CampaignSpec.from_toml(spec_file)
+    assert again.digest == spec.digest and again.tasks() == spec.tasks()
+    runs = [(r.cell, r.controller, r.seed) for t in spec.tasks() for r in t.runs]
+    assert len(runs) == len(set(runs)) == 16
+    other = CampaignSpec.from_toml(SMALL.replace("seed = 5", "seed = 6"))
+    assert other.digest != spec.digest
+
+
+def test_records_match_a_plain_simulate(spec_file, reference):
+    out, table = reference
+    spec = CampaignSpec.from_toml(spec_file)
+    rows = table.to_pylist()
+    assert [(r["cell"], r["controller"], r["seed"]) for r in rows] == [
+        (c, k, s) for c in range(4) for k in ("smc", "afsmc") for s in (3, 8)
+    ]
+    assert {r["status"] for r in rows} == {"ok"} and {r["spec_hash"] for r in rows} == {spec.digest}
+    r = rows[15]  # cell 3, afsmc, seed 8
+    sc = spec.base.replace(**spec.cells[3])
+    assert r["f.payload.mass"] == 8.0
+    assert r["f.controller_model.theta_scale"] == spec.cells[3]["controller_model.theta_scale"]
+    ref = pkmctl.simulate(sc, controller="afsmc", seed=8).rmse()
+    assert r["rmse_z_mm"] == ref["z_mm"] and r["rmse_beta_deg"] == ref["beta_deg"]
+    assert r["max_error_q4_m"] > 0
+    counts = query(out, "SELECT controller, count(*) AS n FROM runs GROUP BY 1 ORDER BY 1")
+    assert counts.to_pylist() == [{"controller": "afsmc", "n": 8}, {"controller": "smc", "n": 8}]
+    files = sorted((out / "runs").iterdir())
+    assert len(files) == len(spec.tasks()) and all(f.suffix == ".parquet" for f in files)
+    full = read_records(out)
+    assert all(w > 0 for w in full.column("wall_s").to_pylist())
+
+
+def test_interrupted_then_resumed_equals_uninterrupted(spec_file, reference, tmp_path):
+    _, expected = reference
+    spec = CampaignSpec.from_toml(spec_file)
+    out = tmp_path / "camp"
+    first = run_campaign(spec, out, workers=1, stop_after=3)
+    assert not first.complete and first.tasks_now == 3
+    (out / "runs" / ".task-00005.parquet.abc.tmp").write_bytes(b"half a file")  # a crash
+    # resuming with another spec is refused; without --resume, so is the folder
+    other = spec_file.parent / "other.toml"
+    other.write_text(SMALL.replace("seeds = [3, 8]", "seeds = [3, 9]"))
+    res = runner.invoke(app, ["campaign", "run", str(other), "--out", str(out), "--resume"])
+    assert res.exit_code == 2 and "a different spec" in res.stderr, res.output
+    res = runner.invoke(app, ["campaign", "run", str(spec_file), "--out", str(out)])
+    assert res.exit_code == 2 and "--resume" in res.stderr, res.output
+    res = runner.invoke(
+        app, ["campaign", "run", str(spec_file), "--out", str(out), "--resume", "--workers", "2"]
+    )
+    assert res.exit_code == 0, res.output
+    assert "16 runs" in res.stderr and "runs in" in res.stdout
+    table = read_records(out, timing=False)
+    assert table.equals(expected)  # bit for bit, every column but the timing ones
+    tasks = [pq.read_table(f).column("task")[0].as_py() for f in (out / "runs").glob("t*")]
+    assert sorted(tasks) == list(range(len(spec.tasks())))
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_dask_cluster_of_worker_processes_gives_the_same_records(spec_file, reference, tmp_path):
+    pytest.importorskip("distributed")
+    _, expected = reference
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    env = dict(os.environ)
+    src = str(Path(pkmctl.__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join([src, env.get("PYTHONPATH", "")])
+    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": env}
+    procs = [
+        subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "distributed.cli.dask_scheduler",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                str(port),
+                "--no-dashboard",
+            ],
+            **quiet,
+        )  # fmt: skip
+    ]
+    try:
+        for _ in range(2):
+            procs.append(
+                subprocess.Popen(
+                    [
+                        sys.executable,
+                        "-m",
+                        "distributed.cli.dask_worker",
+                        address,
+                        "--nthreads",
+                        "1",
+                        "--no-dashboard",
+                        "--host",
+                        "127.0.0.1",
+                    ],
+                    **quiet,
+                )  # fmt: skip
+            )
+        from distributed import Client
+
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                with Client(address, timeout="2s") as c:
+                    c.wait_for_workers(2, timeout=max(1, deadline - time.monotonic()))
+                break
+            except (OSError, TimeoutError):
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.5)
+        out = tmp_path / "camp"
+        res = runner.invoke(
+            app, ["campaign", "run", str(spec_file), "--out", str(out), "--scheduler", address]
+        )
+        assert res.exit_code == 0, res.output
+        table = read_records(out, timing=False)
+        assert table.equals(expected)
+        workers = set(read_records(out).column("worker").to_pylist())
+        assert len(workers) >= 1 and all(":" in w for w in workers)
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
