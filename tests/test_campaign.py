@@ -221,3 +221,49 @@ def test_dask_cluster_of_worker_processes_gives_the_same_records(spec_file, refe
                 p.wait(10)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def test_report_states_in_words_what_the_numbers_say(reference, tmp_path):
+    import shutil
+
+    from pkmctl.campaign import stats
+
+    src, table = reference
+    out = tmp_path / "camp"
+    shutil.copytree(src, out)
+    res = runner.invoke(app, ["campaign", "report", str(out)])
+    assert res.exit_code == 0, res.output
+    md = (out / "report" / "report.md").read_text()
+    spec = CampaignSpec.from_toml(out / "spec.toml")
+    paired = stats.paired_differences(spec, table, ["rmse_z_mm"])
+    pooled = next(r for r in paired if r["cell"] == -1)
+    assert pooled["pairs"] == 8 and pooled["lo"] <= pooled["mean"] <= pooled["hi"]
+    # the words follow the interval: 8 pooled pairs name a winner only if 0 is outside
+    said = {"a": "smc is better.", "b": "afsmc is better.", "unclear": "cannot tell them apart"}
+    assert said[pooled["better"]] in md
+    assert (pooled["better"] == "unclear") == (pooled["lo"] <= 0 <= pooled["hi"])
+    # 2 pairs per cell are too few to name a winner in any cell
+    assert all(r["better"] == "unclear" for r in paired if r["cell"] >= 0)
+    assert "cannot tell in 4 of 4 cells" in md and "No run diverged" in md
+    figs = sorted(p.name for p in (out / "report" / "figures").iterdir())
+    assert len(figs) == 3 * 2 and "rmse_z_mm_vs_payload.mass.png" in figs
+    assert all((out / "report" / "figures" / f).read_bytes()[:4] == b"\x89PNG" for f in figs)
+    rows = (out / "report" / "summary.csv").read_text().splitlines()
+    assert len(rows) == 1 + 4 * 2 * 3
+    res = runner.invoke(app, ["campaign", "report", str(tmp_path / "nothing")])
+    assert res.exit_code == 2 and "not a campaign folder" in res.stderr
+
+
+def test_bootstrap_interval_covers_the_mean_and_shrinks():
+    import numpy as np
+
+    from pkmctl.campaign.stats import bootstrap_interval
+
+    rng = np.random.default_rng(0)
+    small = rng.normal(1.0, 1.0, 20)
+    big = rng.normal(1.0, 1.0, 2000)
+    lo, hi = bootstrap_interval(small, seed=1)
+    assert lo < small.mean() < hi
+    lo2, hi2 = bootstrap_interval(big, seed=1)
+    assert lo2 < 1.0 < hi2 and (hi2 - lo2) < (hi - lo) / 5
+    assert bootstrap_interval(small, seed=1) == (lo, hi)

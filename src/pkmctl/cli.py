@@ -671,6 +671,24 @@ def campaign_run(
     )
 
 
+@campaign_app.command("report")
+def campaign_report(
+    ctx: typer.Context,
+    folder: Annotated[str, typer.Argument(help="A campaign folder (pkmctl campaign run --out).")],
+) -> None:
+    """Statistics of a campaign: FOLDER/report/ with report.md (which controller is better
+    where, in words), summary.csv, paired.csv, divergence.csv and figures."""
+    from pkmctl.report.campaign import write_report
+
+    if not (Path(folder) / "spec.toml").is_file():
+        _fail(f"{folder!r}: not a campaign folder (no spec.toml; see pkmctl campaign run --out)")
+    try:
+        files = _interruptible(lambda: write_report(folder), lambda: "nothing written")
+    except Exception as exc:
+        _handle(ctx, exc)
+    console.print(Text(f"wrote {files[0]} and {len(files) - 1} figures"))
+
+
 def _import_benchmarks() -> None:
     """Make the checkout's ``benchmarks`` package importable, or fail in one line."""
     import importlib.util
