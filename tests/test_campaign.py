@@ -267,3 +267,21 @@ def test_bootstrap_interval_covers_the_mean_and_shrinks():
     lo2, hi2 = bootstrap_interval(big, seed=1)
     assert lo2 < 1.0 < hi2 and (hi2 - lo2) < (hi - lo) / 5
     assert bootstrap_interval(small, seed=1) == (lo, hi)
+
+
+def test_a_diverged_run_is_a_record_with_its_time(tmp_path):
+    spec = CampaignSpec.from_toml(
+        'scenario = "paper"\ncontrollers = ["pd"]\nseeds = [1]\nduration = 0.02\n'
+        '[factors."disturbance.amplitude"]\nvalues = [[2.0, 2.0, 2.0], [1e6, 1e6, 1e6]]\n'
+    )
+    run_campaign(spec, tmp_path / "c", workers=1)
+    rows = read_records(tmp_path / "c").to_pylist()
+    assert [r["status"] for r in rows] == ["ok", "diverged"]
+    assert rows[0]["diverged_at"] is None and 0 < rows[1]["diverged_at"] < 0.02
+    assert rows[1]["rmse_z_mm"] is None and rows[0]["rmse_z_mm"] > 0
+    assert rows[1]["f.disturbance.amplitude"] == "[1000000.0, 1000000.0, 1000000.0]"
+    res = runner.invoke(app, ["campaign", "report", str(tmp_path / "c")])
+    assert res.exit_code == 0, res.output
+    md = (tmp_path / "c" / "report" / "report.md").read_text()
+    said = "pd: 1 of 1 runs did not end ok (1 diverged) at disturbance.amplitude = [1000000.0,"
+    assert said in md and md.count("did not end ok") == 1

@@ -607,12 +607,16 @@ def campaign_run(
         if scheduler
         else f"{n_workers} local worker" + "s" * (n_workers > 1)
     )
-    estimate = spec.n_runs * spec.run_seconds() / (1 if scheduler else n_workers)
+    work = spec.n_runs * spec.run_seconds()
+    estimate = (
+        f"{_seconds(work)} of runs on one core (divide by the cluster's cores)"
+        if scheduler
+        else f"{_seconds(work / n_workers)} (plus a few s to start the workers)"
+    )
     _say(
         f"campaign {spec.name!r} ({spec.digest}): {spec.n_runs} runs = {len(spec.cells)} cells "
         f"x {len(spec.controllers)} controllers x {len(spec.seeds)} seeds, in {len(tasks)} "
-        f"tasks on {where}; estimated {_seconds(estimate)} of runs"
-        + ("" if scheduler else " (plus a few s to start the workers)")
+        f"tasks on {where}; estimated {estimate}"
     )
     with Progress(
         SpinnerColumn(),
