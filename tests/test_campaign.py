@@ -285,3 +285,14 @@ def test_a_diverged_run_is_a_record_with_its_time(tmp_path):
     md = (tmp_path / "c" / "report" / "report.md").read_text()
     said = "pd: 1 of 1 runs did not end ok (1 diverged) at disturbance.amplitude = [1000000.0,"
     assert said in md and md.count("did not end ok") == 1
+
+
+def test_the_docs_spec_is_valid():
+    import re
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "campaigns.md").read_text()
+    toml = re.findall(r"```toml\n(.*?)```", text, flags=re.S)[0]
+    spec = CampaignSpec.from_toml(toml)
+    assert len(spec.cells) == 18 and spec.n_runs == 360  # as the docs say
+    assert spec.cells[1]["actuators.force_limit"] == 2000.0
+    assert spec.cells[0]["actuators.force_limit"] is None

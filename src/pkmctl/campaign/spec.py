@@ -58,10 +58,10 @@ DISTRIBUTIONS = {
 }
 _TOP = {"name", "description", "scenario", "controllers", "seeds", "duration", "metrics", "factors"}
 #: Seconds of work per compiled control period and per run outside the loop: the task
-#: size estimate (measured on the 2-core development machine: ~3 us a period, ~10 ms a
+#: size estimate (measured on the shared 2-core development machine: 3-6 us a period, ~10 ms a
 #: run for prepare, build and metrics). Deterministic, so a task's runs never depend on
 #: the machine: resuming elsewhere finds the same tasks.
-SECONDS_PER_PERIOD = 3e-6
+SECONDS_PER_PERIOD = 5e-6
 SECONDS_PER_RUN = 0.01
 #: Work per task (Dask costs ~1 ms per task).
 TASK_SECONDS = 0.2
