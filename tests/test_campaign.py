@@ -296,3 +296,23 @@ def test_the_docs_spec_is_valid():
     assert len(spec.cells) == 18 and spec.n_runs == 360  # as the docs say
     assert spec.cells[1]["actuators.force_limit"] == 2000.0
     assert spec.cells[0]["actuators.force_limit"] is None
+
+
+def test_a_spec_naming_a_scenario_file_reports_from_the_stored_copy(tmp_path):
+    specs = tmp_path / "specs"
+    specs.mkdir()
+    base = pkmctl.Scenario.builtin("paper-1khz").replace(**{"payload.mass": 1.0})
+    (specs / "base.toml").write_text(base.to_toml())
+    (specs / "c.toml").write_text(
+        'scenario = "base.toml"\ncontrollers = ["pd", "smc"]\nseeds = 1\nduration = 0.05\n'
+    )
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["campaign", "run", str(specs / "c.toml"), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "1/2 runs" in res.stderr or "2/2 runs" in res.stderr  # lines in a log
+    (specs / "base.toml").unlink()  # the folder carries its own copy
+    res = runner.invoke(app, ["campaign", "report", str(out)])
+    assert res.exit_code == 0, res.output
+    rows = read_records(out).to_pylist()
+    assert [r["controller"] for r in rows] == ["pd", "smc"]
+    assert rows[0]["rmse_z_mm"] == pkmctl.simulate(base, "pd", duration=0.05, seed=0).rmse()["z_mm"]

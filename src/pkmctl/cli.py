@@ -633,6 +633,9 @@ def campaign_run(
         state = {"done": 0}
 
         def progress(done, failures, total, rate):
+            step = max(1, total // 10)  # a log (not a terminal) gets a line every 10 %
+            if not err_console.is_terminal and done // step > state["done"] // step:
+                _say(f"{done}/{total} runs, {failures} failed, {rate:.1f} runs/s")
             state["done"] = done
             bar.update(task, completed=done, failures=failures, rate=rate)
 

@@ -3,6 +3,7 @@
 Layout of a campaign folder::
 
     spec.toml            the spec as written
+    scenario.toml        its base scenario (the spec may name a file elsewhere)
     campaign.json        its digest, runs, tasks and record columns
     runs/task-00017.parquet    the records of task 17, written atomically, once
 
@@ -35,6 +36,7 @@ __all__ = [
     "open_store",
     "query",
     "read_records",
+    "read_spec",
     "schema",
     "write_task",
 ]
@@ -134,11 +136,35 @@ def open_store(out: Path, spec: CampaignSpec, *, resume: bool) -> Path:
         out.mkdir(parents=True, exist_ok=True)
         with atomic_write(out / "spec.toml") as fh:
             fh.write(spec.text)
+        with atomic_write(out / "scenario.toml") as fh:
+            fh.write(spec.base.to_toml())
         with atomic_write(manifest) as fh:
             json.dump(_manifest(spec), fh, indent=2)
     runs = out / "runs"
     runs.mkdir(exist_ok=True)
     return runs
+
+
+def read_spec(out: str | Path) -> CampaignSpec:
+    """The spec of the campaign in ``out``, its base scenario read from the copy stored
+    beside it; checked against the hash the campaign was run with."""
+    import tomllib
+
+    out = Path(out)
+    try:
+        text = (out / "spec.toml").read_text(encoding="utf-8")
+        data = tomllib.loads(text)
+        digest = json.loads((out / "campaign.json").read_text(encoding="utf-8"))["spec_hash"]
+    except (OSError, ValueError, KeyError) as exc:
+        raise SpecError(f"{str(out)!r}: not a readable campaign folder ({exc})") from None
+    data["scenario"] = str((out / "scenario.toml").absolute())
+    spec = CampaignSpec.from_dict(data, text=text, folder=out)
+    if spec.digest != digest:
+        raise SpecError(
+            f"{str(out)!r}: its spec hashes to {spec.digest!r}, its records to {digest!r} "
+            f"(edited after the run?)"
+        )
+    return spec
 
 
 def _task_path(runs: Path, index: int) -> Path:
@@ -170,7 +196,7 @@ def read_records(out: str | Path, *, timing: bool = True) -> pa.Table:
     """Every record of a campaign folder, sorted by cell, controller (the spec's order)
     and seed; without the :data:`TIMING_COLUMNS` if ``timing`` is False."""
     out = Path(out)
-    spec = CampaignSpec.from_toml(out / "spec.toml")
+    spec = read_spec(out)
     files = sorted((out / "runs").glob("task-*.parquet"))
     sch = schema(spec)
     if not files:

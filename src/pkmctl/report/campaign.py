@@ -17,7 +17,7 @@ from matplotlib.figure import Figure
 
 from pkmctl.campaign import stats
 from pkmctl.campaign.spec import CampaignSpec
-from pkmctl.campaign.store import factor_column, read_records
+from pkmctl.campaign.store import factor_column, read_records, read_spec
 from pkmctl.io.atomic import atomic_write, staged_folder
 
 __all__ = ["write_report"]
@@ -127,7 +127,7 @@ def write_report(out: str | Path) -> list[Path]:
     """Write ``out/report/`` (report.md, summary.csv, paired.csv, divergence.csv,
     figures/METRIC_vs_FACTOR.png) from the campaign in ``out``, all at once."""
     out = Path(out)
-    spec = CampaignSpec.from_toml(out / "spec.toml")
+    spec = read_spec(out)
     table = read_records(out)
     metrics = stats.headline_metrics(spec, table)
     summary = stats.cell_stats(spec, table, metrics)
