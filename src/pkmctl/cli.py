@@ -580,8 +580,11 @@ def campaign_run(
         bool, typer.Option(help="Complete the interrupted campaign in OUT (the same spec).")
     ] = False,
 ) -> None:
-    """Run every cell x controller x seed of SPEC_FILE; records go to OUT/runs as tasks
-    finish, so an interrupted campaign keeps what it did and --resume completes it."""
+    """Run a campaign: every cell x controller x seed of SPEC_FILE.
+
+    Records go to OUT/runs as tasks finish, so an interrupted campaign keeps what it did
+    and --resume completes it.
+    """
     from pkmctl.campaign.execute import run_campaign
     from pkmctl.campaign.spec import CampaignSpec
     from pkmctl.io.atomic import check_output_folder
@@ -683,8 +686,11 @@ def campaign_report(
     ctx: typer.Context,
     folder: Annotated[str, typer.Argument(help="A campaign folder (pkmctl campaign run --out).")],
 ) -> None:
-    """Statistics of a campaign: FOLDER/report/ with report.md (which controller is better
-    where, in words), summary.csv, paired.csv, divergence.csv and figures."""
+    """Write a campaign's statistics: FOLDER/report/.
+
+    report.md (which controller is better where, in words), summary.csv, paired.csv,
+    divergence.csv and figures of each metric against each factor.
+    """
     from pkmctl.report.campaign import write_report
 
     if not (Path(folder) / "spec.toml").is_file():
