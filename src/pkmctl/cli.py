@@ -7,6 +7,8 @@
     pkmctl scenario [NAME]
     pkmctl bench [--quick] [--json PATH]
     pkmctl mujoco-model --out FILE.xml [--scenario NAME|FILE] [--rotor-inertia J] ...
+    pkmctl campaign run SPEC.toml [--out DIR] [--workers N] [--scheduler ADDRESS] [--resume]
+    pkmctl campaign report DIR
 
 Every error a user can cause ends in one line on stderr naming the cause (the value,
 the field or the path) and exit status 2 for bad input or environment (output
@@ -560,6 +562,160 @@ def mujoco_model(
     except OSError as exc:
         _fail(f"--out {out}: cannot write: {exc.strerror or exc}")
     console.print(f"wrote {out}")
+
+
+campaign_app = typer.Typer(
+    cls=TyperGroup,
+    no_args_is_help=True,
+    help="Robustness campaigns: many paired runs over factors of a scenario (docs/campaigns.md).",
+)
+app.add_typer(campaign_app, name="campaign")
+
+
+def _seconds(s: float) -> str:
+    if s < 10:
+        return f"{s:.1f} s"
+    return f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min" if s < 7200 else f"{s / 3600:.1f} h"
+
+
+@campaign_app.command("run")
+def campaign_run(
+    ctx: typer.Context,
+    spec_file: Annotated[str, typer.Argument(help="The campaign spec (TOML).")],
+    out: Annotated[
+        str, typer.Option(help="Campaign folder: the spec and one Parquet file per task.")
+    ] = "pkmctl-campaign",
+    workers: Annotated[
+        int | None, typer.Option(help="Local worker processes (default: every core).")
+    ] = None,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(help="Run on the Dask cluster of this scheduler (tcp://host:8786)."),
+    ] = None,
+    resume: Annotated[
+        bool, typer.Option(help="Complete the interrupted campaign in OUT (the same spec).")
+    ] = False,
+) -> None:
+    """Run a campaign: every cell x controller x seed of SPEC_FILE.
+
+    Records go to OUT/runs as tasks finish, so an interrupted campaign keeps what it did
+    and --resume completes it.
+    """
+    from pkmctl.campaign.execute import run_campaign
+    from pkmctl.campaign.spec import CampaignSpec
+    from pkmctl.io.atomic import check_output_folder
+
+    if workers is not None and workers < 1:
+        _fail(f"--workers = {workers}: must be >= 1")
+    try:
+        out = check_output_folder(out, what="--out")
+    except Exception as exc:
+        _handle(ctx, exc)
+    compiles = _Compiles()
+    try:
+        with compiles.listen():
+            spec = _interruptible(
+                lambda: CampaignSpec.from_toml(Path(spec_file)), lambda: "nothing run"
+            )
+    except Exception as exc:
+        _handle(ctx, exc)
+    n_workers = workers or (os.cpu_count() or 1)
+    tasks = spec.tasks()
+    where = (
+        f"the cluster at {scheduler}"
+        if scheduler
+        else f"{n_workers} local worker" + "s" * (n_workers > 1)
+    )
+    work = spec.n_runs * spec.run_seconds()
+    estimate = (
+        f"{_seconds(work)} of runs on one core (divide by the cluster's cores)"
+        if scheduler
+        else f"{_seconds(work / n_workers)} (plus a few s to start the workers)"
+    )
+    _say(
+        f"campaign {spec.name!r} ({spec.digest}): {spec.n_runs} runs = {len(spec.cells)} cells "
+        f"x {len(spec.controllers)} controllers x {len(spec.seeds)} seeds, in {len(tasks)} "
+        f"tasks on {where}; estimated {estimate}"
+    )
+    with Progress(
+        SpinnerColumn(),
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total} runs"),
+        TextColumn("{task.fields[failures]} failed"),
+        TextColumn("{task.fields[rate]:.1f} runs/s"),
+        TimeElapsedColumn(),
+        console=err_console,
+        disable=not err_console.is_terminal,
+    ) as bar:
+        task = bar.add_task("running", total=spec.n_runs, failures=0, rate=0.0)
+        state = {"done": 0}
+
+        def progress(done, failures, total, rate):
+            step = max(1, total // 10)  # a log (not a terminal) gets a line every 10 %
+            if not err_console.is_terminal and done // step > state["done"] // step:
+                _say(f"{done}/{total} runs, {failures} failed, {rate:.1f} runs/s")
+            state["done"] = done
+            bar.update(task, completed=done, failures=failures, rate=rate)
+
+        def on_client(client):
+            link = getattr(client, "dashboard_link", None)
+            if link:
+                _say(f"dashboard: {link}")
+
+        def interrupted() -> str:
+            bar.stop()
+            return (
+                f"{state['done']} of {spec.n_runs} runs kept in {out}; "
+                f"pkmctl campaign run {spec_file} --out {out} --resume completes it"
+            )
+
+        try:
+            with compiles.listen():
+                done = _interruptible(
+                    lambda: run_campaign(
+                        spec,
+                        out,
+                        workers=n_workers,
+                        scheduler=scheduler,
+                        resume=resume,
+                        progress=progress,
+                        on_client=on_client,
+                    ),
+                    interrupted,
+                )
+        except Exception as exc:
+            bar.stop()
+            _handle(ctx, exc)
+    rate = done.done_now / done.wall_s if done.wall_s > 0 else 0.0
+    kept = f" ({done.done_before} done before)" if done.done_before else ""
+    console.print(
+        Text(
+            f"{done.done_now} runs in {done.wall_s:.1f} s ({rate:.1f} runs/s){kept}, "
+            f"{done.failures} diverged or failed; records in {out}/runs"
+        )
+    )
+
+
+@campaign_app.command("report")
+def campaign_report(
+    ctx: typer.Context,
+    folder: Annotated[str, typer.Argument(help="A campaign folder (pkmctl campaign run --out).")],
+) -> None:
+    """Write a campaign's statistics: FOLDER/report/.
+
+    report.md (which controller is better where, in words), summary.csv, paired.csv,
+    divergence.csv and figures of each metric against each factor.
+    """
+    from pkmctl.report.campaign import write_report
+
+    if not (Path(folder) / "spec.toml").is_file():
+        _fail(f"{folder!r}: not a campaign folder (no spec.toml; see pkmctl campaign run --out)")
+    try:
+        files = _interruptible(lambda: write_report(folder), lambda: "nothing written")
+    except Exception as exc:
+        _handle(ctx, exc)
+    console.print(Text(f"wrote {files[0]} and {len(files) - 1} figures"))
 
 
 def _import_benchmarks() -> None:

@@ -1,0 +1,258 @@
+"""Run a campaign's tasks: local worker processes by default, a Dask cluster by address.
+
+A task (:meth:`CampaignSpec.tasks`) is a pure function of the spec and its runs:
+:func:`run_task` returns its records as a pyarrow table and touches no file. The
+client writes each table to the store as it arrives (:func:`pkmctl.campaign.store.
+write_task`), so workers need no shared file system, a retried task (Dask reruns the
+tasks of a lost worker) cannot leave a second copy, and the records do not depend on
+where or in which order the tasks ran.
+
+Local execution uses a ``ProcessPoolExecutor`` of spawned processes rather than a Dask
+``LocalCluster``: it starts in a fraction of a second, opens no ports, and needs no
+scheduler process; a worker lost to a crash breaks the pool, which is rebuilt and the
+unfinished tasks submitted again. Each worker process loads the compiled loops from
+pkmctl's disk cache once (or compiles them once) and keeps them for all its tasks.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import socket
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import pyarrow as pa
+
+from pkmctl.campaign.spec import CampaignSpec, Task
+from pkmctl.campaign.store import (
+    completed_tasks,
+    factor_column,
+    factor_value,
+    open_store,
+    schema,
+    write_task,
+)
+
+__all__ = ["CampaignRun", "run_campaign", "run_task"]
+
+_RETRIES = 3
+
+
+def _metric_values(spec: CampaignSpec, summary: dict | None) -> dict:
+    from pkmctl.campaign.store import _GROUP_KEYS
+
+    out = {}
+    for g in spec.metrics:
+        keys = _GROUP_KEYS[g]
+        v = None if summary is None else summary.get(g)
+        if isinstance(v, dict):
+            vals = [v[k] for k in keys]
+        elif isinstance(v, list):
+            vals = v
+        else:
+            vals = [None] * len(keys)
+        out.update(
+            {f"{g}_{k}": (None if x is None else float(x)) for k, x in zip(keys, vals, strict=True)}
+        )
+    return out
+
+
+def run_task(spec: CampaignSpec, task: Task) -> pa.Table:
+    """Run one task's runs; their records (:func:`pkmctl.campaign.store.schema`).
+
+    A run that diverges is a record with status ``"diverged"``, ``diverged_at`` its
+    time and no metrics; any other error of a run is status ``"error"`` with its
+    message. Pure: same spec and task, same records (but the timing columns).
+    """
+    from pkmctl.errors import SimulationDiverged
+    from pkmctl.sim.metrics import summary
+    from pkmctl.sim.simulate import _parts, _prepare, _run
+
+    rows = []
+    host = f"{socket.gethostname()}:{os.getpid()}"
+    cell = task.runs[0].cell
+    prep = _prepare(spec.scenario(cell), None)
+    for run in task.runs:
+        t0 = time.perf_counter()
+        status, at, msg, metrics, kernel = "ok", None, "", None, math.nan
+        try:
+            parts = _parts(prep.scenario, run.controller)
+            result = _run(prep, parts, run.seed)
+            metrics = summary(result)
+            kernel = result.info["kernel_seconds"]
+        except SimulationDiverged as exc:
+            status, at, msg = "diverged", float(exc.time), str(exc)
+            if exc.partial is not None:
+                kernel = exc.partial.info.get("kernel_seconds", math.nan)
+        except Exception as exc:  # noqa: BLE001 - recorded; the campaign goes on
+            status, msg = "error", f"{type(exc).__name__}: {exc}"
+        row = {
+            "spec_hash": spec.digest,
+            "cell": run.cell,
+            "controller": run.controller,
+            "seed": run.seed,
+            "task": task.index,
+        }
+        for p in spec.factors:
+            row[factor_column(p)] = factor_value(spec, p, spec.cells[run.cell][p])
+        row.update(status=status, diverged_at=at, message=msg)
+        row.update(_metric_values(spec, metrics))
+        row.update(wall_s=time.perf_counter() - t0, kernel_s=float(kernel), worker=host)
+        rows.append(row)
+    return pa.Table.from_pylist(rows, schema=schema(spec))
+
+
+@dataclass
+class CampaignRun:
+    """What :func:`run_campaign` did: runs done now and before, failures, wall time."""
+
+    out: Path
+    runs: int
+    done_before: int
+    done_now: int
+    failures: int
+    tasks_now: int
+    wall_s: float
+    complete: bool
+
+
+class _Progress:
+    def __init__(self, callback):
+        self.callback = callback
+
+    def __call__(self, **kw):
+        if self.callback is not None:
+            self.callback(**kw)
+
+
+def _local_results(spec: CampaignSpec, tasks: list[Task], workers: int) -> Iterable:
+    """(task, table) as tasks finish, on ``workers`` spawned processes; a broken pool
+    (a worker killed) is rebuilt and its unfinished tasks run again."""
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
+
+    from pkmctl.sim.simulate import _die_with_parent
+
+    if workers == 1:  # no process to start: run here
+        for t in tasks:
+            yield t, run_task(spec, t)
+        return
+    todo = list(tasks)
+    spawn = multiprocessing.get_context("spawn")
+    for attempt in range(_RETRIES + 1):
+        pool = ProcessPoolExecutor(workers, mp_context=spawn, initializer=_die_with_parent)
+        try:
+            futures = {pool.submit(run_task, spec, t): t for t in todo}
+            pending = set(futures)
+            while pending:
+                finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for f in finished:
+                    task = futures[f]
+                    try:
+                        table = f.result()
+                    except BrokenProcessPool:
+                        continue
+                    todo.remove(task)
+                    yield task, table
+            if not todo:
+                return
+        except BrokenProcessPool:
+            pass
+        finally:
+            pool.shutdown(wait=False, cancel_futures=True)
+        if attempt == _RETRIES:
+            raise RuntimeError(
+                f"a worker process died {_RETRIES + 1} times; {len(todo)} tasks left"
+            )
+
+
+def _dask_results(spec: CampaignSpec, tasks: list[Task], address: str, on_client=None) -> Iterable:
+    """(task, table) as tasks finish on the Dask cluster at ``address``. Tasks are pure,
+    so the scheduler reruns those of a lost worker (up to ``allowed_failures``)."""
+    from distributed import Client, as_completed
+
+    with Client(address, timeout="10s") as client:
+        if on_client is not None:
+            on_client(client)
+        spec_f = client.scatter(spec, broadcast=True)
+        futures = {
+            client.submit(
+                run_task, spec_f, t, key=f"pkmctl-{spec.digest}-task-{t.index}", pure=True
+            ): t
+            for t in tasks
+        }
+        for f in as_completed(futures):
+            yield futures[f], f.result()
+
+
+def run_campaign(
+    spec: CampaignSpec,
+    out: str | Path,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    resume: bool = False,
+    progress: Callable | None = None,
+    on_client: Callable | None = None,
+    stop_after: int | None = None,
+) -> CampaignRun:
+    """Run (or, with ``resume``, complete) a campaign into the store at ``out``.
+
+    Parameters
+    ----------
+    spec : CampaignSpec
+        The validated campaign.
+    out : path
+        The campaign folder (:mod:`pkmctl.campaign.store`).
+    workers : int, optional
+        Local worker processes (default: every core). Ignored with ``scheduler``.
+    scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:8786``): run there.
+    resume : bool
+        Complete the campaign in ``out`` (the same spec): run only the tasks without a
+        file. Without it an existing campaign folder is refused.
+    progress : callable, optional
+        Called as ``progress(done=, failures=, total=, rate=)`` after each task.
+    on_client : callable, optional
+        Called with the Dask client once connected (e.g. to print its dashboard link).
+    stop_after : int, optional
+        Stop after this many tasks (a deliberate interruption, for tests).
+    """
+    out = Path(out)
+    runs_dir = open_store(out, spec, resume=resume)
+    tasks = spec.tasks()
+    done = completed_tasks(runs_dir)
+    todo = [t for t in tasks if t.index not in done]
+    before = sum(len(t.runs) for t in tasks if t.index in done)
+    workers = (os.cpu_count() or 1) if workers is None else int(workers)
+    if workers < 1:
+        raise ValueError(f"--workers = {workers}: must be >= 1")
+    t0 = time.perf_counter()
+    report = _Progress(progress)
+    now = failures = n_tasks = 0
+    report(done=before, failures=0, total=spec.n_runs, rate=0.0)
+    if scheduler is not None:
+        stream = _dask_results(spec, todo, scheduler, on_client)
+    else:
+        stream = _local_results(spec, todo, min(workers, max(1, len(todo))))
+    try:
+        for task, table in stream:
+            write_task(runs_dir, task.index, table)
+            n_tasks += 1
+            now += table.num_rows
+            failures += sum(s != "ok" for s in table.column("status").to_pylist())
+            elapsed = time.perf_counter() - t0
+            report(done=before + now, failures=failures, total=spec.n_runs, rate=now / elapsed)
+            if stop_after is not None and n_tasks >= stop_after:
+                break
+    finally:
+        close = getattr(stream, "close", None)
+        if close is not None:
+            close()
+    complete = len(completed_tasks(runs_dir)) == len(tasks)
+    return CampaignRun(out, spec.n_runs, before, now, failures, n_tasks,
+                       time.perf_counter() - t0, complete)  # fmt: skip

@@ -1,0 +1,318 @@
+"""A campaign spec: base scenario, factors, controllers, seeds, duration, metrics kept.
+
+The TOML (docs/campaigns.md)::
+
+    name = "payload-vs-model-error"
+    scenario = "paper"             # a built-in name or a scenario TOML file
+    controllers = ["smc", "afsmc"]
+    seeds = 10                     # 0..9, or a list [3, 7, 11]
+    duration = 2.0                 # s, overrides timing.duration
+    metrics = ["rmse", "rmse_after_1s"]
+
+    [factors."payload.mass"]       # a grid: every value
+    values = [0.0, 5.0, 10.0]
+
+    [factors."controller_model.theta_scale"]   # seeded draws
+    distribution = "uniform"       # uniform | loguniform | normal
+    low = 0.3
+    high = 1.0
+    samples = 4
+    seed = 1
+
+The cells are the Cartesian product of the factors' values (grid values or draws), in
+the order the factors are written; every controller runs every cell with every seed,
+so comparisons are paired. ``"none"`` as a grid value means no value (e.g.
+``actuators.force_limit``: no limit).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pkmctl.errors import PkmctlError
+from pkmctl.sim.scenario import BUILTINS, Scenario, ScenarioError
+
+__all__ = ["DISTRIBUTIONS", "METRICS", "CampaignSpec", "Run", "SpecError", "Task"]
+
+
+class SpecError(PkmctlError, ValueError):
+    """An invalid campaign spec (one line: the field, the value, what is allowed)."""
+
+
+#: Metric groups a campaign can keep (pkmctl.sim.metrics.summary's keys).
+METRICS = ("rmse", "rmse_after_1s", "max_error", "chattering_N_per_s", "peak_force_N")
+#: Seeded distributions of a sampled factor and their parameters.
+DISTRIBUTIONS = {
+    "uniform": ("low", "high"),
+    "loguniform": ("low", "high"),
+    "normal": ("mean", "std"),
+}
+_TOP = {"name", "description", "scenario", "controllers", "seeds", "duration", "metrics", "factors"}
+#: Seconds of work per compiled control period and per run outside the loop: the task
+#: size estimate (measured on the shared 2-core development machine: 3-6 us a period, ~10 ms a
+#: run for prepare, build and metrics). Deterministic, so a task's runs never depend on
+#: the machine: resuming elsewhere finds the same tasks.
+SECONDS_PER_PERIOD = 5e-6
+SECONDS_PER_RUN = 0.01
+#: Work per task (Dask costs ~1 ms per task).
+TASK_SECONDS = 0.2
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run: a cell (index into the cells), a controller, a disturbance seed."""
+
+    cell: int
+    controller: str
+    seed: int
+
+
+@dataclass(frozen=True)
+class Task:
+    """Runs done together by one worker (one cell, one controller, some seeds)."""
+
+    index: int
+    runs: tuple[Run, ...]
+
+
+def _fail(msg: str) -> SpecError:
+    return SpecError(msg)
+
+
+def _factor_values(path: str, body: Any) -> list:
+    where = f"factors.{path!r}"
+    if not isinstance(body, dict):
+        raise _fail(f"{where} = {body!r}: must be a table with values = [...] or a distribution")
+    if "values" in body:
+        extra = set(body) - {"values"}
+        if extra:
+            raise _fail(f"{where}: unknown key {sorted(extra)[0]!r} beside values")
+        values = body["values"]
+        if not isinstance(values, list) or not values:
+            raise _fail(f"{where}.values = {values!r}: must be a non-empty list")
+        return [None if v == "none" else v for v in values]
+    kind = body.get("distribution")
+    if kind not in DISTRIBUTIONS:
+        raise _fail(
+            f"{where}.distribution = {kind!r}: must be one of {', '.join(DISTRIBUTIONS)} "
+            f"(or give values = [...])"
+        )
+    a, b = DISTRIBUTIONS[kind]
+    allowed = {"distribution", a, b, "samples", "seed"}
+    extra = set(body) - allowed
+    if extra:
+        raise _fail(f"{where}: unknown key {sorted(extra)[0]!r} (allowed: {', '.join(allowed)})")
+    n = body.get("samples")
+    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        raise _fail(f"{where}.samples = {n!r}: must be an integer >= 1")
+    seed = body.get("seed", 0)
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        raise _fail(f"{where}.seed = {seed!r}: must be an integer >= 0")
+    p = []
+    for k in (a, b):
+        v = body.get(k)
+        if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v):
+            raise _fail(f"{where}.{k} = {v!r}: must be a finite number")
+        p.append(float(v))
+    rng = np.random.default_rng(seed)
+    if kind == "uniform":
+        if not p[0] < p[1]:
+            raise _fail(f"{where}: low = {p[0]} must be < high = {p[1]}")
+        draws = rng.uniform(p[0], p[1], n)
+    elif kind == "loguniform":
+        if not 0 < p[0] < p[1]:
+            raise _fail(f"{where}: need 0 < low < high, got {p[0]}, {p[1]}")
+        draws = np.exp(rng.uniform(math.log(p[0]), math.log(p[1]), n))
+    else:
+        if not p[1] > 0:
+            raise _fail(f"{where}.std = {p[1]}: must be > 0")
+        draws = rng.normal(p[0], p[1], n)
+    return draws.tolist()
+
+
+def _load_base(ref: Any, folder: Path) -> Scenario:
+    if not isinstance(ref, str) or not ref:
+        raise _fail(
+            f"scenario = {ref!r}: must be a built-in name ({', '.join(BUILTINS)}) or a file"
+        )
+    if ref in BUILTINS:
+        return Scenario.builtin(ref)
+    path = Path(ref) if Path(ref).is_absolute() else folder / ref
+    if path.suffix.lower() == ".toml" or path.exists():
+        return Scenario.from_toml(path)
+    return Scenario.builtin(ref)  # raises with the list of built-ins
+
+
+@dataclass(frozen=True, eq=False)
+class CampaignSpec:
+    """A validated campaign: the base scenario, the cells, controllers, seeds.
+
+    ``cells[i]`` maps each factor's dotted path to its value in cell i; every
+    ``scenario(i)`` was validated when the spec was read, so runs cannot meet a bad
+    value. ``text`` is the spec as written, ``digest`` the SHA-256 (16 hex digits) of
+    what determines the records: the base scenario, the cells, controllers, seeds,
+    duration and metrics.
+    """
+
+    name: str
+    description: str
+    base: Scenario
+    factors: tuple[str, ...]
+    cells: tuple[dict, ...]
+    controllers: tuple[str, ...]
+    seeds: tuple[int, ...]
+    duration: float
+    metrics: tuple[str, ...]
+    text: str
+    digest: str
+
+    @classmethod
+    def from_toml(cls, source: str | Path) -> CampaignSpec:
+        """Read and validate a spec from a file path (or TOML text if it has a newline).
+
+        Raises :class:`SpecError` or :class:`~pkmctl.ScenarioError` in one line; every
+        cell's scenario is built and validated, so nothing runs from a bad spec.
+        """
+        if isinstance(source, Path) or "\n" not in str(source):
+            path = Path(source)
+            try:
+                text = path.read_text(encoding="utf-8")
+            except (OSError, UnicodeDecodeError) as exc:
+                raise _fail(
+                    f"campaign spec {str(path)!r}: {getattr(exc, 'strerror', None) or exc}"
+                ) from None
+            folder = path.absolute().parent
+        else:
+            text, folder = str(source), Path.cwd()
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise _fail(f"campaign spec: {exc}") from None
+        return cls.from_dict(data, text=text, folder=folder)
+
+    @classmethod
+    def from_dict(cls, data: dict, *, text: str = "", folder: Path | None = None) -> CampaignSpec:
+        """Validate a spec given as a dict (the TOML's content)."""
+        extra = set(data) - _TOP
+        if extra:
+            raise _fail(f"{sorted(extra)[0]}: unknown key (allowed: {', '.join(sorted(_TOP))})")
+        base = _load_base(data.get("scenario", "paper"), folder or Path.cwd())
+        from pkmctl.parts import names
+
+        controllers = data.get("controllers", ["smc", "fsmc", "afsmc"])
+        known = names("controller")
+        if not isinstance(controllers, list) or not controllers:
+            raise _fail(f"controllers = {controllers!r}: must be a non-empty list of names")
+        for c in controllers:
+            if c not in known:
+                raise _fail(
+                    f"controllers: {c!r} is not a registered controller ({', '.join(known)})"
+                )
+        if len(set(controllers)) != len(controllers):
+            raise _fail(f"controllers = {controllers!r}: a controller is named twice")
+        seeds = data.get("seeds", 1)
+        if isinstance(seeds, int) and not isinstance(seeds, bool):
+            if seeds < 1:
+                raise _fail(f"seeds = {seeds}: must be >= 1 (zero runs)")
+            seeds = list(range(seeds))
+        if not isinstance(seeds, list) or not seeds:
+            raise _fail(f"seeds = {seeds!r}: must be a count >= 1 or a non-empty list (zero runs)")
+        for s in seeds:
+            if not isinstance(s, int) or isinstance(s, bool) or not 0 <= s <= 2**63 - 1:
+                raise _fail(f"seeds: {s!r} must be an integer in [0, 2^63 - 1]")
+        if len(set(seeds)) != len(seeds):
+            raise _fail(f"seeds = {seeds!r}: a seed is named twice")
+        duration = data.get("duration", base.timing.duration)
+        if not isinstance(duration, int | float) or isinstance(duration, bool):
+            raise _fail(f"duration = {duration!r}: must be a number of seconds")
+        metrics = data.get("metrics", ["rmse", "rmse_after_1s"])
+        if not isinstance(metrics, list) or not metrics:
+            raise _fail(f"metrics = {metrics!r}: must be a non-empty list of {', '.join(METRICS)}")
+        for m in metrics:
+            if m not in METRICS:
+                raise _fail(f"metrics: {m!r} unknown (choose from {', '.join(METRICS)})")
+        factors = data.get("factors", {})
+        if not isinstance(factors, dict):
+            raise _fail(f"factors = {factors!r}: must be a table of dotted paths")
+        values = {p: _factor_values(p, body) for p, body in factors.items()}
+        base = base.replace(**{"timing.duration": float(duration)})
+        cells = tuple(
+            dict(zip(values, combo, strict=True)) for combo in itertools.product(*values.values())
+        )
+        for cell in cells:
+            _cell_scenario(base, cell)  # raises the scenario's one-line error
+        name = data.get("name", "campaign")
+        if not isinstance(name, str) or not name:
+            raise _fail(f"name = {name!r}: must be a non-empty string")
+        identity = {
+            "base": base.model_dump(mode="json", by_alias=True),
+            "cells": cells,
+            "controllers": controllers,
+            "seeds": seeds,
+            "metrics": metrics,
+        }
+        blob = json.dumps(identity, sort_keys=True, separators=(",", ":")).encode()
+        return cls(
+            name=name,
+            description=str(data.get("description", "")),
+            base=base,
+            factors=tuple(values),
+            cells=cells,
+            controllers=tuple(controllers),
+            seeds=tuple(seeds),
+            duration=float(duration),
+            metrics=tuple(metrics),
+            text=text,
+            digest=hashlib.sha256(blob).hexdigest()[:16],
+        )
+
+    # ------------------------------------------------------------------ derived
+    @property
+    def n_runs(self) -> int:
+        return len(self.cells) * len(self.controllers) * len(self.seeds)
+
+    def scenario(self, cell: int) -> Scenario:
+        """The validated scenario of cell ``cell``."""
+        return _cell_scenario(self.base, self.cells[cell])
+
+    def periods(self) -> int:
+        """Control periods of one run (the base's period; a factor may change it)."""
+        return max(
+            int(round(self.duration / float(c.get("timing.control_period",
+                                                  self.base.timing.control_period))))
+            for c in self.cells
+        )  # fmt: skip
+
+    def run_seconds(self) -> float:
+        """Estimated seconds of one run on one core (the constants above)."""
+        return SECONDS_PER_RUN + SECONDS_PER_PERIOD * self.periods()
+
+    def tasks(self) -> list[Task]:
+        """The runs grouped into tasks of about :data:`TASK_SECONDS` of work each: one
+        cell and controller per task, its seeds in chunks. Depends on the spec only."""
+        per = max(1, min(len(self.seeds), math.ceil(TASK_SECONDS / self.run_seconds())))
+        out = []
+        for cell in range(len(self.cells)):
+            for c in self.controllers:
+                for i in range(0, len(self.seeds), per):
+                    runs = tuple(Run(cell, c, s) for s in self.seeds[i : i + per])
+                    out.append(Task(len(out), runs))
+        return out
+
+
+def _cell_scenario(base: Scenario, cell: dict) -> Scenario:
+    try:
+        return base.replace(**cell) if cell else base
+    except ScenarioError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a value pydantic's strict mode cannot take
+        raise ScenarioError(f"{next(iter(cell))}: {exc}") from None

@@ -1,0 +1,229 @@
+"""The result store: one Parquet file per task, the spec beside them (DESIGN.md §8).
+
+Layout of a campaign folder::
+
+    spec.toml            the spec as written
+    scenario.toml        its base scenario (the spec may name a file elsewhere)
+    campaign.json        its digest, runs, tasks and record columns
+    runs/task-00017.parquet    the records of task 17, written atomically, once
+
+Each file appears whole or not at all (:func:`pkmctl.io.atomic.atomic_write`), and no
+file has two writers, so a crash loses at most the tasks in flight and a resume runs
+exactly the tasks without a file. Read every record with :func:`read_records`
+(pyarrow) or query them with DuckDB (:func:`query`)::
+
+    SELECT controller, avg(rmse_after_1s_z_mm) FROM 'DIR/runs/*.parquet' GROUP BY 1
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from pkmctl.campaign.spec import CampaignSpec, SpecError
+from pkmctl.io.atomic import atomic_write
+from pkmctl.sim.metrics import RMSE_KEYS
+
+__all__ = [
+    "TIMING_COLUMNS",
+    "completed_tasks",
+    "factor_column",
+    "metric_columns",
+    "open_store",
+    "query",
+    "read_records",
+    "read_spec",
+    "schema",
+    "write_task",
+]
+
+#: Columns that say how long a run took and where: they differ between two runs of the
+#: same campaign; every other column is reproducible bit for bit.
+TIMING_COLUMNS = ("wall_s", "kernel_s", "worker")
+_GROUP_KEYS = {
+    "rmse": RMSE_KEYS,
+    "rmse_after_1s": RMSE_KEYS,
+    "max_error": RMSE_KEYS,
+    "chattering_N_per_s": ("1", "2", "3", "4"),
+    "peak_force_N": ("1", "2", "3", "4"),
+}
+
+
+def factor_column(path: str) -> str:
+    """The record column of a factor: ``f.`` and its dotted path."""
+    return f"f.{path}"
+
+
+def metric_columns(groups) -> list[str]:
+    """The record columns of the kept metric groups, e.g. ``rmse_after_1s_z_mm``."""
+    return [f"{g}_{k}" for g in groups for k in _GROUP_KEYS[g]]
+
+
+def _numeric(values) -> bool:
+    return all(
+        v is None or (isinstance(v, int | float) and not isinstance(v, bool)) for v in values
+    )
+
+
+def schema(spec: CampaignSpec) -> pa.Schema:
+    """The records' columns: key, factors, status, metrics, timing."""
+    fields = [
+        pa.field("spec_hash", pa.string()),
+        pa.field("cell", pa.int64()),
+        pa.field("controller", pa.string()),
+        pa.field("seed", pa.int64()),
+        pa.field("task", pa.int64()),
+    ]
+    for p in spec.factors:
+        numeric = _numeric([c[p] for c in spec.cells])
+        fields.append(pa.field(factor_column(p), pa.float64() if numeric else pa.string()))
+    fields += [
+        pa.field("status", pa.string()),
+        pa.field("diverged_at", pa.float64()),
+        pa.field("message", pa.string()),
+    ]
+    fields += [pa.field(m, pa.float64()) for m in metric_columns(spec.metrics)]
+    fields += [
+        pa.field("wall_s", pa.float64()),
+        pa.field("kernel_s", pa.float64()),
+        pa.field("worker", pa.string()),
+    ]
+    return pa.schema(fields)
+
+
+def factor_value(spec: CampaignSpec, path: str, value):
+    """A cell's factor value as its column stores it (a float, or JSON text)."""
+    if _numeric([c[path] for c in spec.cells]):
+        return None if value is None else float(value)
+    return json.dumps(value)
+
+
+def _manifest(spec: CampaignSpec) -> dict:
+    return {
+        "name": spec.name,
+        "spec_hash": spec.digest,
+        "runs": spec.n_runs,
+        "tasks": len(spec.tasks()),
+        "columns": schema(spec).names,
+    }
+
+
+def open_store(out: Path, spec: CampaignSpec, *, resume: bool) -> Path:
+    """Prepare ``out`` for ``spec``: a new store, or (``resume``) an existing one of the
+    same spec. Refuses an existing store without ``resume``, and one of another spec.
+    Returns the folder of the task files."""
+    manifest = out / "campaign.json"
+    if manifest.exists():
+        if not resume:
+            raise SpecError(
+                f"--out {str(out)!r}: holds a campaign already (use --resume to complete it, "
+                f"or another --out)"
+            )
+        try:
+            old = json.loads(manifest.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise SpecError(f"{manifest}: unreadable ({exc})") from None
+        if old.get("spec_hash") != spec.digest:
+            raise SpecError(
+                f"--resume: {str(out)!r} holds campaign {old.get('spec_hash')!r}, this spec is "
+                f"{spec.digest!r} (a different spec; use another --out)"
+            )
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        with atomic_write(out / "spec.toml") as fh:
+            fh.write(spec.text)
+        with atomic_write(out / "scenario.toml") as fh:
+            fh.write(spec.base.to_toml())
+        with atomic_write(manifest) as fh:
+            json.dump(_manifest(spec), fh, indent=2)
+    runs = out / "runs"
+    runs.mkdir(exist_ok=True)
+    return runs
+
+
+def read_spec(out: str | Path) -> CampaignSpec:
+    """The spec of the campaign in ``out``, its base scenario read from the copy stored
+    beside it; checked against the hash the campaign was run with."""
+    import tomllib
+
+    out = Path(out)
+    try:
+        text = (out / "spec.toml").read_text(encoding="utf-8")
+        data = tomllib.loads(text)
+        digest = json.loads((out / "campaign.json").read_text(encoding="utf-8"))["spec_hash"]
+    except (OSError, ValueError, KeyError) as exc:
+        raise SpecError(f"{str(out)!r}: not a readable campaign folder ({exc})") from None
+    data["scenario"] = str((out / "scenario.toml").absolute())
+    spec = CampaignSpec.from_dict(data, text=text, folder=out)
+    if spec.digest != digest:
+        raise SpecError(
+            f"{str(out)!r}: its spec hashes to {spec.digest!r}, its records to {digest!r} "
+            f"(edited after the run?)"
+        )
+    return spec
+
+
+def _task_path(runs: Path, index: int) -> Path:
+    return runs / f"task-{index:05d}.parquet"
+
+
+def completed_tasks(runs: Path) -> set[int]:
+    """Indices of the tasks whose file exists (a file is whole, or absent)."""
+    done = set()
+    for p in runs.glob("task-*.parquet"):
+        try:
+            done.add(int(p.stem.removeprefix("task-")))
+        except ValueError:
+            continue
+    return done
+
+
+def write_task(runs: Path, index: int, table: pa.Table) -> Path:
+    """Write one task's records atomically (the file appears whole or not at all)."""
+    buf = io.BytesIO()
+    pq.write_table(table, buf)
+    path = _task_path(runs, index)
+    with atomic_write(path, "wb") as fh:
+        fh.write(buf.getvalue())
+    return path
+
+
+def read_records(out: str | Path, *, timing: bool = True) -> pa.Table:
+    """Every record of a campaign folder, sorted by cell, controller (the spec's order)
+    and seed; without the :data:`TIMING_COLUMNS` if ``timing`` is False."""
+    out = Path(out)
+    spec = read_spec(out)
+    files = sorted((out / "runs").glob("task-*.parquet"))
+    sch = schema(spec)
+    if not files:
+        table = sch.empty_table()
+    else:
+        table = pa.concat_tables([pq.read_table(f, schema=sch) for f in files])
+    order = {c: i for i, c in enumerate(spec.controllers)}
+    ctrl_rank = pa.array([order[c] for c in table.column("controller").to_pylist()], pa.int64())
+    table = table.append_column("_rank", ctrl_rank)
+    table = table.sort_by([("cell", "ascending"), ("_rank", "ascending"), ("seed", "ascending")])
+    table = table.drop_columns(["_rank"])
+    if not timing:
+        table = table.drop_columns(list(TIMING_COLUMNS))
+    return table
+
+
+def query(out: str | Path, sql: str):
+    """Run DuckDB ``sql`` over the records, which it sees as the view ``runs``; returns a
+    pyarrow table. ``query(dir, "SELECT controller, count(*) FROM runs GROUP BY 1")``"""
+    import duckdb
+
+    con = duckdb.connect()
+    try:
+        pattern = str(Path(out) / "runs" / "task-*.parquet").replace("'", "''")
+        con.execute(f"CREATE VIEW runs AS SELECT * FROM read_parquet('{pattern}')")
+        rel = con.sql(sql)
+        fetch = getattr(rel, "to_arrow_table", None) or rel.arrow  # DuckDB 2 / 1
+        return fetch()
+    finally:
+        con.close()

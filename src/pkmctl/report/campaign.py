@@ -1,0 +1,199 @@
+"""A campaign's report: report.md, summary.csv, paired.csv and figures (DESIGN.md §8).
+
+Renders only: the numbers come from :mod:`pkmctl.campaign.stats`. Every sentence of
+report.md is generated from them: which controller is better where (the 95 % interval
+of the paired mean difference excludes zero), and where the data cannot tell.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from pathlib import Path
+
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from pkmctl.campaign import stats
+from pkmctl.campaign.spec import CampaignSpec
+from pkmctl.campaign.store import factor_column, read_records, read_spec
+from pkmctl.io.atomic import atomic_write, staged_folder
+
+__all__ = ["write_report"]
+
+
+def _g(x) -> str:
+    if x is None:
+        return "none"
+    if isinstance(x, float):
+        return "n/a" if not math.isfinite(x) else f"{x:.4g}"
+    return str(x)
+
+
+def _cell_name(spec: CampaignSpec, cell: int) -> str:
+    if cell < 0:
+        return "all cells"
+    if not spec.factors:
+        return "the base scenario"
+    return ", ".join(f"{p} = {_g(spec.cells[cell][p])}" for p in spec.factors)
+
+
+def _write_csv(path: Path, rows: list[dict]) -> None:
+    with atomic_write(path) as fh:
+        if not rows:
+            return
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]), lineterminator="\n")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: _g(v) if isinstance(v, float) or v is None else v for k, v in r.items()})
+
+
+def _plot(spec, table, metric: str, factor: str, path: Path) -> None:
+    rows = stats.by_factor(spec, table, metric, factor)
+    fig = Figure(figsize=(6, 4))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    values = list(dict.fromkeys(repr(r["value"]) for r in rows))
+    numeric = all(isinstance(r["value"], int | float) for r in rows)
+    for k, ctrl in enumerate(spec.controllers):
+        mine = [r for r in rows if r["controller"] == ctrl]
+        if numeric:
+            xs = [float(r["value"]) for r in mine]
+        else:
+            xs = [values.index(repr(r["value"])) + 0.05 * k for r in mine]
+        ys = [r["mean"] for r in mine]
+        err = [
+            [max(r["mean"] - r["lo"], 0) if math.isfinite(r["lo"]) else 0 for r in mine],
+            [max(r["hi"] - r["mean"], 0) if math.isfinite(r["hi"]) else 0 for r in mine],
+        ]
+        ax.errorbar(xs, ys, yerr=err, marker="o", capsize=3, label=ctrl)
+    if not numeric:
+        ax.set_xticks(range(len(values)), [_g(r["value"]) for r in rows[: len(values)]])
+    ax.set_xlabel(factor)
+    ax.set_ylabel(f"{metric} (mean, 95 % interval)")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    with atomic_write(path, "wb") as fh:
+        fh.write(buf.getvalue())
+
+
+def _words(spec, paired: list[dict], metric: str) -> list[str]:
+    out = []
+    for r in (r for r in paired if r["metric"] == metric and r["cell"] == -1):
+        a, b = r["a"], r["b"]
+        if r["pairs"] == 0:
+            out.append(f"- {a} vs {b}: no pair of runs where both ended ok.")
+            continue
+        head = (
+            f"- **{a} vs {b}** over all cells ({r['pairs']} pairs): mean difference "
+            f"{_g(r['mean'])} [{_g(r['lo'])}, {_g(r['hi'])}], {a} lower in "
+            f"{100 * r['win_rate_a']:.0f} % of pairs: "
+        )
+        if r["better"] == "a":
+            head += f"{a} is better."
+        elif r["better"] == "b":
+            head += f"{b} is better."
+        else:
+            head += "the data cannot tell them apart."
+        out.append(head)
+        cells = [x for x in paired if x["metric"] == metric and x["a"] == a and x["b"] == b]
+        cells = [x for x in cells if x["cell"] >= 0]
+        for who, label in (("a", a), ("b", b)):
+            where = [x for x in cells if x["better"] == who]
+            if where:
+                out.append(
+                    f"  - {label} better in {len(where)} of {len(cells)} cells: "
+                    + "; ".join(
+                        f"{_cell_name(spec, x['cell'])} (by {_g(abs(x['mean']))} "
+                        f"[{_g(abs(x['hi']) if who == 'a' else x['lo'])}, "
+                        f"{_g(abs(x['lo']) if who == 'a' else x['hi'])}])"
+                        for x in where
+                    )
+                )
+        unclear = [x for x in cells if x["better"] == "unclear"]
+        if unclear:
+            out.append(
+                f"  - cannot tell in {len(unclear)} of {len(cells)} cells: "
+                + "; ".join(_cell_name(spec, x["cell"]) for x in unclear)
+            )
+    return out
+
+
+def write_report(out: str | Path) -> list[Path]:
+    """Write ``out/report/`` (report.md, summary.csv, paired.csv, divergence.csv,
+    figures/METRIC_vs_FACTOR.png) from the campaign in ``out``, all at once."""
+    out = Path(out)
+    spec = read_spec(out)
+    table = read_records(out)
+    metrics = stats.headline_metrics(spec, table)
+    summary = stats.cell_stats(spec, table, metrics)
+    paired = stats.paired_differences(spec, table, metrics)
+    div = [r for r in summary if r["metric"] == metrics[0]]
+    statuses = table.column("status").to_pylist()
+    lines = [
+        f"# Campaign {spec.name!r} ({spec.digest})",
+        "",
+        spec.description,
+        "",
+        f"{table.num_rows} of {spec.n_runs} runs recorded: {len(spec.cells)} cells x "
+        f"{len(spec.controllers)} controllers ({', '.join(spec.controllers)}) x "
+        f"{len(spec.seeds)} seeds, {spec.duration:g} s each, base scenario "
+        f"{spec.base.name!r}. Factors: "
+        + (", ".join(spec.factors) if spec.factors else "none")
+        + ".",
+        "",
+        "Lower is better. Intervals are bootstrap 95 % intervals of the mean; a difference "
+        f"counts only when its interval excludes zero, over at least {stats.MIN_PAIRS} pairs.",
+        "",
+        "## Which controller is better where",
+        "",
+    ]
+    for m in metrics:
+        lines += [f"### {m}", "", *_words(spec, paired, m), ""]
+    lines += ["## Divergence", ""]
+    n_bad = sum(s != "ok" for s in statuses)
+    if n_bad == 0:
+        lines.append("No run diverged or failed.")
+    else:
+        for r in div:
+            if r["n"] > r["ok"]:
+                lines.append(
+                    f"- {r['controller']}: {r['n'] - r['ok']} of {r['n']} runs did not end ok "
+                    f"({r['diverged']} diverged) at {_cell_name(spec, r['cell'])}"
+                )
+    lines += ["", "## Per cell and controller", ""]
+    cols = ["controller", "n", "ok", "mean", "median", "95 % interval"]
+    for m in metrics:
+        lines += [f"### {m}", "", "| cell | " + " | ".join(cols) + " |"]
+        lines.append("|" + "---|" * (len(cols) + 1))
+        for r in (r for r in summary if r["metric"] == m):
+            lines.append(
+                f"| {_cell_name(spec, r['cell'])} | {r['controller']} | {r['n']} | {r['ok']} | "
+                f"{_g(r['mean'])} | {_g(r['median'])} | [{_g(r['lo'])}, {_g(r['hi'])}] |"
+            )
+        lines.append("")
+    figures = []
+    with staged_folder(out / "report") as stage:
+        (stage / "figures").mkdir()
+        lines += ["## Each metric against each factor", ""]
+        for m in metrics:
+            for p in spec.factors:
+                name = f"{m}_vs_{p}.png"
+                _plot(spec, table, m, p, stage / "figures" / name)
+                figures.append(name)
+                lines.append(f"![{m} against {p}](figures/{name})")
+        lines.append("")
+        _write_csv(stage / "summary.csv", summary)
+        _write_csv(stage / "paired.csv", [r | {"cell": r["cell"]} for r in paired])
+        _write_csv(stage / "divergence.csv", [
+            {k: r[k] for k in ("cell", *map(factor_column, spec.factors), "controller", "n",
+                               "ok", "diverged")} for r in div
+        ])  # fmt: skip
+        with atomic_write(stage / "report.md") as fh:
+            fh.write("\n".join(lines).replace("\n\n\n", "\n\n") + "\n")
+    report = out / "report"
+    return [report / "report.md", *(report / "figures" / f for f in figures)]

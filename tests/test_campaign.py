@@ -1,0 +1,318 @@
+"""Campaigns (issue 11): specs, local and Dask execution, the store, resume, report."""
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from typer.testing import CliRunner
+
+import pkmctl
+from pkmctl.campaign import CampaignSpec
+from pkmctl.campaign.execute import run_campaign
+from pkmctl.campaign.store import query, read_records
+from pkmctl.cli import app
+
+runner = CliRunner()
+
+SMALL = """
+name = "small"
+scenario = "paper"
+controllers = ["smc", "afsmc"]
+seeds = [3, 8]
+duration = 0.05
+metrics = ["rmse", "max_error"]
+
+[factors."payload.mass"]
+values = [0.0, 8.0]
+
+[factors."controller_model.theta_scale"]
+distribution = "uniform"
+low = 0.4
+high = 1.0
+samples = 2
+seed = 5
+"""
+
+
+@pytest.fixture(scope="module")
+def spec_file(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("spec") / "small.toml"
+    path.write_text(SMALL)
+    return path
+
+
+@pytest.fixture(scope="module")
+def reference(spec_file, tmp_path_factory):
+    """The uninterrupted campaign, in this process (one worker)."""
+    out = tmp_path_factory.mktemp("ref") / "camp"
+    done = run_campaign(CampaignSpec.from_toml(spec_file), out, workers=1)
+    assert done.complete and done.done_now == 16
+    return out, read_records(out, timing=False)
+
+
+@pytest.mark.parametrize(
+    ("change", "expected"),
+    [
+        ('[factors."payload.mas"]\nvalues = [1.0]\n', "payload.mas: unknown field"),
+        ('[factors."payload.mass"]\nvalues = [-1.0]\n', "payload.mass = -1.0: must be"),
+        ('[factors."timing.control_period"]\nvalues = []\n', "must be a non-empty list"),
+        ("seeds = 0\n", "seeds = 0: must be >= 1 (zero runs)"),
+        ('controllers = ["smc", "nope"]\n', "'nope' is not a registered controller"),
+        ('[factors."disturbance.amplitude"]\nvalues = [[1.0, 2.0]]\n', "disturbance.amplitude"),
+        (
+            '[factors."payload.mass"]\ndistribution = "uniform"\nlow = 1.0\nhigh = 2.0\n',
+            "samples = None: must be an integer >= 1",
+        ),
+    ],
+)
+def test_bad_specs_fail_in_one_line_before_anything_runs(tmp_path, change, expected):
+    spec = tmp_path / "bad.toml"
+    spec.write_text('scenario = "paper"\nduration = 0.05\n' + change)
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["campaign", "run", str(spec), "--out", str(out)])
+    assert res.exit_code == 2, res.output
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and expected in lines[0], lines
+    assert not out.exists()
+
+
+def test_spec_expands_to_paired_cells_and_deterministic_tasks(spec_file):
+    spec = CampaignSpec.from_toml(spec_file)
+    assert spec.n_runs == 16 and len(spec.cells) == 4
+    masses = [c["payload.mass"] for c in spec.cells]
+    assert masses == [0.0, 0.0, 8.0, 8.0]
+    draws = {c["controller_model.theta_scale"] for c in spec.cells}
+    assert len(draws) == 2 and all(0.4 <= d < 1.0 for d in draws)
+    again = CampaignSpec.from_toml(spec_file)
+    assert again.digest == spec.digest and again.tasks() == spec.tasks()
+    runs = [(r.cell, r.controller, r.seed) for t in spec.tasks() for r in t.runs]
+    assert len(runs) == len(set(runs)) == 16
+    other = CampaignSpec.from_toml(SMALL.replace("seed = 5", "seed = 6"))
+    assert other.digest != spec.digest
+
+
+def test_records_match_a_plain_simulate(spec_file, reference):
+    out, table = reference
+    spec = CampaignSpec.from_toml(spec_file)
+    rows = table.to_pylist()
+    assert [(r["cell"], r["controller"], r["seed"]) for r in rows] == [
+        (c, k, s) for c in range(4) for k in ("smc", "afsmc") for s in (3, 8)
+    ]
+    assert {r["status"] for r in rows} == {"ok"} and {r["spec_hash"] for r in rows} == {spec.digest}
+    r = rows[15]  # cell 3, afsmc, seed 8
+    sc = spec.base.replace(**spec.cells[3])
+    assert r["f.payload.mass"] == 8.0
+    assert r["f.controller_model.theta_scale"] == spec.cells[3]["controller_model.theta_scale"]
+    ref = pkmctl.simulate(sc, controller="afsmc", seed=8).rmse()
+    assert r["rmse_z_mm"] == ref["z_mm"] and r["rmse_beta_deg"] == ref["beta_deg"]
+    assert r["max_error_q4_m"] > 0
+    counts = query(out, "SELECT controller, count(*) AS n FROM runs GROUP BY 1 ORDER BY 1")
+    assert counts.to_pylist() == [{"controller": "afsmc", "n": 8}, {"controller": "smc", "n": 8}]
+    files = sorted((out / "runs").iterdir())
+    assert len(files) == len(spec.tasks()) and all(f.suffix == ".parquet" for f in files)
+    full = read_records(out)
+    assert all(w > 0 for w in full.column("wall_s").to_pylist())
+
+
+def test_interrupted_then_resumed_equals_uninterrupted(spec_file, reference, tmp_path):
+    _, expected = reference
+    spec = CampaignSpec.from_toml(spec_file)
+    out = tmp_path / "camp"
+    first = run_campaign(spec, out, workers=1, stop_after=3)
+    assert not first.complete and first.tasks_now == 3
+    (out / "runs" / ".task-00005.parquet.abc.tmp").write_bytes(b"half a file")  # a crash
+    # resuming with another spec is refused; without --resume, so is the folder
+    other = spec_file.parent / "other.toml"
+    other.write_text(SMALL.replace("seeds = [3, 8]", "seeds = [3, 9]"))
+    res = runner.invoke(app, ["campaign", "run", str(other), "--out", str(out), "--resume"])
+    assert res.exit_code == 2 and "a different spec" in res.stderr, res.output
+    res = runner.invoke(app, ["campaign", "run", str(spec_file), "--out", str(out)])
+    assert res.exit_code == 2 and "--resume" in res.stderr, res.output
+    res = runner.invoke(
+        app, ["campaign", "run", str(spec_file), "--out", str(out), "--resume", "--workers", "2"]
+    )
+    assert res.exit_code == 0, res.output
+    assert "16 runs" in res.stderr and "runs in" in res.stdout
+    table = read_records(out, timing=False)
+    assert table.equals(expected)  # bit for bit, every column but the timing ones
+    tasks = [pq.read_table(f).column("task")[0].as_py() for f in (out / "runs").glob("t*")]
+    assert sorted(tasks) == list(range(len(spec.tasks())))
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_dask_cluster_of_worker_processes_gives_the_same_records(spec_file, reference, tmp_path):
+    pytest.importorskip("distributed")
+    _, expected = reference
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    env = dict(os.environ)
+    src = str(Path(pkmctl.__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join([src, env.get("PYTHONPATH", "")])
+    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": env}
+    procs = [
+        subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "distributed.cli.dask_scheduler",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                str(port),
+                "--no-dashboard",
+            ],
+            **quiet,
+        )  # fmt: skip
+    ]
+    try:
+        for _ in range(2):
+            procs.append(
+                subprocess.Popen(
+                    [
+                        sys.executable,
+                        "-m",
+                        "distributed.cli.dask_worker",
+                        address,
+                        "--nthreads",
+                        "1",
+                        "--no-dashboard",
+                        "--host",
+                        "127.0.0.1",
+                    ],
+                    **quiet,
+                )  # fmt: skip
+            )
+        from distributed import Client
+
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                with Client(address, timeout="2s") as c:
+                    c.wait_for_workers(2, timeout=max(1, deadline - time.monotonic()))
+                break
+            except (OSError, TimeoutError):
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.5)
+        out = tmp_path / "camp"
+        res = runner.invoke(
+            app, ["campaign", "run", str(spec_file), "--out", str(out), "--scheduler", address]
+        )
+        assert res.exit_code == 0, res.output
+        table = read_records(out, timing=False)
+        assert table.equals(expected)
+        workers = set(read_records(out).column("worker").to_pylist())
+        assert len(workers) >= 1 and all(":" in w for w in workers)
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+
+
+def test_report_states_in_words_what_the_numbers_say(reference, tmp_path):
+    import shutil
+
+    from pkmctl.campaign import stats
+
+    src, table = reference
+    out = tmp_path / "camp"
+    shutil.copytree(src, out)
+    res = runner.invoke(app, ["campaign", "report", str(out)])
+    assert res.exit_code == 0, res.output
+    md = (out / "report" / "report.md").read_text()
+    spec = CampaignSpec.from_toml(out / "spec.toml")
+    paired = stats.paired_differences(spec, table, ["rmse_z_mm"])
+    pooled = next(r for r in paired if r["cell"] == -1)
+    assert pooled["pairs"] == 8 and pooled["lo"] <= pooled["mean"] <= pooled["hi"]
+    # the words follow the interval: 8 pooled pairs name a winner only if 0 is outside
+    said = {"a": "smc is better.", "b": "afsmc is better.", "unclear": "cannot tell them apart"}
+    assert said[pooled["better"]] in md
+    assert (pooled["better"] == "unclear") == (pooled["lo"] <= 0 <= pooled["hi"])
+    # 2 pairs per cell are too few to name a winner in any cell
+    assert all(r["better"] == "unclear" for r in paired if r["cell"] >= 0)
+    assert "cannot tell in 4 of 4 cells" in md and "No run diverged" in md
+    figs = sorted(p.name for p in (out / "report" / "figures").iterdir())
+    assert len(figs) == 3 * 2 and "rmse_z_mm_vs_payload.mass.png" in figs
+    assert all((out / "report" / "figures" / f).read_bytes()[:4] == b"\x89PNG" for f in figs)
+    rows = (out / "report" / "summary.csv").read_text().splitlines()
+    assert len(rows) == 1 + 4 * 2 * 3
+    res = runner.invoke(app, ["campaign", "report", str(tmp_path / "nothing")])
+    assert res.exit_code == 2 and "not a campaign folder" in res.stderr
+
+
+def test_bootstrap_interval_covers_the_mean_and_shrinks():
+    import numpy as np
+
+    from pkmctl.campaign.stats import bootstrap_interval
+
+    rng = np.random.default_rng(0)
+    small = rng.normal(1.0, 1.0, 20)
+    big = rng.normal(1.0, 1.0, 2000)
+    lo, hi = bootstrap_interval(small, seed=1)
+    assert lo < small.mean() < hi
+    lo2, hi2 = bootstrap_interval(big, seed=1)
+    assert lo2 < 1.0 < hi2 and (hi2 - lo2) < (hi - lo) / 5
+    assert bootstrap_interval(small, seed=1) == (lo, hi)
+
+
+def test_a_diverged_run_is_a_record_with_its_time(tmp_path):
+    spec = CampaignSpec.from_toml(
+        'scenario = "paper"\ncontrollers = ["pd"]\nseeds = [1]\nduration = 0.02\n'
+        '[factors."disturbance.amplitude"]\nvalues = [[2.0, 2.0, 2.0], [1e6, 1e6, 1e6]]\n'
+    )
+    run_campaign(spec, tmp_path / "c", workers=1)
+    rows = read_records(tmp_path / "c").to_pylist()
+    assert [r["status"] for r in rows] == ["ok", "diverged"]
+    assert rows[0]["diverged_at"] is None and 0 < rows[1]["diverged_at"] < 0.02
+    assert rows[1]["rmse_z_mm"] is None and rows[0]["rmse_z_mm"] > 0
+    assert rows[1]["f.disturbance.amplitude"] == "[1000000.0, 1000000.0, 1000000.0]"
+    res = runner.invoke(app, ["campaign", "report", str(tmp_path / "c")])
+    assert res.exit_code == 0, res.output
+    md = (tmp_path / "c" / "report" / "report.md").read_text()
+    said = "pd: 1 of 1 runs did not end ok (1 diverged) at disturbance.amplitude = [1000000.0,"
+    assert said in md and md.count("did not end ok") == 1
+
+
+def test_the_docs_spec_is_valid():
+    import re
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "campaigns.md").read_text()
+    toml = re.findall(r"```toml\n(.*?)```", text, flags=re.S)[0]
+    spec = CampaignSpec.from_toml(toml)
+    assert len(spec.cells) == 18 and spec.n_runs == 360  # as the docs say
+    assert spec.cells[1]["actuators.force_limit"] == 2000.0
+    assert spec.cells[0]["actuators.force_limit"] is None
+
+
+def test_a_spec_naming_a_scenario_file_reports_from_the_stored_copy(tmp_path):
+    specs = tmp_path / "specs"
+    specs.mkdir()
+    base = pkmctl.Scenario.builtin("paper-1khz").replace(**{"payload.mass": 1.0})
+    (specs / "base.toml").write_text(base.to_toml())
+    (specs / "c.toml").write_text(
+        'scenario = "base.toml"\ncontrollers = ["pd", "smc"]\nseeds = 1\nduration = 0.05\n'
+    )
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["campaign", "run", str(specs / "c.toml"), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "1/2 runs" in res.stderr or "2/2 runs" in res.stderr  # lines in a log
+    (specs / "base.toml").unlink()  # the folder carries its own copy
+    res = runner.invoke(app, ["campaign", "report", str(out)])
+    assert res.exit_code == 0, res.output
+    rows = read_records(out).to_pylist()
+    assert [r["controller"] for r in rows] == ["pd", "smc"]
+    assert rows[0]["rmse_z_mm"] == pkmctl.simulate(base, "pd", duration=0.05, seed=0).rmse()["z_mm"]
