@@ -21,6 +21,8 @@ from pkmctl.control.sliding import (
     filter_sdot,
     fuzzy_surface_gain,
     fuzzy_term,
+    machine_force,
+    machine_model,
     sliding_surface,
 )
 from pkmctl.fuzzy import FISTables
@@ -46,6 +48,8 @@ class AFSMCParams(NamedTuple):
     gamma_vec: np.ndarray
     theta_min: np.ndarray
     theta_max: np.ndarray
+    mach: np.ndarray
+    mach_on: float
 
     @classmethod
     def from_context(cls, ctx: PartContext) -> AFSMCParams:
@@ -53,7 +57,7 @@ class AFSMCParams(NamedTuple):
         lo, hi = g.theta_bounds
         return cls(ctx.model.geometry, th0, g.lam, g.K, g.Ks, g.Ksd, g.Ku, float(ctx.period),
                    1.0 / g.filter_periods, ctx.flc.compiled(), g.gamma * th0**2, lo * th0,
-                   hi * th0)  # fmt: skip
+                   hi * th0, *machine_model(ctx))  # fmt: skip
 
 
 @kernel(inline="always", refcount=False)
@@ -85,6 +89,7 @@ def afsmc_step(p, state, work, y, ref, F):
         for k in range(n):
             acc += Y[i, k] * theta_hat[k]
         F[i] = acc
+    machine_force(p, X, Xd, xr_d, xr_dd, work, F)  # fixed, not adapted
     for i in range(3):
         F[i] += p.K[i] * s[i]
     fuzzy_term(p.flc, p.Ks, p.Ksd, p.Ku, s, state[3:6], F)
