@@ -773,7 +773,8 @@ class MujocoMachine:
     def read(self, x: np.ndarray, q: np.ndarray) -> int:
         """Write [X, Xdot] into x (6,) and the limb lengths into q (4,); return a status:
         0, or 1 non-finite, 4 (STEPPER_BLEW_UP) a MuJoCo warning (MuJoCo then resets its
-        state) or a closure residual over :data:`CLOSURE_LIMIT` (the pose check, status 2, is the loop's).
+        state) or a closure residual over :data:`CLOSURE_LIMIT` (the pose check, status 2, is
+        the loop's).
 
         The maps of :func:`platform_pose` and :func:`platform_rate` on scalars, through
         views made once (this runs once a period; the binding's accessors cost ~1 us each).
