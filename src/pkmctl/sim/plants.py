@@ -194,7 +194,7 @@ class MujocoPlant(NamedTuple):
 def mujoco_observe(p, x, tau, work, q, F):
     """q and J^T tau at X from the closed-form kinematics (the loop overwrites q with the
     lengths MuJoCo's slides give, which agree to 1e-15 m)."""
-    w, M, C, G, f = work
+    w, M, C, G = work[0], work[1], work[2], work[3]
     dynamics_kernel(p.geom, p.theta, x[0:3], x[3:6], x[3:6], w, M, C, G)
     for i in range(4):
         q[i] = w[Q][i]

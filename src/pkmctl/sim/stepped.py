@@ -161,6 +161,7 @@ def run_stepped(
         steps=int(m),
         logs={name: a[:m] for name, a in zip(_LOG_NAMES, logs.arrays, strict=True)},
         controller_log=logs.controller[:m] if n_log else None,
+        sensor_log=None,  # the stepped driver does not log the sensor (q_measured): not yet
         final_state={"plant": x, "sensor": ss, "controller": cs, "actuator": ast},
         kernel_seconds=dt,
     )
