@@ -410,11 +410,11 @@ def rows(res: dict) -> list[tuple[str, str, str, str]]:
     pr = res.get("prototype") or {}
     if "ratio" in pr:
         row(
-            "ideal loop, PD, 1 kHz, per plant sub-step",
+            "PD loop 1 kHz, ideal machine",
             f"{pr['ideal_substeps_per_s']:,.0f} sub-steps/s",
         )
         row(
-            "prototype loop, PD (drives, friction, encoder + FK)",
+            "PD loop 1 kHz, prototype",
             f"{pr['prototype_substeps_per_s']:,.0f} sub-steps/s",
         )
         row("  prototype / ideal", f"{pr['ratio']:.2f} x", "prototype_ratio", pr["ratio"])

@@ -30,8 +30,8 @@ def test_bench_quick_smoke(tmp_path):
     assert pr["ideal_substeps_per_s"] > 0 and pr["prototype_substeps_per_s"] > 0
     assert pr["ratio"] == pr["prototype_substeps_per_s"] / pr["ideal_substeps_per_s"]
     for label in (
-        "ideal loop, PD, 1 kHz, per plant sub-step",
-        "prototype loop, PD (drives, friction, encoder + FK)",
+        "PD loop 1 kHz, ideal machine",
+        "PD loop 1 kHz, prototype",
         "  prototype / ideal",
     ):
         assert label in labels
