@@ -429,6 +429,8 @@ def _one_line(exc: ValidationError) -> str:
         if msg.startswith("= "):  # a range check that shows the value: "field = v: ..."
             return f"{loc} {msg}"
         return f"{loc}: {msg}" if loc != "scenario" else msg
+    if err["type"] == "finite_number":  # nan, inf: the same words as the range checks
+        msg = "must be a finite number"
     value = err.get("input")
     shown = repr(value)
     if len(shown) > 60:
