@@ -288,6 +288,39 @@ def bench_reproduce(quick: bool) -> dict[str, float]:
     return {"first_s": times[0], "warm_s": min(times), "runs": len(times)}
 
 
+def bench_prototype(duration: float, repeats: int) -> dict[str, float]:
+    """Plant sub-steps per second of the PD loop on ``prototype`` (drives, rotor inertia,
+    friction, encoder + forward kinematics) and on the ideal machine at the same period and
+    sub-steps (rigid plant, ideal sensor and actuator), run side by side (alternately,
+    best of ``repeats``), and their ratio (issue 10 asks >= 0.5)."""
+    import pkmctl
+
+    proto = pkmctl.Scenario.builtin("prototype").replace(**{"timing.duration": duration})
+    ideal = proto.replace(
+        **{
+            "plant.rotor_inertia": 0.0,
+            "plant.friction_coulomb": 0.0,
+            "plant.friction_viscous": 0.0,
+            "sensor.kind": "ideal",
+            "actuators.kind": "ideal",
+            "actuators.delay_periods": 0,
+        }
+    )
+    t = proto.timing
+    n = round(duration / t.control_period) * t.substeps
+    best = {"ideal": np.inf, "prototype": np.inf}
+    for sc in (ideal, proto):
+        pkmctl.simulate(sc, controller="pd", duration=0.01)  # compile (or load the cache)
+    for _ in range(repeats):
+        for key, sc in (("ideal", ideal), ("prototype", proto)):
+            sec = pkmctl.simulate(sc, controller="pd").info["kernel_seconds"]
+            best[key] = min(best[key], sec)
+    out = {f"{k}_substeps_per_s": n / v for k, v in best.items()}
+    out["ratio"] = out["prototype_substeps_per_s"] / out["ideal_substeps_per_s"]
+    out["substeps"] = t.substeps
+    return out
+
+
 def run_all(quick: bool = False, progress: Callable[[str], None] | None = None) -> dict:
     """Run every benchmark; ``quick`` shortens them to a smoke test."""
     say = progress or (lambda _m: None)
@@ -309,6 +342,8 @@ def run_all(quick: bool = False, progress: Callable[[str], None] | None = None) 
     res["model"] = bench_model(quick=quick)
     say("closed-loop steps per second, one core")
     res["steps"] = bench_steps(0.2 if quick else 10.0, 1 if quick else 3)
+    say("the prototype loop beside the ideal one")
+    res["prototype"] = bench_prototype(0.2 if quick else 5.0, 1 if quick else 3)
     say("MuJoCo, the same machine, open loop")
     res["mujoco"] = bench_mujoco(quick)
     say("FLC and peers")
@@ -334,6 +369,7 @@ TARGETS = {
     "flc_compiled": ("<=", 0.3),
     "batch": (">=", 350_000.0),
     "reproduce": ("<=", 15.0),
+    "prototype_ratio": (">=", 0.5),
 }
 
 
@@ -350,6 +386,8 @@ def rows(res: dict) -> list[tuple[str, str, str, str]]:
             return
         op, bound = TARGETS[key]
         unit = text.split()[-1] if op == "<=" else "steps/s"
+        if key == "prototype_ratio":
+            unit = "x"
         target = f"{'≤' if op == '<=' else '≥'} {bound:,.{1 if bound < 10 else 0}f} {unit}"
         held = value <= bound if op == "<=" else value >= bound
         out.append((label, text, target, "-" if res["quick"] else ("yes" if held else "NO")))
@@ -369,6 +407,17 @@ def rows(res: dict) -> list[tuple[str, str, str, str]]:
             row(f"closed loop {name}, one core", text, "afsmc_loop", loop)
         else:
             row(f"closed loop {name}, one core", text)
+    pr = res.get("prototype") or {}
+    if "ratio" in pr:
+        row(
+            "PD loop 1 kHz, ideal machine",
+            f"{pr['ideal_substeps_per_s']:,.0f} sub-steps/s",
+        )
+        row(
+            "PD loop 1 kHz, prototype",
+            f"{pr['prototype_substeps_per_s']:,.0f} sub-steps/s",
+        )
+        row("  prototype / ideal", f"{pr['ratio']:.2f} x", "prototype_ratio", pr["ratio"])
     mj = res.get("mujoco") or {}
     if "steps_per_s" in mj:
         afsmc = res["steps"]["afsmc"]["loop_steps_per_s"]

@@ -26,6 +26,16 @@ def test_bench_quick_smoke(tmp_path):
         assert label in labels
     assert labels.count("  closed-form AFSMC loop / this") == 4
     assert "  user's my-law / built-in pd" in labels
+    pr = data["prototype"]  # issue 10: the prototype loop beside the ideal one
+    assert pr["ideal_substeps_per_s"] > 0 and pr["prototype_substeps_per_s"] > 0
+    assert pr["ratio"] == pr["prototype_substeps_per_s"] / pr["ideal_substeps_per_s"]
+    for label in (
+        "PD loop 1 kHz, ideal machine",
+        "PD loop 1 kHz, prototype",
+        "  prototype / ideal",
+    ):
+        assert label in labels
+    assert {r[0]: r[2] for r in rows(data)}["  prototype / ideal"] == "≥ 0.5 x"
     assert data["flc"]["compiled_us"] > 0 and data["batch"]["workers"] >= 1
     assert data["flops"]["flops_per_step"] > data["flops"]["plant_eval_flops"] * 4
     assert data["reproduce"]["warm_s"] > 0

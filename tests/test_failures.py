@@ -343,7 +343,12 @@ def test_version_and_help_texts():
         (["reproduce", "--help"], ["paper-1khz", "Parquet"]),
         (
             ["simulate", "--help"],
-            ["afsmc, ctc, fsmc, pd, smc", "parquet (the default)", "--seed", "--duration"],
+            [
+                "afsmc, afsmc-ext, ctc, fsmc, pd, smc",
+                "parquet (the default)",
+                "--seed",
+                "--duration",
+            ],
         ),
     ):
         res = runner.invoke(app, args)

@@ -21,13 +21,16 @@ from pkmctl.control.sliding import (
     filter_sdot,
     fuzzy_surface_gain,
     fuzzy_term,
+    machine_force,
+    machine_model,
     sliding_surface,
 )
 from pkmctl.fuzzy import FISTables
 from pkmctl.model.dynamics import regressor_kernel
+from pkmctl.model.machine import extended_regressor_kernel
 from pkmctl.parts import PartContext, builtin_part
 
-__all__ = ["AFSMCParams", "adapt"]
+__all__ = ["AFSMCExtParams", "AFSMCParams", "adapt"]
 
 
 class AFSMCParams(NamedTuple):
@@ -46,6 +49,8 @@ class AFSMCParams(NamedTuple):
     gamma_vec: np.ndarray
     theta_min: np.ndarray
     theta_max: np.ndarray
+    mach: np.ndarray
+    mach_on: float
 
     @classmethod
     def from_context(cls, ctx: PartContext) -> AFSMCParams:
@@ -53,7 +58,7 @@ class AFSMCParams(NamedTuple):
         lo, hi = g.theta_bounds
         return cls(ctx.model.geometry, th0, g.lam, g.K, g.Ks, g.Ksd, g.Ku, float(ctx.period),
                    1.0 / g.filter_periods, ctx.flc.compiled(), g.gamma * th0**2, lo * th0,
-                   hi * th0)  # fmt: skip
+                   hi * th0, *machine_model(ctx))  # fmt: skip
 
 
 @kernel(inline="always", refcount=False)
@@ -85,6 +90,7 @@ def afsmc_step(p, state, work, y, ref, F):
         for k in range(n):
             acc += Y[i, k] * theta_hat[k]
         F[i] = acc
+    machine_force(p, X, Xd, xr_d, xr_dd, work, F)  # fixed, not adapted
     for i in range(3):
         F[i] += p.K[i] * s[i]
     fuzzy_term(p.flc, p.Ks, p.Ksd, p.Ku, s, state[3:6], F)
@@ -108,3 +114,78 @@ builtin_part("controller", "afsmc", {"step": afsmc_step, "log": afsmc_log}, para
          log_size=lambda p: p.theta0.shape[0], log_name="theta_hat",
          description="adaptive fuzzy sliding mode control (eq. 46, 50-51 corrected)",
              label="AFSMC", surface_gain=fuzzy_surface_gain, adaptive=True)  # fmt: skip
+
+
+# ------------------------------------------------------------------ over Theta_ext
+#: Scales of Gamma for the 12 machine parameters when the controllers' model has none (its
+#: estimate is 0): typical magnitudes of a servo on a ball screw, not the plant's values.
+EXT_SCALE = np.array([1.0] * 4 + [10.0] * 4 + [100.0] * 4)  # kg, N, N s/m
+
+
+class AFSMCExtParams(NamedTuple):
+    """AFSMC over Theta_ext (48,) = [Theta, m_r, F_c, F_v] (DESIGN.md §7): as
+    :class:`AFSMCParams`, with the smooth sign's v_s. Theta_0 is the controllers' model
+    (``controller_model``: theta_scale Theta and its rotor inertia and friction, 0 if it has
+    none); Gamma = gamma diag(scale^2), scale = Theta_0 (Theta) and max(Theta_0,
+    :data:`EXT_SCALE`) (the machine); bounds [lo, hi] Theta_0 (Theta) and [0, hi scale]
+    (the machine: rotor inertia and friction stay >= 0)."""
+
+    geom: np.ndarray
+    theta0: np.ndarray
+    lam: np.ndarray
+    K: np.ndarray
+    Ks: np.ndarray
+    Ksd: np.ndarray
+    Ku: np.ndarray
+    Tc: float
+    alpha_f: float
+    flc: FISTables
+    gamma_vec: np.ndarray
+    theta_min: np.ndarray
+    theta_max: np.ndarray
+    v_s: float
+
+    @classmethod
+    def from_context(cls, ctx: PartContext) -> AFSMCExtParams:
+        g = ctx.gains
+        lo, hi = g.theta_bounds
+        mm, _ = machine_model(ctx)
+        th = ctx.model.theta
+        theta0 = np.concatenate([th, mm[:12]])
+        scale = np.concatenate([th, np.maximum(mm[:12], EXT_SCALE)])
+        tmin = np.concatenate([lo * th, np.zeros(12)])
+        return cls(ctx.model.geometry, theta0, g.lam, g.K, g.Ks, g.Ksd, g.Ku, float(ctx.period),
+                   1.0 / g.filter_periods, ctx.flc.compiled(), g.gamma * scale**2, tmin,
+                   hi * scale, float(mm[12]))  # fmt: skip
+
+
+@kernel(refcount=False)
+def afsmc_ext_step(p, state, work, y, ref, F):
+    """One period of eq. 46 with Y_ext Theta_ext^ and the projected adaptive law over 48."""
+    n = p.theta0.shape[0]
+    X, Xd = y[0:3], y[3:6]
+    theta_hat = state[SLIDING_STATE : SLIDING_STATE + n]
+    w, Y, s, xr_d, xr_dd = work[0], work[5], work[6], work[7], work[8]
+    sliding_surface(p.lam, X, Xd, ref[0:3], ref[3:6], ref[6:9], s, xr_d, xr_dd)
+    filter_sdot(state, s, p.Tc, p.alpha_f)
+    extended_regressor_kernel(
+        p.geom, X, Xd, xr_d, xr_dd, p.v_s, w, work[9], work[10], work[11], work[12], Y
+    )
+    for i in range(3):
+        acc = 0.0
+        for k in range(n):
+            acc += Y[i, k] * theta_hat[k]
+        F[i] = acc
+    for i in range(3):
+        F[i] += p.K[i] * s[i]
+    fuzzy_term(p.flc, p.Ks, p.Ksd, p.Ku, s, state[3:6], F)
+    adapt(theta_hat, Y, s, p.Tc, p.gamma_vec, p.theta_min, p.theta_max)
+
+
+builtin_part("controller", "afsmc-ext", {"step": afsmc_ext_step, "log": afsmc_log},
+             params=AFSMCExtParams, build=None,
+             state_size=lambda p: SLIDING_STATE + p.theta0.shape[0],
+             work=lambda p: controller_work(p.theta0.shape[0]), initial_state=_initial,
+             log_size=lambda p: p.theta0.shape[0], log_name="theta_hat",
+             description="AFSMC adapting over Theta_ext = [Theta, m_r, F_c, F_v] (DESIGN.md §7)",
+             label="AFSMC-ext", surface_gain=fuzzy_surface_gain, adaptive=True)  # fmt: skip

@@ -23,6 +23,7 @@ import numpy as np
 from pkmctl._jit import kernel
 from pkmctl.fuzzy import FISTables, flc_eval
 from pkmctl.model.dynamics import dynamics_kernel, gravity_kernel, inverse_dynamics, make_work
+from pkmctl.model.machine import N_MACHINE_MODEL, add_machine_model, reflected_inertia
 from pkmctl.parts import PartContext, builtin_part
 
 __all__ = [
@@ -34,6 +35,8 @@ __all__ = [
     "smc_surface_gain",
     "filter_sdot",
     "fuzzy_term",
+    "machine_force",
+    "machine_model",
     "sliding_surface",
 ]
 
@@ -43,9 +46,34 @@ SLIDING_STATE = 7
 
 def controller_work(n_theta: int = 0) -> tuple:
     """Work of a model-based controller: (a dynamics workspace, M (3, 3), C v, G, G(X_d),
-    Y (3, n_theta), s, Xr_dot, Xr_ddot (3,))."""
+    Y (3, n_theta), s, Xr_dot, Xr_ddot (3,), and the machine model's scratch R (3, 3),
+    Jq (4, 3), q (4,), Jdv (4,), zero (3,))."""
     e = np.empty
-    return (make_work(), e((3, 3)), e(3), e(3), e(3), e((3, n_theta)), e(3), e(3), e(3))
+    return (make_work(), e((3, 3)), e(3), e(3), e(3), e((3, n_theta)), e(3), e(3), e(3),
+            e((3, 3)), e((4, 3)), e(4), e(4), np.zeros(3))  # fmt: skip
+
+
+def machine_model(ctx: PartContext) -> tuple[np.ndarray, float]:
+    """The controllers' model of the machine (DESIGN.md §7) from the scenario's
+    ``controller_model``: ([m_r (4), F_c (4), F_v (4), v_s] (13,), 1.0 if any is on else
+    0.0). Nothing (zeros, 0.0) without a scenario: the paper's design."""
+    mm = np.zeros(N_MACHINE_MODEL)
+    mm[12] = 1e-3
+    sc = getattr(ctx, "scenario", None)
+    if sc is None:
+        return mm, 0.0
+    cm = sc.controller_model
+    mm[0:4] = reflected_inertia(cm.rotor_inertia, sc.plant_spec.screw_lead)
+    mm[4:8], mm[8:12], mm[12] = cm.friction_coulomb, cm.friction_viscous, cm.friction_velocity
+    on = cm.rotor_inertia > 0 or cm.friction_coulomb > 0 or cm.friction_viscous > 0
+    return mm, 1.0 if on else 0.0
+
+
+@kernel(inline="always", refcount=False)
+def machine_force(p, X, Xd, v, a, work, F):
+    """F += the machine model's rotor and friction terms, if the bundle ``p`` has them on."""
+    if p.mach_on > 0.0:
+        add_machine_model(p.geom, p.mach, X, Xd, v, a, work[9], work[10], work[11], work[12], F)
 
 
 @kernel(inline="always", refcount=False)
@@ -79,7 +107,7 @@ def fuzzy_term(flc, Ks, Ksd, Ku, s, sdot, F):
 @kernel(inline="always", refcount=False)
 def _model_force(geom, theta, X, Xd, Xdes, work, F):
     """s, Xr and F = M^ Xr_ddot + C^ Xr_dot + G^(X_d) (eq. 25-26 write G at X_d)."""
-    w, M, Cv, G, Gd, _, s, xr_d, xr_dd = work
+    w, M, Cv, G, Gd, xr_d, xr_dd = work[0], work[1], work[2], work[3], work[4], work[7], work[8]
     gravity_kernel(geom, theta, Xdes, w, Gd)
     dynamics_kernel(geom, theta, X, Xd, xr_d, w, M, Cv, G)  # Cv holds C^ Xr_dot
     inverse_dynamics(M, Cv, Gd, xr_dd, F)
@@ -97,12 +125,14 @@ class SMCParams(NamedTuple):
     eps: float
     Tc: float
     alpha_f: float
+    mach: np.ndarray
+    mach_on: float
 
     @classmethod
     def from_context(cls, ctx: PartContext) -> SMCParams:
         g = ctx.gains
         return cls(ctx.model.geometry, ctx.model.theta, g.lam, g.K, g.Lam, float(g.eps),
-                   float(ctx.period), 1.0 / g.filter_periods)  # fmt: skip
+                   float(ctx.period), 1.0 / g.filter_periods, *machine_model(ctx))  # fmt: skip
 
 
 @kernel(refcount=False)
@@ -113,6 +143,7 @@ def smc_step(p, state, work, y, ref, F):
     sliding_surface(p.lam, X, Xd, ref[0:3], ref[3:6], ref[6:9], s, xr_d, xr_dd)
     filter_sdot(state, s, p.Tc, p.alpha_f)
     _model_force(p.geom, p.theta, X, Xd, ref[0:3], work, F)
+    machine_force(p, X, Xd, xr_d, xr_dd, work, F)
     for i in range(3):
         F[i] += p.K[i] * s[i]
         F[i] += p.Lam[i] * min(1.0, max(-1.0, s[i] / p.eps))
@@ -131,12 +162,15 @@ class FSMCParams(NamedTuple):
     Tc: float
     alpha_f: float
     flc: FISTables
+    mach: np.ndarray
+    mach_on: float
 
     @classmethod
     def from_context(cls, ctx: PartContext) -> FSMCParams:
         g = ctx.gains
         return cls(ctx.model.geometry, ctx.model.theta, g.lam, g.K, g.Ks, g.Ksd, g.Ku,
-                   float(ctx.period), 1.0 / g.filter_periods, ctx.flc.compiled())  # fmt: skip
+                   float(ctx.period), 1.0 / g.filter_periods, ctx.flc.compiled(),
+                   *machine_model(ctx))  # fmt: skip
 
 
 @kernel(refcount=False)
@@ -147,6 +181,7 @@ def fsmc_step(p, state, work, y, ref, F):
     sliding_surface(p.lam, X, Xd, ref[0:3], ref[3:6], ref[6:9], s, xr_d, xr_dd)
     filter_sdot(state, s, p.Tc, p.alpha_f)
     _model_force(p.geom, p.theta, X, Xd, ref[0:3], work, F)
+    machine_force(p, X, Xd, xr_d, xr_dd, work, F)
     for i in range(3):
         F[i] += p.K[i] * s[i]
     fuzzy_term(p.flc, p.Ks, p.Ksd, p.Ku, s, state[3:6], F)

@@ -24,7 +24,9 @@ from pkmctl.model.dynamics import N_THETA, regressor_kernel
 from pkmctl.model.kinematics import limb_jacobian_rate, platform_point
 
 __all__ = [
+    "N_MACHINE_MODEL",
     "N_THETA_EXT",
+    "add_machine_model",
     "add_payload",
     "add_rotor_inertia",
     "extended_regressor_kernel",
@@ -111,3 +113,22 @@ def extended_regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, vs, work, R, Jq, q, Jdv,
             Y[a, N_THETA + i] = Jq[i, a] * qa
             Y[a, N_THETA + 4 + i] = Jq[i, a] * th
             Y[a, N_THETA + 8 + i] = Jq[i, a] * qd
+
+
+#: Length of a controller's machine model: m_r (4), F_c (4), F_v (4), v_s.
+N_MACHINE_MODEL = 13
+
+
+@kernel(refcount=False, llvm_inline=True)
+def add_machine_model(geom, mm, X, Xd, v, a, R, Jq, q, Jdv, F):
+    """F += J^T diag(m_r) (J a + Jdot v) + J^T f(J Xd): a controller's model of the rotors
+    and the friction (columns 36-47 of the extended regressor times [m_r, F_c, F_v], with
+    Xr_dot = v and Xr_ddot = a). ``mm`` = [m_r (4), F_c (4), F_v (4), v_s] (13,); Jdot is
+    along Xd; R (3, 3), Jq (4, 3), q (4,), Jdv (4,) scratch. Allocates nothing."""
+    limb_jacobian_rate(geom, X, Xd, v, R, Jq, q, Jdv)
+    for i in range(4):
+        qa = Jq[i, 0] * a[0] + Jq[i, 1] * a[1] + Jq[i, 2] * a[2] + Jdv[i]
+        qd = Jq[i, 0] * Xd[0] + Jq[i, 1] * Xd[1] + Jq[i, 2] * Xd[2]
+        fi = mm[i] * qa + friction_law(mm[4 + i], mm[8 + i], mm[12], qd)
+        for k in range(3):
+            F[k] += Jq[i, k] * fi

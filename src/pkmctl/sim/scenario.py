@@ -86,12 +86,6 @@ class MechanismSpec(_Model):
         )
 
 
-class ControllerModelSpec(_Model):
-    """The controllers' model: the plant's Theta times ``theta_scale`` (0.85: 15 % low)."""
-
-    theta_scale: float = Field(0.85, gt=0, le=10)
-
-
 class GainsSpec(_Model):
     """Table 3 (diagonals over [z, alpha, beta]), the adaptation gain and sdot filter, and
     the baselines' gains (defaults: :data:`~pkmctl.control.gains.BASELINE_GAINS`)."""
@@ -201,6 +195,21 @@ def _check_kind(kind: str, name: str) -> str:
     if name not in known:
         raise ValueError(f"{name!r}: unknown {kind} (registered: {', '.join(known)})")
     return name
+
+
+class ControllerModelSpec(_Model):
+    """The controllers' model: the plant's Theta times ``theta_scale`` (0.85: 15 % low), and
+    what the controllers know of the machine of DESIGN.md §7 (each 0 = nothing, the paper's
+    design): ``rotor_inertia`` J_m (kg m^2, through the plant's screw lead), friction
+    ``friction_coulomb`` F_c (N), ``friction_viscous`` F_v (N s/m) with the smooth sign's
+    ``friction_velocity`` v_s (m/s). Every controller adds J^T diag(m_r) (J a + Jdot v) +
+    J^T f(J Xdot) to its force (PD: the friction only; docs/machine.md)."""
+
+    theta_scale: float = Field(0.85, gt=0, le=10)
+    rotor_inertia: _nonneg("kg m^2", 1.0) = 0.0
+    friction_coulomb: _nonneg("N", 1e5) = 0.0
+    friction_viscous: _nonneg("N s/m", 1e6) = 0.0
+    friction_velocity: _positive("m/s", 1.0) = 1e-3
 
 
 class PlantSpec(_Model):
@@ -424,6 +433,8 @@ def _one_line(exc: ValidationError) -> str:
         if msg.startswith("= "):  # a range check that shows the value: "field = v: ..."
             return f"{loc} {msg}"
         return f"{loc}: {msg}" if loc != "scenario" else msg
+    if err["type"] == "finite_number":  # nan, inf: the same words as the range checks
+        msg = "must be a finite number"
     value = err.get("input")
     shown = repr(value)
     if len(shown) > 60:
@@ -449,6 +460,15 @@ PROTOTYPE_DRIVE: dict[str, Any] = {
     "lag": 2e-4,  # s (assumed)
     "max_speed": 5000.0,  # rpm (the paper)
     "delay_periods": 1,
+}
+#: The controllers' model of the machine as built: the same catalogue values and
+#: assumptions as the plant (a designer who has the datasheet and measured the friction).
+PROTOTYPE_MODEL: dict[str, Any] = {
+    "theta_scale": 0.85,
+    "rotor_inertia": PROTOTYPE_PLANT["rotor_inertia"],
+    "friction_coulomb": PROTOTYPE_PLANT["friction_coulomb"],
+    "friction_viscous": PROTOTYPE_PLANT["friction_viscous"],
+    "friction_velocity": PROTOTYPE_PLANT["friction_velocity"],
 }
 #: RK4 sub-steps per 1 ms period of the prototype, chosen by measurement (docs/machine.md).
 PROTOTYPE_SUBSTEPS = 10
@@ -476,5 +496,29 @@ BUILTINS: dict[str, dict[str, Any]] = {
         "plant": PROTOTYPE_PLANT,
         "sensor": {"kind": "encoder", "counts_per_rev": 160_000},
         "actuators": PROTOTYPE_DRIVE,
+    },
+    "prototype-model": {
+        "name": "prototype-model",
+        "description": "prototype, with the controllers' model given the reflected rotor "
+        "inertia and the joint friction (the plant's values): rotor and friction feed-forward "
+        "in every controller (PD: friction only). Theta^ still 0.85 Theta.",
+        "timing": {"control_period": 1e-3, "substeps": PROTOTYPE_SUBSTEPS, "duration": 10.0},
+        "plant": PROTOTYPE_PLANT,
+        "sensor": {"kind": "encoder", "counts_per_rev": 160_000},
+        "actuators": PROTOTYPE_DRIVE,
+        "controller_model": PROTOTYPE_MODEL,
+    },
+    "prototype-tuned": {
+        "name": "prototype-tuned",
+        "description": "prototype-model, with the sliding-mode controllers' beta-axis gains "
+        "(K, Lam, Ku) cut tenfold for the 1 kHz loop, and the run starting on the trajectory "
+        "(X_d(0), Xdot_d(0)) instead of at rest at home: no saturated start.",
+        "timing": {"control_period": 1e-3, "substeps": PROTOTYPE_SUBSTEPS, "duration": 10.0},
+        "plant": PROTOTYPE_PLANT,
+        "sensor": {"kind": "encoder", "counts_per_rev": 160_000},
+        "actuators": PROTOTYPE_DRIVE,
+        "controller_model": PROTOTYPE_MODEL,
+        "gains": {"K": [1000.0, 200.0, 20.0], "Lam": [150.0, 40.0, 4.0], "Ku": [50.0, 30.0, 3.0]},
+        "initial": {"X": [0.7, 0.0, math.pi / 6], "Xdot": [0.04, math.pi / 3, 0.0]},
     },
 }

@@ -1,0 +1,76 @@
+"""The five controllers on the prototype scenarios (docs/machine.md): RMSE over the whole run
+and after 1 s, peak limb force against the drives' 2160 N, share of periods at it, peak
+true limb speed against 0.833 m/s and the time above it, chattering of tau_1..4 (N/s).
+
+    PYTHONPATH=src python scripts/prototype_table.py [scenario ...] [--duration 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import numpy as np
+
+import pkmctl
+from pkmctl.sim.metrics import chattering_index, peak_forces, rmse
+
+CONTROLLERS = ("smc", "fsmc", "afsmc", "pd", "ctc")
+
+
+def measure(scenario: pkmctl.Scenario, controller: str) -> dict:
+    r = pkmctl.simulate(scenario, controller=controller)
+    a = scenario.actuators
+    lead = scenario.plant_spec.screw_lead
+    peak = 2 * math.pi * a.efficiency * a.peak_torque / lead
+    vmax = a.max_speed / 60 * lead
+    J = scenario.plant().jacobian(r.X)  # (N, 4, 3)
+    qd = np.abs(np.einsum("nij,nj->ni", J, r.Xdot)).max(axis=1)
+    Tc = scenario.timing.control_period
+    at = np.any(np.abs(r.tau) >= peak * (1 - 1e-9), axis=1)
+    return {
+        "rmse": rmse(r),
+        "rmse1": rmse(r, t_from=1.0),
+        "peak": float(peak_forces(r).max()),
+        "limit": peak,
+        "at_limit": float(at.mean()),
+        "speed": float(qd.max()),
+        "vmax": vmax,
+        "over": float((qd > vmax).sum() * (r.t[1] - r.t[0]) if r.t.size > 1 else Tc),
+        "chat": chattering_index(r),
+    }
+
+
+def row(name: str, m: dict) -> str:
+    e, e1 = m["rmse"], m["rmse1"]
+    c = m["chat"]
+    return (
+        f"| {name} | {e['z_mm']:.3g} ({e1['z_mm']:.3g}) "
+        f"| {e['alpha_deg']:.3g} ({e1['alpha_deg']:.3g}) "
+        f"| {e['beta_deg']:.3g} ({e1['beta_deg']:.3g}) "
+        f"| {m['peak']:.0f} | {100 * m['at_limit']:.2g} % | {m['speed']:.2f}, {m['over']:.3f} s "
+        f"| {' / '.join(f'{x:.3g}' for x in c)} |"
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("scenarios", nargs="*", default=["prototype"])
+    ap.add_argument("--duration", type=float, default=10.0)
+    ap.add_argument("--controllers", default=",".join(CONTROLLERS))
+    args = ap.parse_args()
+    for name in args.scenarios:
+        sc = pkmctl.Scenario.builtin(name).replace(**{"timing.duration": args.duration})
+        print(f"\n{name}, {args.duration:g} s\n")
+        print("| controller | z (mm) | α (deg) | β (deg) | peak force (N) | at limit "
+              "| peak speed (m/s), time over | chattering (N/s) |")  # fmt: skip
+        print("|---|---|---|---|---|---|---|---|")
+        for c in args.controllers.split(","):
+            try:
+                print(row(c.upper(), measure(sc, c)), flush=True)
+            except pkmctl.SimulationDiverged as exc:
+                print(f"| {c.upper()} | diverged: {exc} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
