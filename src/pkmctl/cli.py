@@ -722,8 +722,11 @@ def _import_benchmarks() -> None:
     """Make the checkout's ``benchmarks`` package importable, or fail in one line."""
     import importlib.util
 
-    if importlib.util.find_spec("benchmarks.bench") is not None:
-        return
+    try:
+        if importlib.util.find_spec("benchmarks.bench") is not None:
+            return
+    except ModuleNotFoundError:  # no package "benchmarks" on the path: look for the checkout
+        pass
     here = Path(__file__).resolve().parents[2]  # src/pkmctl/cli.py -> the checkout
     for root in (Path.cwd(), here):
         if (root / "benchmarks" / "bench.py").is_file():
