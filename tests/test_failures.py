@@ -245,7 +245,7 @@ def test_bad_arguments_one_line(args, match, tmp_path):
         (
             "initial.Xdot",
             [float("nan"), 0.0, 0.0],
-            "initial.Xdot.0 = nan: Input should be a finite",
+            "initial.Xdot.0 = nan: must be a finite number",
         ),
         ("initial.Xdot", [1e300, 0.0, 0.0], "initial.Xdot.0 = 1e+300"),
         ("trajectory.amplitude", [0.0, float("inf"), 0.0], "trajectory.amplitude.1 = inf"),
