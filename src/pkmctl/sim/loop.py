@@ -38,7 +38,18 @@ from pkmctl.parts import (
     sensor_measure,
 )
 
-__all__ = ["LoopOutput", "STATUS", "is_compiled", "loop_for", "run_parts"]
+__all__ = [
+    "LOG_NAMES",
+    "LoopOutput",
+    "STATUS",
+    "Setup",
+    "compile_error",
+    "is_compiled",
+    "loop_for",
+    "pose_status",
+    "run_parts",
+    "setup",
+]
 
 #: Why a loop stopped early, by its status code.
 STATUS = {
@@ -50,7 +61,7 @@ STATUS = {
 
 
 @kernel(inline="always", refcount=False)
-def _valid(x):
+def pose_status(x):
     for i in range(6):
         if not math.isfinite(x[i]):
             return 1
@@ -82,7 +93,7 @@ def _run_loop(
     log_c_on = log_c.shape[0] == n
     log_s_on = log_s.shape[0] == n
     for k in range(n):
-        status = _valid(x)
+        status = pose_status(x)
         if status != 0:
             return status, k
         sensor_measure(sensor, ss, sw, x, y)
@@ -131,7 +142,7 @@ def _run_loop(
                 x[i] += h / 6.0 * (rk[0, i] + 2.0 * rk[1, i] + 2.0 * rk[2, i] + rk[3, i])
             for i in range(n_z):
                 ast[i] += h / 6.0 * (rk[5, i] + 2.0 * rk[6, i] + 2.0 * rk[7, i] + rk[8, i])
-            if _valid(x) != 0:
+            if pose_status(x) != 0:
                 break
     return 0, n
 
@@ -167,7 +178,7 @@ class LogBuffers:
         self.sensor = np.empty((n if sensor_log else 0, max(1, sensor_log)))
 
 
-_LOG_NAMES = ("X", "Xdot", "y", "F", "tau", "q", "disturbance")
+LOG_NAMES = ("X", "Xdot", "y", "F", "tau", "q", "disturbance")
 
 
 def _describe(parts: dict[str, Part]) -> str:
@@ -215,6 +226,52 @@ def _mark_compiled(loop) -> None:
             (folder / _MARKER).touch()
 
 
+@dataclass(eq=False)
+class Setup:
+    """What both loop drivers (this one and :mod:`pkmctl.sim.stepped`) take from the parts'
+    bundles: (params, a copy of the state, work) per kind, the log buffers, and sizes."""
+
+    bundles: dict[str, tuple]
+    logs: LogBuffers
+    n_z: int
+    n_log: int
+    n_slog: int
+
+    def bundle(self, kind: str) -> tuple:
+        return self.bundles[kind]
+
+    def output(self, status: int, m: int, dt: float, *, sensor_log: bool = True) -> LoopOutput:
+        """The LoopOutput of a run that stopped after m periods with ``status``."""
+        logs = self.logs
+        return LoopOutput(
+            status=int(status),
+            steps=int(m),
+            logs={name: a[:m] for name, a in zip(LOG_NAMES, logs.arrays, strict=True)},
+            controller_log=logs.controller[:m] if self.n_log else None,
+            sensor_log=logs.sensor[:m] if self.n_slog and sensor_log else None,
+            final_state={k: b[1] for k, b in self.bundles.items()},
+            kernel_seconds=dt,
+        )
+
+
+def setup(
+    parts: dict[str, Part], bundles: dict[str, tuple], n: int, buffers: LogBuffers | None
+) -> Setup:
+    """Copy the bundles' states (the loop advances the copies) and size the log buffers."""
+    copied = {k: (p, s.copy(), w) for k, (p, s, w) in bundles.items()}
+    n_log = int(parts["controller"].log_size(bundles["controller"][0]))
+    n_slog = int(parts["sensor"].log_size(bundles["sensor"][0]))
+    logs = LogBuffers(n, n_log, n_slog) if buffers is None else buffers
+    if logs.sensor.shape != ((n, n_slog) if n_slog else (0, 1)):  # buffers of another sensor
+        logs.sensor = np.empty((n if n_slog else 0, max(1, n_slog)))
+    return Setup(copied, logs, parts["actuator"].continuous, n_log, n_slog)
+
+
+def compile_error(parts: dict[str, Part], exc: Exception) -> PartError:
+    """One line for a combination of parts that Numba cannot compile."""
+    return PartError(f"{_describe(parts)} do not compile: {_reason(exc)}")
+
+
 def run_parts(
     parts: dict[str, Part],
     bundles: dict[str, tuple],
@@ -234,17 +291,10 @@ def run_parts(
     copied, not changed.
     """
     n = reference.shape[0]
-    plant_p, x0, pw = bundles["plant"]
-    sensor_p, s0, sw = bundles["sensor"]
-    ctrl_p, c0, cw = bundles["controller"]
-    act_p, a0, aw = bundles["actuator"]
-    x, ss, cs, ast = x0.copy(), s0.copy(), c0.copy(), a0.copy()
-    n_z = parts["actuator"].continuous
-    n_log = int(parts["controller"].log_size(ctrl_p))
-    n_slog = int(parts["sensor"].log_size(sensor_p))
-    logs = LogBuffers(n, n_log, n_slog) if buffers is None else buffers
-    if logs.sensor.shape != ((n, n_slog) if n_slog else (0, 1)):  # buffers of another sensor
-        logs.sensor = np.empty((n if n_slog else 0, max(1, n_slog)))
+    run = setup(parts, bundles, n, buffers)
+    (plant_p, x, pw), (sensor_p, ss, sw) = run.bundle("plant"), run.bundle("sensor")
+    (ctrl_p, cs, cw), (act_p, ast, aw) = run.bundle("controller"), run.bundle("actuator")
+    logs, n_z = run.logs, run.n_z
     rk = np.zeros((10, max(x.shape[0], n_z, 1)))
     vec = np.zeros((6, 6))
     ast_s = np.zeros(max(ast.shape[0], 1))[: ast.shape[0]]
@@ -257,16 +307,7 @@ def run_parts(
             logs.arrays, logs.controller, logs.sensor,
         )  # fmt: skip
     except NumbaError as exc:
-        raise PartError(f"{_describe(parts)} do not compile: {_reason(exc)}") from exc
+        raise compile_error(parts, exc) from exc
     dt = time.perf_counter() - t0
     _mark_compiled(loop)
-    m = k if status else n
-    return LoopOutput(
-        status=int(status),
-        steps=int(m),
-        logs={name: a[:m] for name, a in zip(_LOG_NAMES, logs.arrays, strict=True)},
-        controller_log=logs.controller[:m] if n_log else None,
-        sensor_log=logs.sensor[:m] if n_slog else None,
-        final_state={"plant": x, "sensor": ss, "controller": cs, "actuator": ast},
-        kernel_seconds=dt,
-    )
+    return run.output(status, k if status else n, dt)

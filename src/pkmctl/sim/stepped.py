@@ -25,7 +25,6 @@ from pkmctl._jit import specialise
 from pkmctl.parts import (
     Part,
     PartContext,
-    PartError,
     actuator_command,
     actuator_derivative,
     actuator_force,
@@ -34,7 +33,7 @@ from pkmctl.parts import (
     plant_observe,
     sensor_measure,
 )
-from pkmctl.sim.loop import _LOG_NAMES, LogBuffers, LoopOutput, _describe, _reason, _valid
+from pkmctl.sim.loop import LOG_NAMES, LogBuffers, LoopOutput, compile_error, pose_status, setup
 
 __all__ = ["run_stepped"]
 
@@ -49,7 +48,7 @@ def _period(
     the actuator's RK4 stages; ``vec`` (6, 6) the period's y, F, cmd, tau, q, J^T tau;
     ``logs`` and ``log_c`` as in :func:`pkmctl.sim.loop._run_loop`.
     """
-    status = _valid(x)
+    status = pose_status(x)
     if status != 0:
         return status
     y, F, cmd, q, Fa = vec[0], vec[1, 0:3], vec[2, 0:4], vec[4, 0:4], vec[5, 0:3]
@@ -115,14 +114,10 @@ def run_stepped(
     q is the stepper's own (MuJoCo's slide positions), not ``observe``'s.
     """
     n = reference.shape[0]
-    plant_p, x0, pw = bundles["plant"]
-    sensor_p, s0, sw = bundles["sensor"]
-    ctrl_p, c0, cw = bundles["controller"]
-    act_p, a0, aw = bundles["actuator"]
-    x, ss, cs, ast = x0.copy(), s0.copy(), c0.copy(), a0.copy()
-    n_z = parts["actuator"].continuous
-    n_log = int(parts["controller"].log_size(ctrl_p))
-    logs = LogBuffers(n, n_log) if buffers is None else buffers
+    run = setup(parts, bundles, n, buffers)
+    (plant_p, x, pw), (sensor_p, ss, sw) = run.bundle("plant"), run.bundle("sensor")
+    (ctrl_p, cs, cw), (act_p, ast, aw) = run.bundle("controller"), run.bundle("actuator")
+    logs, n_z = run.logs, run.n_z
     h = period / substeps
     machine = parts["plant"].stepper(plant_p, ctx, h)
     taus = np.zeros((substeps, 4))
@@ -130,7 +125,7 @@ def run_stepped(
     vec = np.zeros((6, 6))
     ast_s = np.zeros(max(ast.shape[0], 1))[: ast.shape[0]]
     q = np.empty(4)
-    log_q = logs.arrays[_LOG_NAMES.index("q")]
+    log_q = logs.arrays[LOG_NAMES.index("q")]
     step = period_for(parts)
     args = (plant_p, x, pw, sensor_p, ss, sw, ctrl_p, cs, cw, act_p, ast, aw, n_z, float(h))
     tail = (taus, rk, ast_s, vec, logs.arrays, logs.controller)
@@ -154,14 +149,7 @@ def run_stepped(
         else:
             m = n if status == 0 else 0
     except NumbaError as exc:
-        raise PartError(f"{_describe(parts)} do not compile: {_reason(exc)}") from exc
+        raise compile_error(parts, exc) from exc
     dt = time.perf_counter() - t0
-    return LoopOutput(
-        status=int(status),
-        steps=int(m),
-        logs={name: a[:m] for name, a in zip(_LOG_NAMES, logs.arrays, strict=True)},
-        controller_log=logs.controller[:m] if n_log else None,
-        sensor_log=None,  # this driver does not log a sensor's row (q_measured is q)
-        final_state={"plant": x, "sensor": ss, "controller": cs, "actuator": ast},
-        kernel_seconds=dt,
-    )
+    # this driver does not log a sensor's row (q_measured is the stepper's q)
+    return run.output(status, m, dt, sensor_log=False)
