@@ -20,9 +20,19 @@ The TOML (docs/campaigns.md)::
     seed = 1
 
 The cells are the Cartesian product of the factors' values (grid values or draws), in
-the order the factors are written; every controller runs every cell with every seed,
-so comparisons are paired. ``"none"`` as a grid value means no value (e.g.
-``actuators.force_limit``: no limit).
+the order the factors are written (``design = "grid"``, the default), or, with
+``design = "one-at-a-time"``, the base scenario (the centre) and each factor's values
+in turn with every other factor at the base's value. Every controller runs every cell
+with every seed, so comparisons are paired. ``"none"`` as a grid value means no value
+(e.g. ``actuators.force_limit``: no limit). Fields set together with a factor's values
+go in ``with``::
+
+    [factors."timing.control_period"]
+    values = [5e-5, 1e-3]
+    with = { "timing.substeps" = [1, 20] }   # one entry per value
+
+A built-in campaign (:data:`BUILTIN_CAMPAIGNS`, e.g. ``paper-claims``) is named like a
+built-in scenario: ``CampaignSpec.from_toml("paper-claims")``.
 """
 
 from __future__ import annotations
@@ -41,7 +51,17 @@ import numpy as np
 from pkmctl.errors import PkmctlError
 from pkmctl.sim.scenario import BUILTINS, Scenario, ScenarioError
 
-__all__ = ["DISTRIBUTIONS", "METRICS", "CampaignSpec", "Run", "SpecError", "Task"]
+__all__ = [
+    "BUILTIN_CAMPAIGNS",
+    "DESIGNS",
+    "DISTRIBUTIONS",
+    "METRICS",
+    "CampaignSpec",
+    "Comparison",
+    "Run",
+    "SpecError",
+    "Task",
+]
 
 
 class SpecError(PkmctlError, ValueError):
@@ -56,7 +76,23 @@ DISTRIBUTIONS = {
     "loguniform": ("low", "high"),
     "normal": ("mean", "std"),
 }
-_TOP = {"name", "description", "scenario", "controllers", "seeds", "duration", "metrics", "factors"}
+#: How the factors' values combine into cells (see the module docstring).
+DESIGNS = ("grid", "one-at-a-time")
+_TOP = {
+    "name",
+    "description",
+    "scenario",
+    "controllers",
+    "seeds",
+    "duration",
+    "metrics",
+    "design",
+    "factors",
+    "compare",
+}
+_SPECS = Path(__file__).resolve().parent / "specs"
+#: Built-in campaigns: name -> spec file shipped with pkmctl (``pkmctl campaign run NAME``).
+BUILTIN_CAMPAIGNS = {p.stem: p for p in sorted(_SPECS.glob("*.toml"))}
 #: Seconds of work per compiled control period and per run outside the loop: the task
 #: size estimate (measured on the shared 2-core development machine: 3-6 us a period, ~10 ms a
 #: run for prepare, build and metrics). Deterministic, so a task's runs never depend on
@@ -77,6 +113,19 @@ class Run:
 
 
 @dataclass(frozen=True)
+class Comparison:
+    """A question a report answers: does ``controller`` do better than ``baseline``?
+
+    Spec: ``[[compare]]`` with ``name`` (e.g. "adaptation"), ``controller``, ``baseline``.
+    It shapes the report only, not the records (it is not part of the spec hash).
+    """
+
+    name: str
+    controller: str
+    baseline: str
+
+
+@dataclass(frozen=True)
 class Task:
     """Runs done together by one worker (one cell, one controller, some seeds)."""
 
@@ -88,18 +137,36 @@ def _fail(msg: str) -> SpecError:
     return SpecError(msg)
 
 
-def _factor_values(path: str, body: Any) -> list:
+def _linked(path: str, body: dict, n: int) -> dict[str, list]:
+    """A grid factor's ``with``: fields set together with each of its ``n`` values."""
+    where = f"factors.{path!r}.with"
+    linked = body.get("with", {})
+    if not isinstance(linked, dict) or not linked:
+        raise _fail(f"{where} = {linked!r}: must be a table of dotted paths to lists of values")
+    out = {}
+    for field, vals in linked.items():
+        if field == path:
+            raise _fail(f"{where}: {field!r} is the factor itself")
+        if not isinstance(vals, list) or len(vals) != n:
+            raise _fail(f"{where}.{field!r} = {vals!r}: must be a list of {n} values, one a value")
+        out[field] = [None if v == "none" else v for v in vals]
+    return out
+
+
+def _factor_values(path: str, body: Any) -> tuple[list, dict[str, list]]:
+    """A factor's values, and the fields set together with them (``with``)."""
     where = f"factors.{path!r}"
     if not isinstance(body, dict):
         raise _fail(f"{where} = {body!r}: must be a table with values = [...] or a distribution")
     if "values" in body:
-        extra = set(body) - {"values"}
+        extra = set(body) - {"values", "with"}
         if extra:
             raise _fail(f"{where}: unknown key {sorted(extra)[0]!r} beside values")
         values = body["values"]
         if not isinstance(values, list) or not values:
             raise _fail(f"{where}.values = {values!r}: must be a non-empty list")
-        return [None if v == "none" else v for v in values]
+        values = [None if v == "none" else v for v in values]
+        return values, (_linked(path, body, len(values)) if "with" in body else {})
     kind = body.get("distribution")
     if kind not in DISTRIBUTIONS:
         raise _fail(
@@ -136,7 +203,7 @@ def _factor_values(path: str, body: Any) -> list:
         if not p[1] > 0:
             raise _fail(f"{where}.std = {p[1]}: must be > 0")
         draws = rng.normal(p[0], p[1], n)
-    return draws.tolist()
+    return draws.tolist(), {}
 
 
 def _load_base(ref: Any, folder: Path) -> Scenario:
@@ -158,9 +225,11 @@ class CampaignSpec:
 
     ``cells[i]`` maps each factor's dotted path to its value in cell i; every
     ``scenario(i)`` was validated when the spec was read, so runs cannot meet a bad
-    value. ``text`` is the spec as written, ``digest`` the SHA-256 (16 hex digits) of
-    what determines the records: the base scenario, the cells, controllers, seeds,
-    duration and metrics.
+    value; a cell also holds the fields set with its factors' values (``with``).
+    ``text`` is the spec as written, ``digest`` the SHA-256 (16 hex digits) of what
+    determines the records: the base scenario, the cells, controllers, seeds, duration
+    and metrics. With ``design = "one-at-a-time"``, ``center`` maps each factor to the
+    base scenario's value (cell 0 is the centre).
     """
 
     name: str
@@ -174,14 +243,20 @@ class CampaignSpec:
     metrics: tuple[str, ...]
     text: str
     digest: str
+    design: str = "grid"
+    center: dict | None = None
+    compare: tuple[Comparison, ...] = ()
 
     @classmethod
     def from_toml(cls, source: str | Path) -> CampaignSpec:
-        """Read and validate a spec from a file path (or TOML text if it has a newline).
+        """Read and validate a spec from a file path, a built-in campaign's name
+        (:data:`BUILTIN_CAMPAIGNS`), or TOML text (if it has a newline).
 
         Raises :class:`SpecError` or :class:`~pkmctl.ScenarioError` in one line; every
         cell's scenario is built and validated, so nothing runs from a bad spec.
         """
+        if str(source) in BUILTIN_CAMPAIGNS and not Path(source).exists():
+            source = BUILTIN_CAMPAIGNS[str(source)]
         if isinstance(source, Path) or "\n" not in str(source):
             path = Path(source)
             try:
@@ -243,13 +318,23 @@ class CampaignSpec:
         factors = data.get("factors", {})
         if not isinstance(factors, dict):
             raise _fail(f"factors = {factors!r}: must be a table of dotted paths")
-        values = {p: _factor_values(p, body) for p, body in factors.items()}
+        design = data.get("design", "grid")
+        if design not in DESIGNS:
+            raise _fail(f"design = {design!r}: must be one of {', '.join(DESIGNS)}")
+        parsed = {p: _factor_values(p, body) for p, body in factors.items()}
         base = base.replace(**{"timing.duration": float(duration)})
-        cells = tuple(
-            dict(zip(values, combo, strict=True)) for combo in itertools.product(*values.values())
-        )
+        center = None
+        if design == "grid":
+            cells = tuple(
+                _cell(parsed, dict(zip(parsed, combo, strict=True)))
+                for combo in itertools.product(*(range(len(v)) for v, _ in parsed.values()))
+            )
+        else:
+            center = {p: _base_value(base, p) for p in parsed}
+            cells = _one_at_a_time(base, parsed, center)
         for cell in cells:
             _cell_scenario(base, cell)  # raises the scenario's one-line error
+        compare = _comparisons(data.get("compare", []), controllers)
         name = data.get("name", "campaign")
         if not isinstance(name, str) or not name:
             raise _fail(f"name = {name!r}: must be a non-empty string")
@@ -265,7 +350,7 @@ class CampaignSpec:
             name=name,
             description=str(data.get("description", "")),
             base=base,
-            factors=tuple(values),
+            factors=tuple(parsed),
             cells=cells,
             controllers=tuple(controllers),
             seeds=tuple(seeds),
@@ -273,9 +358,29 @@ class CampaignSpec:
             metrics=tuple(metrics),
             text=text,
             digest=hashlib.sha256(blob).hexdigest()[:16],
+            design=design,
+            center=center,
+            compare=compare,
         )
 
     # ------------------------------------------------------------------ derived
+    @classmethod
+    def builtin(cls, name: str) -> CampaignSpec:
+        """A built-in campaign by name (:data:`BUILTIN_CAMPAIGNS`)."""
+        if name not in BUILTIN_CAMPAIGNS:
+            raise _fail(
+                f"campaign {name!r}: unknown built-in (choose from {', '.join(BUILTIN_CAMPAIGNS)})"
+            )
+        return cls.from_toml(BUILTIN_CAMPAIGNS[name])
+
+    def axis(self, factor: str) -> list[int]:
+        """The cells that vary ``factor`` alone: every cell of a grid; in a one-at-a-time
+        design the cells where every other factor is at the centre."""
+        if self.center is None:
+            return list(range(len(self.cells)))
+        others = [p for p in self.factors if p != factor]
+        return [i for i, c in enumerate(self.cells) if all(c[p] == self.center[p] for p in others)]
+
     @property
     def n_runs(self) -> int:
         return len(self.cells) * len(self.controllers) * len(self.seeds)
@@ -307,6 +412,57 @@ class CampaignSpec:
                     runs = tuple(Run(cell, c, s) for s in self.seeds[i : i + per])
                     out.append(Task(len(out), runs))
         return out
+
+
+def _cell(parsed: dict, picks: dict[str, int]) -> dict:
+    """A cell: each factor at its picked value, with the fields linked to that value."""
+    cell = {}
+    for p, i in picks.items():
+        values, linked = parsed[p]
+        cell[p] = values[i]
+        cell.update({f: vals[i] for f, vals in linked.items()})
+    return cell
+
+
+def _base_value(base: Scenario, path: str):
+    node: Any = base.model_dump(mode="json", by_alias=True)
+    for part in path.split("."):
+        if not isinstance(node, dict) or part not in node:
+            raise ScenarioError(f"{path}: unknown field")
+        node = node[part]
+    return node
+
+
+def _one_at_a_time(base: Scenario, parsed: dict, center: dict) -> tuple[dict, ...]:
+    """The centre (every factor at the base's value), then each factor's other values in
+    turn, the rest at the centre. A value equal to the base's is the centre, not a cell."""
+    cells = [dict(center)]
+    for p, (values, linked) in parsed.items():
+        for i, v in enumerate(values):
+            if v == center[p]:
+                continue
+            cell = dict(center)
+            cell[p] = v
+            cell.update({f: vals[i] for f, vals in linked.items()})
+            cells.append(cell)
+    return tuple(cells)
+
+
+def _comparisons(body: Any, controllers: list[str]) -> tuple[Comparison, ...]:
+    if not isinstance(body, list):
+        raise _fail(f"compare = {body!r}: must be a list of tables ([[compare]])")
+    out = []
+    for i, q in enumerate(body):
+        where = f"compare[{i}]"
+        if not isinstance(q, dict) or set(q) != {"name", "controller", "baseline"}:
+            raise _fail(f"{where} = {q!r}: must have name, controller and baseline (only)")
+        for k in ("controller", "baseline"):
+            if q[k] not in controllers:
+                raise _fail(f"{where}.{k} = {q[k]!r}: not one of the campaign's controllers")
+        if q["controller"] == q["baseline"]:
+            raise _fail(f"{where}: controller and baseline are both {q['controller']!r}")
+        out.append(Comparison(str(q["name"]), q["controller"], q["baseline"]))
+    return tuple(out)
 
 
 def _cell_scenario(base: Scenario, cell: dict) -> Scenario:
