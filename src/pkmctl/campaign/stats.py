@@ -18,8 +18,10 @@ from pkmctl.campaign.store import factor_column
 
 __all__ = [
     "bootstrap_interval",
+    "bootstrap_ratio_interval",
     "by_factor",
     "cell_stats",
+    "comparison",
     "headline_metrics",
     "paired_differences",
 ]
@@ -40,6 +42,23 @@ def bootstrap_interval(x: np.ndarray, *, seed: int, n_boot: int = N_BOOT) -> tup
     means = x[rng.integers(0, x.size, size=(n_boot, x.size))].mean(axis=1)
     a = (1 - LEVEL) / 2
     lo, hi = np.quantile(means, [a, 1 - a])
+    return float(lo), float(hi)
+
+
+def bootstrap_ratio_interval(
+    num: np.ndarray, den: np.ndarray, *, seed: int, n_boot: int = N_BOOT
+) -> tuple[float, float]:
+    """Percentile bootstrap interval (95 %) of mean(num) / mean(den) over pairs (n,), the
+    pairs resampled together; NaN if n < 2."""
+    num, den = np.asarray(num, dtype=float), np.asarray(den, dtype=float)
+    if num.size < 2:
+        return math.nan, math.nan
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, num.size, size=(n_boot, num.size))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratios = num[idx].mean(axis=1) / den[idx].mean(axis=1)
+    a = (1 - LEVEL) / 2
+    lo, hi = np.quantile(ratios, [a, 1 - a])
     return float(lo), float(hi)
 
 
@@ -170,15 +189,18 @@ def paired_differences(spec: CampaignSpec, table: pa.Table, metrics: list[str]) 
 
 def by_factor(spec: CampaignSpec, table: pa.Table, metric: str, factor: str) -> list[dict]:
     """Mean and 95 % interval of ``metric`` per value of ``factor`` and controller, over
-    every other factor's cells and every seed (the runs that ended ok).
+    every other factor's cells (one-at-a-time: the cells of the factor's axis, the others
+    at the centre) and every seed (the runs that ended ok).
 
     Returns rows ``{"controller", "value", "n", "mean", "lo", "hi"}``, values in the
     order of first appearance in the cells.
     """
     col = factor_column(factor)
-    c = _columns(table, ["controller", "status", metric, col])
+    c = _columns(table, ["cell", "controller", "status", metric, col])
+    axis = spec.axis(factor)
+    on_axis = np.isin(c["cell"], axis)
     values = []
-    for cell in spec.cells:
+    for cell in (spec.cells[i] for i in axis):
         if cell[factor] not in values:
             values.append(cell[factor])
     rows = []
@@ -193,7 +215,7 @@ def by_factor(spec: CampaignSpec, table: pa.Table, metric: str, factor: str) -> 
                 match = np.isnan(stored)
             else:
                 match = stored == float(v)
-            sel = match & (c["controller"] == ctrl) & (c["status"] == "ok")
+            sel = match & on_axis & (c["controller"] == ctrl) & (c["status"] == "ok")
             x = c[metric][sel]
             x = x[np.isfinite(x)]
             lo, hi = bootstrap_interval(x, seed=_seed(factor, repr(v), ctrl, metric))
@@ -205,6 +227,75 @@ def by_factor(spec: CampaignSpec, table: pa.Table, metric: str, factor: str) -> 
                     "mean": float(x.mean()) if x.size else math.nan,
                     "lo": lo,
                     "hi": hi,
+                }
+            )
+    return rows
+
+
+def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: str,
+               metrics: list[str]) -> list[dict]:  # fmt: skip
+    """How much ``controller`` gains over ``baseline``, per cell (``cell`` >= 0) and over
+    all cells (``cell`` = -1): the pairs (same cell, same seed) where both ended ok.
+
+    Returns rows ``{"cell", "metric", "pairs", "baseline_mean", "controller_mean",
+    "gain", "lo", "hi", "ratio", "ratio_lo", "ratio_hi", "win_rate", "better",
+    "controller_failed", "baseline_failed"}``: ``gain`` is the mean of baseline -
+    controller (> 0: the controller's error is lower) with its 95 % interval,
+    ``ratio`` the controller's mean error over the baseline's (< 1: lower; its interval
+    resamples the pairs), ``win_rate`` the share of pairs the controller wins, ``better`` one of
+    ``"controller"``, ``"baseline"``, ``"unclear"`` (as :func:`paired_differences`), and
+    ``*_failed`` the runs of the cell that did not end ok.
+    """
+    c = _columns(table, ["cell", "controller", "seed", "status", *metrics])
+    ok = {}
+    failed: dict[tuple[int, str], int] = {}
+    for i, (cell, ctrl, seed, st) in enumerate(
+        zip(c["cell"], c["controller"], c["seed"], c["status"], strict=True)
+    ):
+        if st == "ok":
+            ok[(int(cell), ctrl, int(seed))] = i
+        else:
+            failed[(int(cell), ctrl)] = failed.get((int(cell), ctrl), 0) + 1
+    rows = []
+    for m in metrics:
+        base_v: dict[int, list[float]] = {}
+        ctrl_v: dict[int, list[float]] = {}
+        for cell in range(len(spec.cells)):
+            bs, cs = [], []
+            for s in spec.seeds:
+                i, j = ok.get((cell, controller, s)), ok.get((cell, baseline, s))
+                if i is not None and j is not None:
+                    vc, vb = c[m][i], c[m][j]
+                    if math.isfinite(vc) and math.isfinite(vb):
+                        cs.append(vc)
+                        bs.append(vb)
+            base_v[cell], ctrl_v[cell] = bs, cs
+        base_v[-1] = [x for cell in range(len(spec.cells)) for x in base_v[cell]]
+        ctrl_v[-1] = [x for cell in range(len(spec.cells)) for x in ctrl_v[cell]]
+        for cell in [*range(len(spec.cells)), -1]:
+            b, x = np.asarray(base_v[cell]), np.asarray(ctrl_v[cell])
+            d = b - x
+            lo, hi = bootstrap_interval(d, seed=_seed(cell, controller, baseline, m))
+            rlo, rhi = bootstrap_ratio_interval(x, b, seed=_seed(cell, controller, baseline, m))
+            verdict = _verdict(-hi, -lo, d.size)  # "a" (the controller) if the gain > 0
+            cells = range(len(spec.cells)) if cell < 0 else [cell]
+            rows.append(
+                {
+                    "cell": cell,
+                    "metric": m,
+                    "pairs": int(d.size),
+                    "baseline_mean": float(b.mean()) if d.size else math.nan,
+                    "controller_mean": float(x.mean()) if d.size else math.nan,
+                    "gain": float(d.mean()) if d.size else math.nan,
+                    "lo": lo,
+                    "hi": hi,
+                    "ratio": float(x.mean() / b.mean()) if d.size else math.nan,
+                    "ratio_lo": rlo,
+                    "ratio_hi": rhi,
+                    "win_rate": float((d > 0).mean()) if d.size else math.nan,
+                    "better": {"a": "controller", "b": "baseline"}.get(verdict, "unclear"),
+                    "controller_failed": sum(failed.get((k, controller), 0) for k in cells),
+                    "baseline_failed": sum(failed.get((k, baseline), 0) for k in cells),
                 }
             )
     return rows

@@ -20,7 +20,7 @@ from pkmctl.campaign.spec import CampaignSpec
 from pkmctl.campaign.store import factor_column, read_records, read_spec
 from pkmctl.io.atomic import atomic_write, staged_folder
 
-__all__ = ["write_report"]
+__all__ = ["comparison_lines", "write_report"]
 
 
 def _g(x) -> str:
@@ -36,7 +36,100 @@ def _cell_name(spec: CampaignSpec, cell: int) -> str:
         return "all cells"
     if not spec.factors:
         return "the base scenario"
-    return ", ".join(f"{p} = {_g(spec.cells[cell][p])}" for p in spec.factors)
+    varied = spec.factors
+    if spec.center is not None:  # one at a time: name only what differs from the centre
+        varied = [p for p in spec.factors if spec.cells[cell][p] != spec.center[p]]
+        if not varied:
+            return "the centre"
+    return ", ".join(f"{p} = {_g(spec.cells[cell][p])}" for p in varied)
+
+
+def _ratio(r: dict) -> str:
+    """The controller's error over the baseline's with the interval: ``0.31× [0.29, 0.33]``;
+    near 1 with three decimals (1.003 is a 0.3 % difference, not "1")."""
+    v = r["ratio"]
+    if not math.isfinite(v):
+        return "n/a"
+    fmt = "{:.3f}" if 0.9 < v < 1.1 else "{:.2g}"
+    if not math.isfinite(r["ratio_lo"]):
+        return fmt.format(v) + "×"
+    return f"{fmt.format(v)}× [{fmt.format(r['ratio_lo'])}, {fmt.format(r['ratio_hi'])}]"
+
+
+_MARK = {"controller": "better", "baseline": "worse", "unclear": "cannot tell"}
+
+
+def comparison_lines(spec: CampaignSpec, rows: list[dict], q, metrics: list[str]) -> list[str]:
+    """The answer to one ``[[compare]]`` question, in markdown: per cell a row of the
+    ratio of ``q.controller``'s error to ``q.baseline``'s on each metric, with its
+    interval and verdict, then the cells where it pays off, in words."""
+    head = ["condition", *(m.removeprefix("rmse_after_1s_") for m in metrics)]
+    out = [
+        f"Per cell, {q.name}: {q.controller}'s mean error "
+        f"over {q.baseline}'s on the same runs (below 1: {q.controller} is better), with "
+        "its 95 % interval; better / worse when the interval of the paired mean difference "
+        "excludes zero.",
+        "",
+        "| " + " | ".join(head) + " |",
+        "|" + "---|" * len(head),
+    ]
+    cells = [*range(len(spec.cells)), -1]
+    for cell in cells:
+        mine = {r["metric"]: r for r in rows if r["cell"] == cell}
+        entries = []
+        for m in metrics:
+            r = mine[m]
+            fail = ""
+            if r["controller_failed"] or r["baseline_failed"]:
+                fail = f"; failed {r['controller_failed']}/{r['baseline_failed']}"
+            entries.append(f"{_ratio(r)} {_MARK[r['better']]}{fail}")
+        out.append(f"| {_cell_name(spec, cell)} | " + " | ".join(entries) + " |")
+    return [*short_answer(spec, rows, q, metrics), "", *out]
+
+
+def short_answer(spec: CampaignSpec, rows: list[dict], q, metrics: list[str]) -> list[str]:
+    """One line per metric: in how many cells ``q.controller`` is better, worse, or the
+    data cannot tell; the range of its ratios where better, every cell where worse."""
+    out = [f"**{q.name}** ({q.controller} against {q.baseline}), error ratio "
+           f"{q.controller} / {q.baseline} with its 95 % interval:"]  # fmt: skip
+    ref = 0 if spec.center is not None else -1
+    for m in metrics:
+        mine = [r for r in rows if r["metric"] == m and r["cell"] >= 0]
+        pays = sorted((r for r in mine if r["better"] == "controller"), key=lambda r: r["ratio"])
+        hurts = [r for r in mine if r["better"] == "baseline"]
+        unclear = [r for r in mine if r["better"] == "unclear"]
+        c0 = next(r for r in rows if r["metric"] == m and r["cell"] == ref)
+        pooled = next(r for r in rows if r["metric"] == m and r["cell"] == -1)
+        line = (
+            f"- {m}: better in {len(pays)} of {len(mine)} cells, worse in {len(hurts)}, "
+            f"cannot tell in {len(unclear)}"
+        )
+        if pays:
+            lo, hi = pays[0], pays[-1]
+            line += f"; where better, from {_ratio(lo)} ({_cell_name(spec, lo['cell'])})"
+            if hi is not lo:
+                line += f" to {_ratio(hi)} ({_cell_name(spec, hi['cell'])})"
+        if hurts:
+            line += "; worse at " + "; ".join(
+                f"{_cell_name(spec, r['cell'])} ({_ratio(r)})" for r in hurts
+            )
+        if unclear:
+            line += "; cannot tell at " + "; ".join(_cell_name(spec, r["cell"]) for r in unclear)
+        line += (
+            f". At {_cell_name(spec, ref)}: {q.controller} {_g(c0['controller_mean'])}, "
+            f"{q.baseline} {_g(c0['baseline_mean'])}; over all cells {_ratio(pooled)}."
+        )
+        out.append(line)
+    failed = [
+        r for r in rows if r["metric"] == metrics[0] and r["cell"] >= 0
+        and (r["controller_failed"] or r["baseline_failed"])
+    ]  # fmt: skip
+    for r in failed:
+        out.append(
+            f"- at {_cell_name(spec, r['cell'])}: {r['controller_failed']} {q.controller} and "
+            f"{r['baseline_failed']} {q.baseline} runs did not end ok (not in the pairs)."
+        )
+    return out
 
 
 def _write_csv(path: Path, rows: list[dict]) -> None:
@@ -123,9 +216,24 @@ def _words(spec, paired: list[dict], metric: str) -> list[str]:
     return out
 
 
+def _answer_header(spec: CampaignSpec, table) -> str:
+    ok = sum(s == "ok" for s in table.column("status").to_pylist())
+    centre = (
+        f" around the centre, the base scenario {spec.base.name!r}"
+        if spec.center is not None
+        else ""
+    )
+    return (
+        f"Campaign {spec.name!r} ({spec.digest}): {table.num_rows} of {spec.n_runs} runs "
+        f"recorded, {ok} ended ok; {len(spec.cells)} cells ({spec.design}{centre}), "
+        f"{len(spec.seeds)} seeds, {spec.duration:g} s each.\n\n"
+    )
+
+
 def write_report(out: str | Path) -> list[Path]:
     """Write ``out/report/`` (report.md, summary.csv, paired.csv, divergence.csv,
-    figures/METRIC_vs_FACTOR.png) from the campaign in ``out``, all at once."""
+    figures/METRIC_vs_FACTOR.png, and answer.md if the spec asks questions with
+    ``[[compare]]``) from the campaign in ``out``, all at once."""
     out = Path(out)
     spec = read_spec(out)
     table = read_records(out)
@@ -154,6 +262,13 @@ def write_report(out: str | Path) -> list[Path]:
     ]
     for m in metrics:
         lines += [f"### {m}", "", *_words(spec, paired, m), ""]
+    answers = []
+    for q in spec.compare:
+        rows = stats.comparison(spec, table, q.controller, q.baseline, metrics)
+        answers += [*comparison_lines(spec, rows, q, metrics), ""]
+    if answers:
+        at = lines.index("## Which controller is better where")
+        lines[at:at] = ["## The questions of this campaign", "", *answers]
     lines += ["## Divergence", ""]
     n_bad = sum(s != "ok" for s in statuses)
     if n_bad == 0:
@@ -193,6 +308,15 @@ def write_report(out: str | Path) -> list[Path]:
             {k: r[k] for k in ("cell", *map(factor_column, spec.factors), "controller", "n",
                                "ok", "diverged")} for r in div
         ])  # fmt: skip
+        if spec.compare:
+            _write_csv(stage / "comparison.csv", [
+                {"question": q.name, "controller": q.controller, "baseline": q.baseline, **r}
+                for q in spec.compare
+                for r in stats.comparison(spec, table, q.controller, q.baseline, metrics)
+            ])  # fmt: skip
+        if answers:  # the answer alone, to quote (README.md, docs/campaigns.md)
+            with atomic_write(stage / "answer.md") as fh:
+                fh.write(_answer_header(spec, table) + "\n".join(answers).rstrip() + "\n")
         with atomic_write(stage / "report.md") as fh:
             fh.write("\n".join(lines).replace("\n\n\n", "\n\n") + "\n")
     report = out / "report"
