@@ -7,7 +7,8 @@
     pkmctl scenario [NAME]
     pkmctl bench [--quick] [--json PATH]
     pkmctl mujoco-model --out FILE.xml [--scenario NAME|FILE] [--rotor-inertia J] ...
-    pkmctl campaign run SPEC.toml [--out DIR] [--workers N] [--scheduler ADDRESS] [--resume]
+    pkmctl campaign run SPEC.toml|NAME [--out DIR] [--workers N] [--scheduler ADDRESS] [--resume]
+    pkmctl campaign show SPEC.toml|NAME
     pkmctl campaign report DIR
 
 Every error a user can cause ends in one line on stderr naming the cause (the value,
@@ -581,7 +582,9 @@ def _seconds(s: float) -> str:
 @campaign_app.command("run")
 def campaign_run(
     ctx: typer.Context,
-    spec_file: Annotated[str, typer.Argument(help="The campaign spec (TOML).")],
+    spec_file: Annotated[
+        str, typer.Argument(help="The campaign spec (TOML), or a built-in's name: paper-claims.")
+    ],
     out: Annotated[
         str, typer.Option(help="Campaign folder: the spec and one Parquet file per task.")
     ] = "pkmctl-campaign",
@@ -659,9 +662,10 @@ def campaign_run(
             bar.update(task, completed=done, failures=failures, rate=rate)
 
         def on_client(client):
-            link = getattr(client, "dashboard_link", None)
-            if link:
-                _say(f"dashboard: {link}")
+            from pkmctl.campaign.execute import dashboard_link
+
+            link = dashboard_link(client)
+            _say(f"dashboard: {link}" if link else "the cluster's scheduler runs no dashboard")
 
         def interrupted() -> str:
             bar.stop()
@@ -695,6 +699,38 @@ def campaign_run(
             f"{done.failures} diverged or failed; records in {out}/runs"
         )
     )
+
+
+@campaign_app.command("show")
+def campaign_show(
+    ctx: typer.Context,
+    spec_file: Annotated[
+        str, typer.Argument(help="The campaign spec (TOML), or a built-in's name: paper-claims.")
+    ],
+) -> None:
+    """Print a campaign's spec (to copy and edit) and what it expands to; runs nothing.
+
+    The spec goes to stdout (pkmctl campaign show paper-claims > mine.toml), the cells,
+    runs, tasks and the time estimate to stderr.
+    """
+    from pkmctl.campaign.spec import CampaignSpec
+
+    try:
+        spec = _interruptible(lambda: CampaignSpec.from_toml(Path(spec_file)), lambda: "")
+    except Exception as exc:
+        _handle(ctx, exc)
+    sys.stdout.write(spec.text if spec.text.endswith("\n") else spec.text + "\n")
+    work = spec.n_runs * spec.run_seconds()
+    cores = os.cpu_count() or 1
+    _say(
+        f"campaign {spec.name!r} ({spec.digest}): {spec.n_runs} runs = {len(spec.cells)} cells "
+        f"({spec.design}) x {len(spec.controllers)} controllers x {len(spec.seeds)} seeds, "
+        f"{spec.duration:g} s each, in {len(spec.tasks())} tasks; estimated {_seconds(work)} "
+        f"on one core, {_seconds(work / cores)} on {cores}"
+    )
+    for i in range(len(spec.cells)):
+        cell = spec.cells[i]
+        _say(f"  cell {i}: " + (", ".join(f"{k} = {v!r}" for k, v in cell.items()) or "base"))
 
 
 @campaign_app.command("report")

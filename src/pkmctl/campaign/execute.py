@@ -36,7 +36,7 @@ from pkmctl.campaign.store import (
     write_task,
 )
 
-__all__ = ["CampaignRun", "run_campaign", "run_task"]
+__all__ = ["CampaignRun", "dashboard_link", "run_campaign", "run_task"]
 
 _RETRIES = 3
 
@@ -170,9 +170,27 @@ def _local_results(spec: CampaignSpec, tasks: list[Task], workers: int) -> Itera
             )
 
 
+def dashboard_link(client) -> str | None:
+    """The dashboard's address of a Dask client's scheduler, or None if it runs none
+    (``dask scheduler --no-dashboard``, where ``Client.dashboard_link`` raises)."""
+    try:
+        info = client.scheduler_info()
+        if "dashboard" not in info.get("services", {}):
+            return None
+        return client.dashboard_link
+    except Exception:  # noqa: BLE001 - a link is a courtesy; the campaign goes on
+        return None
+
+
 def _dask_results(spec: CampaignSpec, tasks: list[Task], address: str, on_client=None) -> Iterable:
-    """(task, table) as tasks finish on the Dask cluster at ``address``. Tasks are pure,
-    so the scheduler reruns those of a lost worker (up to ``allowed_failures``)."""
+    """(task, table) as tasks finish on the Dask cluster at ``address``.
+
+    A task lost with its worker is run again by the scheduler on another worker; the
+    scheduler gives up on a task after it was on ``distributed.scheduler.allowed-failures``
+    (default 3) workers that died. ``retries`` covers a task that raises (run_task
+    records a run's own errors, so that is the worker's trouble: memory, a broken
+    import). Keys are the spec hash and task number, so a task is never run twice for
+    one client, and its table is written once, as it arrives."""
     from distributed import Client, as_completed
 
     with Client(address, timeout="10s") as client:
@@ -181,7 +199,12 @@ def _dask_results(spec: CampaignSpec, tasks: list[Task], address: str, on_client
         spec_f = client.scatter(spec, broadcast=True)
         futures = {
             client.submit(
-                run_task, spec_f, t, key=f"pkmctl-{spec.digest}-task-{t.index}", pure=True
+                run_task,
+                spec_f,
+                t,
+                key=f"pkmctl-{spec.digest}-task-{t.index}",
+                pure=True,
+                retries=_RETRIES,
             ): t
             for t in tasks
         }
