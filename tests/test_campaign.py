@@ -1,9 +1,12 @@
 """Campaigns (issue 11): specs, local and Dask execution, the store, resume, report."""
 
+import contextlib
 import os
+import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -150,33 +153,40 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_dask_cluster_of_worker_processes_gives_the_same_records(spec_file, reference, tmp_path):
+@contextlib.contextmanager
+def _cluster(n_workers: int, *, deadline_s: float = 180.0, dashboard: bool = False):
+    """A real dask.distributed cluster on 127.0.0.1: a scheduler and ``n_workers`` worker
+    processes of one thread, without nannies (so a worker's pid is the process we started
+    and can kill). Yields (address, worker processes). A watchdog stops every process
+    after ``deadline_s``, so a hung campaign fails the test instead of hanging it."""
     pytest.importorskip("distributed")
-    _, expected = reference
+    from distributed import Client
+
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
     env = dict(os.environ)
     src = str(Path(pkmctl.__file__).resolve().parents[1])
     env["PYTHONPATH"] = os.pathsep.join([src, env.get("PYTHONPATH", "")])
+    env["DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES"] = "3"  # a task outlives 3 lost workers
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": env}
-    procs = [
-        subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "distributed.cli.dask_scheduler",
-                "--host",
-                "127.0.0.1",
-                "--port",
-                str(port),
-                "--no-dashboard",
-            ],
-            **quiet,
-        )  # fmt: skip
-    ]
+    board = ["--dashboard-address", f"127.0.0.1:{_free_port()}"] if dashboard else []
+    scheduler = subprocess.Popen(
+        [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+         "--port", str(port), *(board or ["--no-dashboard"])], **quiet,
+    )  # fmt: skip
+    workers = []
+    procs = [scheduler]
+
+    def stop():
+        for p in reversed(procs):
+            if p.poll() is None:
+                p.kill()
+
+    watchdog = threading.Timer(deadline_s, stop)
+    watchdog.start()
     try:
-        for _ in range(2):
-            procs.append(
+        for _ in range(n_workers):
+            workers.append(
                 subprocess.Popen(
                     [
                         sys.executable,
@@ -185,6 +195,7 @@ def test_dask_cluster_of_worker_processes_gives_the_same_records(spec_file, refe
                         address,
                         "--nthreads",
                         "1",
+                        "--no-nanny",
                         "--no-dashboard",
                         "--host",
                         "127.0.0.1",
@@ -192,18 +203,33 @@ def test_dask_cluster_of_worker_processes_gives_the_same_records(spec_file, refe
                     **quiet,
                 )  # fmt: skip
             )
-        from distributed import Client
-
+            procs.append(workers[-1])
         deadline = time.monotonic() + 60
         while True:
             try:
                 with Client(address, timeout="2s") as c:
-                    c.wait_for_workers(2, timeout=max(1, deadline - time.monotonic()))
+                    c.wait_for_workers(n_workers, timeout=max(1, deadline - time.monotonic()))
                 break
             except (OSError, TimeoutError):
                 if time.monotonic() > deadline:
                     raise
                 time.sleep(0.5)
+        yield address, workers
+    finally:
+        watchdog.cancel()
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+
+
+@pytest.mark.cluster
+def test_dask_cluster_of_worker_processes_gives_the_same_records(spec_file, reference, tmp_path):
+    _, expected = reference
+    with _cluster(2, dashboard=True) as (address, _):
         out = tmp_path / "camp"
         res = runner.invoke(
             app, ["campaign", "run", str(spec_file), "--out", str(out), "--scheduler", address]
@@ -213,14 +239,66 @@ def test_dask_cluster_of_worker_processes_gives_the_same_records(spec_file, refe
         assert table.equals(expected)
         workers = set(read_records(out).column("worker").to_pylist())
         assert len(workers) >= 1 and all(":" in w for w in workers)
-    finally:
-        for p in reversed(procs):
-            p.terminate()
-        for p in procs:
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        assert "dashboard: http://127.0.0.1:" in res.stderr, res.output
+
+
+#: Many short tasks (16 of 2 runs), so that when the first result is back the worker we
+#: kill still holds tasks (queued or running) that the scheduler must run elsewhere.
+KILL = """
+name = "kill"
+scenario = "paper"
+controllers = ["smc", "pd"]
+seeds = [0, 1]
+duration = 0.2
+metrics = ["rmse", "rmse_after_1s"]
+
+[factors."payload.mass"]
+values = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]
+"""
+
+
+@pytest.mark.cluster
+def test_killing_a_worker_mid_campaign_loses_and_duplicates_nothing(tmp_path):
+    spec = CampaignSpec.from_toml(KILL)
+    tasks = spec.tasks()
+    assert len(tasks) == 16 and spec.n_runs == 32
+    run_campaign(spec, tmp_path / "local", workers=1)
+    expected = read_records(tmp_path / "local", timing=False)
+    with _cluster(2) as (address, workers):
+        pids = {str(w.pid): w for w in workers}
+        out = tmp_path / "camp"
+        killed, clients = {}, []
+
+        def progress(done, failures, total, rate):
+            if done == 0 or killed:
+                return
+            # the first result is on disk: kill the worker that computed it, mid-campaign
+            first = next((out / "runs").glob("task-*.parquet"))
+            pid = pq.read_table(first).column("worker")[0].as_py().rsplit(":", 1)[1]
+            addr = next(a for a, p in clients[0].run(os.getpid).items() if str(p) == pid)
+            busy = clients[0].processing(workers=[addr])[addr]  # its tasks, lost with it
+            victim = pids[pid]
+            victim.kill()
+            victim.wait(10)
+            killed.update(pid=pid, done=done, code=victim.returncode, lost=len(busy))
+
+        done = run_campaign(
+            spec, out, scheduler=address, progress=progress, on_client=clients.append
+        )
+    assert killed and killed["code"] == -signal.SIGKILL, killed
+    assert killed["lost"] >= 1, killed  # it held a task: the scheduler had to run it again
+    assert killed["done"] < spec.n_runs  # killed mid-campaign, not after it
+    assert done.complete and done.done_now == spec.n_runs and done.tasks_now == len(tasks)
+    table = read_records(out, timing=False)
+    keys = list(zip(*(table.column(k).to_pylist() for k in ("cell", "controller", "seed")),
+                    strict=True))  # fmt: skip
+    assert len(keys) == len(set(keys)) == spec.n_runs  # none lost, none duplicated
+    assert table.equals(expected)  # bit for bit, as the local run
+    by = read_records(out).column("worker").to_pylist()
+    survivor = next(p for p in pids if p != killed["pid"])
+    assert any(w.endswith(":" + survivor) for w in by)
+    # the killed worker's records are of tasks it finished before it died
+    assert sum(w.endswith(":" + killed["pid"]) for w in by) <= killed["done"]
 
 
 def test_report_states_in_words_what_the_numbers_say(reference, tmp_path):
@@ -316,3 +394,133 @@ def test_a_spec_naming_a_scenario_file_reports_from_the_stored_copy(tmp_path):
     rows = read_records(out).to_pylist()
     assert [r["controller"] for r in rows] == ["pd", "smc"]
     assert rows[0]["rmse_z_mm"] == pkmctl.simulate(base, "pd", duration=0.05, seed=0).rmse()["z_mm"]
+
+
+OFAT = """
+name = "ofat"
+scenario = "paper"
+design = "one-at-a-time"
+controllers = ["smc", "afsmc"]
+seeds = 2
+duration = 0.05
+
+[factors."payload.mass"]
+values = [0.0, 4.0]
+
+[factors."timing.control_period"]
+values = [5e-5, 1e-3]
+with = { "timing.substeps" = [1, 20] }
+
+[[compare]]
+name = "adaptation"
+controller = "afsmc"
+baseline = "smc"
+"""
+
+
+def test_one_at_a_time_design_varies_each_factor_around_the_base():
+    spec = CampaignSpec.from_toml(OFAT)
+    assert spec.design == "one-at-a-time"
+    assert spec.center == {"payload.mass": 0.0, "timing.control_period": 5e-5}
+    assert spec.cells == (
+        {"payload.mass": 0.0, "timing.control_period": 5e-5},  # the centre: the base
+        {"payload.mass": 4.0, "timing.control_period": 5e-5},
+        {"payload.mass": 0.0, "timing.control_period": 1e-3, "timing.substeps": 20},
+    )
+    assert spec.scenario(2).timing.substeps == 20 and spec.scenario(1).timing.substeps == 1
+    assert spec.axis("payload.mass") == [0, 1] and spec.axis("timing.control_period") == [0, 2]
+    assert spec.n_runs == 3 * 2 * 2
+    assert [(q.name, q.controller, q.baseline) for q in spec.compare] == [
+        ("adaptation", "afsmc", "smc")
+    ]
+    # the questions shape the report, not the records: the hash ignores them
+    no_q = OFAT[: OFAT.index("[[compare]]")]
+    assert CampaignSpec.from_toml(no_q).digest == spec.digest
+    grid = CampaignSpec.from_toml(no_q.replace('design = "one-at-a-time"\n', ""))
+    assert len(grid.cells) == 4 and grid.cells[3]["timing.substeps"] == 20
+    assert grid.axis("payload.mass") == [0, 1, 2, 3]
+
+
+@pytest.mark.parametrize(
+    ("change", "expected"),
+    [
+        (('design = "one-at-a-time"', 'design = "latin"'), "design = 'latin': must be one of"),
+        (("[1, 20]", "[1]"), "must be a list of 2 values"),
+        (('controller = "afsmc"', 'controller = "pd"'), "compare[0].controller = 'pd': not one"),
+        (("[1, 20]", "[1, 0]"), "timing.substeps"),
+    ],
+)
+def test_bad_designs_links_and_questions_fail_in_one_line(tmp_path, change, expected):
+    spec = tmp_path / "bad.toml"
+    spec.write_text(OFAT.replace(*change))
+    res = runner.invoke(app, ["campaign", "run", str(spec), "--out", str(tmp_path / "o")])
+    assert res.exit_code == 2, res.output
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and expected in lines[0], lines
+
+
+def test_paper_claims_is_a_builtin_campaign_of_the_issue_s_factors():
+    spec = CampaignSpec.from_toml("paper-claims")
+    assert spec is not None and spec.name == "paper-claims"
+    assert CampaignSpec.builtin("paper-claims").digest == spec.digest
+    assert set(spec.controllers) == {"smc", "fsmc", "afsmc", "pd", "ctc"}
+    assert len(spec.seeds) >= 10 and spec.duration > 1.0  # a metric after the first second
+    values = {p: [c[p] for c in spec.cells] for p in spec.factors}
+    theta = values["controller_model.theta_scale"]
+    assert max(theta) == 1.0 and min(theta) == 0.3
+    assert min(values["payload.mass"]) == 0.0 and max(values["payload.mass"]) == 10.0
+    amp = [a[0] for a in values["disturbance.amplitude"]]
+    assert min(amp) == 2.0 and max(amp) == 50.0
+    assert set(values["timing.control_period"]) == {5e-5, 1e-3}
+    assert set(values["actuators.force_limit"]) == {None, 2160.0}
+    at_1khz = next(c for c in spec.cells if c["timing.control_period"] == 1e-3)
+    assert spec.scenario(spec.cells.index(at_1khz)).timing == pkmctl.Scenario.builtin(
+        "paper-1khz"
+    ).timing.model_copy(update={"duration": spec.duration})
+    assert {(q.controller, q.baseline) for q in spec.compare} == {
+        ("afsmc", "fsmc"),
+        ("fsmc", "smc"),
+    }
+    res = runner.invoke(app, ["campaign", "show", "paper-claims"])
+    assert res.exit_code == 0, res.output
+    assert res.stdout.startswith("# The built-in campaign `paper-claims`")
+    assert CampaignSpec.from_toml(res.stdout).digest == spec.digest  # a copy to edit
+    assert f"{spec.n_runs} runs = {len(spec.cells)} cells (one-at-a-time)" in res.stderr
+    res = runner.invoke(app, ["campaign", "show", "paper-claim"])
+    assert res.exit_code == 2 and "paper-claim" in res.stderr
+
+
+def test_a_question_is_answered_with_ratios_and_intervals(reference, tmp_path):
+    import shutil
+
+    from pkmctl.campaign import stats
+
+    src, table = reference
+    out = tmp_path / "camp"
+    shutil.copytree(src, out)
+    text = (out / "spec.toml").read_text()
+    text += '\n[[compare]]\nname = "adaptation"\ncontroller = "afsmc"\nbaseline = "smc"\n'
+    (out / "spec.toml").write_text(text)  # a question does not change the hash
+    res = runner.invoke(app, ["campaign", "report", str(out)])
+    assert res.exit_code == 0, res.output
+    spec = CampaignSpec.from_toml(out / "spec.toml")
+    rows = stats.comparison(spec, table, "afsmc", "smc", ["rmse_z_mm"])
+    pooled = next(r for r in rows if r["cell"] == -1)
+    assert pooled["pairs"] == 8
+    assert pooled["ratio"] == pytest.approx(pooled["controller_mean"] / pooled["baseline_mean"])
+    assert pooled["ratio_lo"] <= pooled["ratio"] <= pooled["ratio_hi"]
+    assert pooled["gain"] == pytest.approx(pooled["baseline_mean"] - pooled["controller_mean"])
+    # the same verdict as the paired differences (smc - afsmc = the gain)
+    paired = stats.paired_differences(spec, table, ["rmse_z_mm"])
+    same = next(r for r in paired if r["cell"] == -1)
+    assert pooled["gain"] == pytest.approx(same["mean"])
+    assert {"a": "baseline", "b": "controller", "unclear": "unclear"}[same["better"]] == (
+        pooled["better"]
+    )
+    answer = (out / "report" / "answer.md").read_text()
+    assert "**adaptation** (afsmc against smc)" in answer
+    from pkmctl.report.campaign import _ratio
+
+    assert f"over all cells {_ratio(pooled)}." in answer
+    assert answer.split("\n\n", 1)[1] in (out / "report" / "report.md").read_text()
+    assert (out / "report" / "comparison.csv").read_text().startswith("question,controller")
