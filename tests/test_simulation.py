@@ -152,6 +152,23 @@ def test_desired_forces_match_the_mechanism_methods(paper):
     np.testing.assert_allclose(r.q_desired[k], plant.inverse_kinematics(r.X_desired[k]), rtol=1e-13)
 
 
+def test_summary_of_some_groups_is_the_metrics_bit_for_bit(paper):
+    from pkmctl.sim import metrics
+
+    r = pkmctl.simulate(paper, "fsmc", duration=1.2, seed=2)
+    every = metrics.summary(r)
+    assert list(every) == list(metrics.SUMMARY_GROUPS)
+    assert every["rmse"] == metrics.rmse(r) and every["max_error"] == metrics.max_error(r)
+    assert every["rmse_after_1s"] == metrics.rmse(r, t_from=1.0)
+    assert every["peak_force_N"] == metrics.peak_forces(r).tolist()
+    assert metrics.summary(r, ["max_error", "rmse_after_1s"]) == {
+        "rmse_after_1s": every["rmse_after_1s"],
+        "max_error": every["max_error"],
+    }
+    with pytest.raises(ValueError, match="'rms' unknown"):
+        metrics.summary(r, ["rms"])
+
+
 def test_simulate_many_metrics_mode_equals_full_results(paper):
     from pkmctl.sim.metrics import summary
     from pkmctl.sim.simulate import simulate_many

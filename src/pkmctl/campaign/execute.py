@@ -33,6 +33,7 @@ from pkmctl.campaign.store import (
     factor_value,
     open_store,
     schema,
+    task_seconds,
     write_task,
 )
 
@@ -81,7 +82,7 @@ def run_task(spec: CampaignSpec, task: Task) -> pa.Table:
         try:
             parts = _parts(prep.scenario, run.controller)
             result = _run(prep, parts, run.seed)
-            metrics = summary(result)
+            metrics = summary(result, spec.metrics)  # only the kept groups
             kernel = result.info["kernel_seconds"]
         except SimulationDiverged as exc:
             status, at, msg = "diverged", float(exc.time), str(exc)
@@ -247,7 +248,7 @@ def run_campaign(
     """
     out = Path(out)
     runs_dir = open_store(out, spec, resume=resume)
-    tasks = spec.tasks()
+    tasks = spec.tasks(task_seconds(out))  # the grouping the folder was started with
     done = completed_tasks(runs_dir)
     todo = [t for t in tasks if t.index not in done]
     before = sum(len(t.runs) for t in tasks if t.index in done)
