@@ -524,3 +524,30 @@ def test_a_question_is_answered_with_ratios_and_intervals(reference, tmp_path):
     assert f"over all cells {_ratio(pooled)}." in answer
     assert answer.split("\n\n", 1)[1] in (out / "report" / "report.md").read_text()
     assert (out / "report" / "comparison.csv").read_text().startswith("question,controller")
+
+
+def test_a_resume_groups_the_runs_as_the_folder_was_started(tmp_path):
+    import json
+
+    from pkmctl.campaign.spec import LEGACY_TASK_SECONDS, TASK_SECONDS
+    from pkmctl.campaign.store import open_store, task_seconds
+
+    spec = CampaignSpec.from_toml(
+        'scenario = "paper"\ncontrollers = ["pd"]\nseeds = 10\nduration = 0.2\nmetrics = ["rmse"]\n'
+    )
+    old, new = spec.tasks(LEGACY_TASK_SECONDS), spec.tasks()
+    assert [len(t.runs) for t in old] == [7, 3] and [len(t.runs) for t in new] == [10]
+    fresh = tmp_path / "fresh"
+    run_campaign(spec, fresh, workers=1)
+    assert task_seconds(fresh) == TASK_SECONDS
+    legacy = tmp_path / "legacy"  # a folder made before the task size was recorded
+    open_store(legacy, spec, resume=False)
+    manifest = json.loads((legacy / "campaign.json").read_text())
+    del manifest["task_seconds"]
+    (legacy / "campaign.json").write_text(json.dumps(manifest))
+    assert task_seconds(legacy) == LEGACY_TASK_SECONDS
+    run_campaign(spec, legacy, workers=1, resume=True)
+    assert len(list((legacy / "runs").iterdir())) == 2  # its own two tasks, not one
+    a = read_records(legacy, timing=False).drop_columns(["task"])
+    b = read_records(fresh, timing=False).drop_columns(["task"])
+    assert a.equals(b)

@@ -24,7 +24,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pkmctl.campaign.spec import CampaignSpec, SpecError
+from pkmctl.campaign.spec import LEGACY_TASK_SECONDS, TASK_SECONDS, CampaignSpec, SpecError
 from pkmctl.io.atomic import atomic_write
 from pkmctl.sim.metrics import RMSE_KEYS
 
@@ -38,6 +38,7 @@ __all__ = [
     "read_records",
     "read_spec",
     "schema",
+    "task_seconds",
     "write_task",
 ]
 
@@ -107,9 +108,21 @@ def _manifest(spec: CampaignSpec) -> dict:
         "name": spec.name,
         "spec_hash": spec.digest,
         "runs": spec.n_runs,
-        "tasks": len(spec.tasks()),
+        "tasks": len(spec.tasks(TASK_SECONDS)),
+        "task_seconds": TASK_SECONDS,
         "columns": schema(spec).names,
     }
+
+
+def task_seconds(out: str | Path) -> float:
+    """The task size the campaign in ``out`` was started with (its tasks are
+    ``spec.tasks(task_seconds(out))``); :data:`LEGACY_TASK_SECONDS` for a folder made
+    before the size was recorded."""
+    try:
+        manifest = json.loads((Path(out) / "campaign.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise SpecError(f"{str(out)!r}: not a readable campaign folder ({exc})") from None
+    return float(manifest.get("task_seconds", LEGACY_TASK_SECONDS))
 
 
 def open_store(out: Path, spec: CampaignSpec, *, resume: bool) -> Path:
