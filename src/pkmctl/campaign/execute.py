@@ -61,6 +61,20 @@ def _metric_values(spec: CampaignSpec, summary: dict | None) -> dict:
     return out
 
 
+def _log_buffers(prep, parts):
+    """Log arrays the runs of a task share (one cell, one controller): each run
+    overwrites the last one's logs, already measured, so only the first run touches
+    fresh memory (as ``simulate_many(keep="metrics")``)."""
+    from pkmctl.parts import PartContext
+    from pkmctl.sim.loop import LogBuffers
+
+    sc = prep.scenario
+    ctx = PartContext(prep.plant, prep.model, sc.controller_gains(), sc.timing.control_period,
+                      prep.flc, sc)  # fmt: skip
+    ctrl = parts["controller"]
+    return LogBuffers(prep.t.size, int(ctrl.log_size(ctrl.build(ctx))))
+
+
 def run_task(spec: CampaignSpec, task: Task) -> pa.Table:
     """Run one task's runs; their records (:func:`pkmctl.campaign.store.schema`).
 
@@ -74,14 +88,18 @@ def run_task(spec: CampaignSpec, task: Task) -> pa.Table:
 
     rows = []
     host = f"{socket.gethostname()}:{os.getpid()}"
-    cell = task.runs[0].cell
+    cell = task.runs[0].cell  # one cell a task
+    factors = {factor_column(p): factor_value(spec, p, spec.cells[cell][p]) for p in spec.factors}
     prep = _prepare(spec.scenario(cell), None)
+    buffers = None
     for run in task.runs:
         t0 = time.perf_counter()
         status, at, msg, metrics, kernel = "ok", None, "", None, math.nan
         try:
             parts = _parts(prep.scenario, run.controller)
-            result = _run(prep, parts, run.seed)
+            if buffers is None:
+                buffers = _log_buffers(prep, parts)
+            result = _run(prep, parts, run.seed, buffers)
             metrics = summary(result, spec.metrics)  # only the kept groups
             kernel = result.info["kernel_seconds"]
         except SimulationDiverged as exc:
@@ -97,8 +115,7 @@ def run_task(spec: CampaignSpec, task: Task) -> pa.Table:
             "seed": run.seed,
             "task": task.index,
         }
-        for p in spec.factors:
-            row[factor_column(p)] = factor_value(spec, p, spec.cells[run.cell][p])
+        row.update(factors)
         row.update(status=status, diverged_at=at, message=msg)
         row.update(_metric_values(spec, metrics))
         row.update(wall_s=time.perf_counter() - t0, kernel_s=float(kernel), worker=host)
