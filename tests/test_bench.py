@@ -39,6 +39,13 @@ def test_bench_quick_smoke(tmp_path):
     assert data["flc"]["compiled_us"] > 0 and data["batch"]["workers"] >= 1
     assert data["flops"]["flops_per_step"] > data["flops"]["plant_eval_flops"] * 4
     assert data["reproduce"]["warm_s"] > 0
+    camp = data["campaign"]  # issue 11: campaign speed, side by side in one run
+    assert camp["one_worker"]["wall_s"] > 0 and camp["two_workers"]["work_s"] > 0
+    assert camp["dask"]["wall_s"] > 0 and 0 < camp["overhead"]["overhead_fraction"] < 1
+    targets = {r[0]: r[2] for r in rows(data)}
+    assert targets["  2 workers / 1, start excluded"] == "≥ 1.8 x"
+    assert targets["  Dask / local, start excluded"] == "≥ 0.9 x"
+    assert targets["campaign: cost outside the loop"] == "< 10 %"
     assert "≥ 200,000 steps/s" in res.output  # the table, with its targets
     # the targets are judged only in full mode: a slow loop is flagged, a fast one passes
     slow = dict(data, quick=False)
