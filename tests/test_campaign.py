@@ -459,7 +459,7 @@ def test_bad_designs_links_and_questions_fail_in_one_line(tmp_path, change, expe
     assert len(lines) == 1 and expected in lines[0], lines
 
 
-def test_paper_claims_is_a_builtin_campaign_of_the_issue_s_factors():
+def test_paper_claims_is_a_builtin_campaign_of_the_issue_s_factors(tmp_path):
     spec = CampaignSpec.from_toml("paper-claims")
     assert spec is not None and spec.name == "paper-claims"
     assert CampaignSpec.builtin("paper-claims").digest == spec.digest
@@ -488,6 +488,14 @@ def test_paper_claims_is_a_builtin_campaign_of_the_issue_s_factors():
     assert f"{spec.n_runs} runs = {len(spec.cells)} cells (one-at-a-time)" in res.stderr
     res = runner.invoke(app, ["campaign", "show", "paper-claim"])
     assert res.exit_code == 2 and "paper-claim" in res.stderr
+    # `campaign run paper-claims` finds it too (refused here before running anything: the
+    # folder holds another campaign)
+    out = tmp_path / "taken"
+    out.mkdir()
+    (out / "campaign.json").write_text('{"spec_hash": "0"}')
+    res = runner.invoke(app, ["campaign", "run", "paper-claims", "--out", str(out)])
+    assert res.exit_code == 2 and "holds a campaign already" in res.stderr, res.output
+    assert f"campaign 'paper-claims' ({spec.digest}): 1400 runs" in res.stderr
 
 
 def test_a_question_is_answered_with_ratios_and_intervals(reference, tmp_path):
