@@ -143,6 +143,13 @@ def test_interrupted_then_resumed_equals_uninterrupted(spec_file, reference, tmp
     assert "16 runs" in res.stderr and "runs in" in res.stdout
     table = read_records(out, timing=False)
     assert table.equals(expected)  # bit for bit, every column but the timing ones
+    import json
+
+    from pkmctl._jit import source_stamp
+
+    sessions = json.loads((out / "campaign.json").read_text())["sessions"]
+    assert [s["where"] for s in sessions] == ["1 local workers", "2 local workers"]
+    assert all(s["kernel_sources"] == source_stamp() for s in sessions)  # how, recorded
     tasks = [pq.read_table(f).column("task")[0].as_py() for f in (out / "runs").glob("t*")]
     assert sorted(tasks) == list(range(len(spec.tasks())))
 

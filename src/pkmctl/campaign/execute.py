@@ -32,6 +32,7 @@ from pkmctl.campaign.store import (
     factor_column,
     factor_value,
     open_store,
+    record_session,
     schema,
     task_seconds,
     write_task,
@@ -272,6 +273,7 @@ def run_campaign(
     workers = (os.cpu_count() or 1) if workers is None else int(workers)
     if workers < 1:
         raise ValueError(f"--workers = {workers}: must be >= 1")
+    record_session(out, f"dask {scheduler}" if scheduler else f"{workers} local workers")
     t0 = time.perf_counter()
     report = _Progress(progress)
     now = failures = n_tasks = 0

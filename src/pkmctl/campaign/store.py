@@ -4,7 +4,8 @@ Layout of a campaign folder::
 
     spec.toml            the spec as written
     scenario.toml        its base scenario (the spec may name a file elsewhere)
-    campaign.json        its digest, runs, tasks and record columns
+    campaign.json        its digest, runs, tasks, task size, record columns, and each
+                         session that ran tasks (when, where, which versions)
     runs/task-00017.parquet    the records of task 17, written atomically, once
 
 Each file appears whole or not at all (:func:`pkmctl.io.atomic.atomic_write`), and no
@@ -37,6 +38,7 @@ __all__ = [
     "query",
     "read_records",
     "read_spec",
+    "record_session",
     "schema",
     "task_seconds",
     "write_task",
@@ -112,6 +114,42 @@ def _manifest(spec: CampaignSpec) -> dict:
         "task_seconds": TASK_SECONDS,
         "columns": schema(spec).names,
     }
+
+
+def record_session(out: str | Path, where: str) -> dict:
+    """Append to ``campaign.json`` how this session of the campaign runs its tasks:
+    when, where (``where``: the workers or the scheduler), and the versions that make
+    the records (pkmctl, the hash of its kernel sources, Python, NumPy, Numba,
+    pyarrow). A resume by other sources shows there. Returns the entry."""
+    import datetime
+    import platform
+    from importlib.metadata import version
+
+    import numpy
+
+    import pkmctl
+
+    # Numba's version from the metadata and _jit from the package: this module holds no
+    # compiled code, so it must not look like a kernel source to _jit's hash (a text test)
+    from pkmctl import _jit
+
+    entry = {
+        "started": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "where": where,
+        "host": platform.node(),
+        "pkmctl": pkmctl.__version__,
+        "kernel_sources": _jit.source_stamp(),
+        "python": platform.python_version(),
+        "numpy": numpy.__version__,
+        "numba": version("numba"),
+        "pyarrow": pa.__version__,
+    }
+    path = Path(out) / "campaign.json"
+    manifest = json.loads(path.read_text(encoding="utf-8"))
+    manifest.setdefault("sessions", []).append(entry)
+    with atomic_write(path) as fh:
+        json.dump(manifest, fh, indent=2)
+    return entry
 
 
 def task_seconds(out: str | Path) -> float:
