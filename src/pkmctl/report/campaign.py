@@ -87,9 +87,14 @@ def comparison_lines(spec: CampaignSpec, rows: list[dict], q, metrics: list[str]
     return [*short_answer(spec, rows, q, metrics), "", *out]
 
 
+#: A short answer names the cells of a verdict up to this many, else gives their range.
+_LIST = 4
+
+
 def short_answer(spec: CampaignSpec, rows: list[dict], q, metrics: list[str]) -> list[str]:
     """One line per metric: in how many cells ``q.controller`` is better, worse, or the
-    data cannot tell; the range of its ratios where better, every cell where worse."""
+    data cannot tell; for each verdict its cells (up to :data:`_LIST`) or the range of
+    its ratios, from the lowest to the highest, with their cells."""
     out = [f"**{q.name}** ({q.controller} against {q.baseline}), error ratio "
            f"{q.controller} / {q.baseline} with its 95 % interval:"]  # fmt: skip
     ref = 0 if spec.center is not None else -1
@@ -104,16 +109,19 @@ def short_answer(spec: CampaignSpec, rows: list[dict], q, metrics: list[str]) ->
             f"- {m}: better in {len(pays)} of {len(mine)} cells, worse in {len(hurts)}, "
             f"cannot tell in {len(unclear)}"
         )
-        if pays:
-            lo, hi = pays[0], pays[-1]
-            line += f"; where better, from {_ratio(lo)} ({_cell_name(spec, lo['cell'])})"
-            if hi is not lo:
-                line += f" to {_ratio(hi)} ({_cell_name(spec, hi['cell'])})"
-        if hurts:
-            line += "; worse at " + "; ".join(
-                f"{_cell_name(spec, r['cell'])} ({_ratio(r)})" for r in hurts
-            )
-        if unclear:
+        for word, group in (("better", pays), ("worse", hurts)):
+            group = sorted(group, key=lambda r: r["ratio"])
+            if 0 < len(group) <= _LIST:
+                line += f"; {word} at " + "; ".join(
+                    f"{_cell_name(spec, r['cell'])} ({_ratio(r)})" for r in group
+                )
+            elif group:  # many cells: the range, from the best to the worst ratio
+                lo, hi = group[0], group[-1]
+                line += (
+                    f"; {word} from {_ratio(lo)} ({_cell_name(spec, lo['cell'])}) to "
+                    f"{_ratio(hi)} ({_cell_name(spec, hi['cell'])})"
+                )
+        if 0 < len(unclear) <= _LIST:
             line += "; cannot tell at " + "; ".join(_cell_name(spec, r["cell"]) for r in unclear)
         line += (
             f". At {_cell_name(spec, ref)}: {q.controller} {_g(c0['controller_mean'])}, "
