@@ -42,6 +42,7 @@ def test_bench_quick_smoke(tmp_path):
     camp = data["campaign"]  # issue 11: campaign speed, side by side in one run
     assert camp["one_worker"]["wall_s"] > 0 and camp["two_workers"]["work_s"] > 0
     assert camp["dask"]["wall_s"] > 0 and 0 < camp["overhead"]["overhead_fraction"] < 1
+    assert camp["ceiling"]["ratio"] > 0
     targets = {r[0]: r[2] for r in rows(data)}
     assert targets["  2 workers / 1, start excluded"] == "≥ 1.8 x"
     assert targets["  Dask / local, start excluded"] == "≥ 0.9 x"
