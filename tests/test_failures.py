@@ -204,6 +204,7 @@ def test_what_does_not_fit_in_memory_is_refused_in_one_line(tmp_path, monkeypatc
     args = [*command, "--out", str(out), "--duration", "60"]
     line = one_line(runner.invoke(app, args), 2)
     assert "needs" in line and "64 MiB available" in line
+    assert "logging.every = " in line  # the way out that keeps the duration
     assert not out.exists() and not leftovers(tmp_path)
 
 
