@@ -400,7 +400,7 @@ class Setup:
     def bundle(self, kind: str) -> tuple:
         return self.bundles[kind]
 
-    def output(self, status: int, m: int, dt: float, *, sensor_log: bool = True) -> LoopOutput:
+    def output(self, status: int, m: int, dt: float) -> LoopOutput:
         """The LoopOutput of a run that stopped after m periods with ``status``."""
         logs = self.logs
         rows = -(-m // self.every)  # k = 0, every, ... < m
@@ -409,7 +409,7 @@ class Setup:
             steps=int(m),
             logs={name: a[:rows] for name, a in zip(LOG_NAMES, logs.arrays, strict=True)},
             controller_log=logs.controller[:rows] if self.n_log else None,
-            sensor_log=logs.sensor[:rows] if self.n_slog and sensor_log else None,
+            sensor_log=logs.sensor[:rows] if self.n_slog else None,
             final_state={k: b[1] for k, b in self.bundles.items()},
             kernel_seconds=dt,
             metrics=self.metrics,

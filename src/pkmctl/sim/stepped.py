@@ -5,8 +5,8 @@ compiled function, specialised to the sensor, controller and actuator types exac
 :func:`pkmctl.sim.loop.loop_for` does, runs sensor → controller → actuator command, the
 actuator's limb forces for each sub-step (its continuous state, e.g. a drive's lag,
 integrated by RK4 over the sub-step: it does not depend on the plant), the metrics'
-accumulators and, every ``logging.every`` periods, the log of the period (the
-controller's row included); then Python steps the plant's stepper ``substeps``
+accumulators and, every ``logging.every`` periods, the log of the period (the sensor's
+and the controller's rows included); then Python steps the plant's stepper ``substeps``
 times with those forces and the held disturbance, and reads the state back. The limb
 forces are held over each sub-step (the closed-form loop evaluates them at each RK4
 stage: the same for an ideal actuator, whose forces are constant over the period). The
@@ -18,6 +18,7 @@ state blew up: for MuJoCo a fatal warning or a closure residual over 1 um).
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -33,6 +34,7 @@ from pkmctl.parts import (
     controller_log,
     controller_step,
     plant_observe,
+    sensor_log,
     sensor_measure,
 )
 from pkmctl.sim.loop import (
@@ -52,7 +54,8 @@ def _period(
     plant, x, pw, sensor, ss, sw, ctrl, cs, cw, act, ast, aw, n_z, h, k, row,
     ref, qdes, dist, qs, taus, rk, ast_s, vec, logs, log_c, log_s, acc, mp, mw,
 ):  # fmt: skip
-    """Period k up to the plant: returns the status of x (0: valid) and fills ``taus``.
+    """Period k up to the plant: returns the status of x (0: valid, 3: the sensor could
+    not measure) and fills ``taus``.
 
     ``row``: the log's row of this period, -1 if it is not logged; ``ref`` (9,) and
     ``qdes`` (4,) its reference and desired limb lengths; ``qs`` (4,) the stepper's limb
@@ -67,7 +70,12 @@ def _period(
     y, F, cmd, q, Fa = vec[0], vec[1, 0:3], vec[2, 0:4], vec[4, 0:4], vec[5, 0:3]
     log_X, log_Xd, log_y, log_F, log_tau, log_q, log_dist = logs
     sensor_measure(sensor, ss, sw, x, y)
+    for i in range(6):
+        if not math.isfinite(y[i]):
+            return 3
     logged = row >= 0
+    if logged and log_s.shape[0] > 0:
+        sensor_log(sensor, ss, log_s[row])
     if logged and log_c.shape[0] > 0:
         controller_log(ctrl, cs, log_c[row])
     controller_step(ctrl, cs, cw, y, ref, F)
@@ -169,5 +177,4 @@ def run_stepped(
     except NumbaError as exc:
         raise compile_error(parts, exc) from exc
     dt = time.perf_counter() - t0
-    # this driver does not log a sensor's row (q_measured is the stepper's q)
-    return run.output(status, m, dt, sensor_log=False)
+    return run.output(status, m, dt)
