@@ -133,6 +133,15 @@ def test_decimated_result_round_trips_with_its_metrics(tmp_path):
     assert metrics.summary(back) == metrics.summary(r)
 
 
+def test_campaign_paths_honour_decimation():
+    """simulate_many (a campaign's workers reuse their buffers) and the precompiling
+    workers (which shorten the run to one period) take a decimated scenario."""
+    sc = _scenario(**{"timing.duration": 0.2, "logging.every": 100})
+    runs = sim.simulate_many(sc, "pd", seeds=[1, 2], workers=2, keep="metrics")
+    assert runs[1] == {"seed": 2, **metrics.summary(pkmctl.simulate(sc, "pd", seed=2))}
+    assert sim._compile_group(sc.to_toml(), ["pd"]) == ""
+
+
 def test_windows_the_loop_did_not_accumulate_are_refused():
     r = pkmctl.simulate(_scenario(**{"timing.duration": 0.3, "logging.every": 10}), "smc")
     with pytest.raises(ValueError, match=r"t_from = 0.1: the log is decimated"):
