@@ -135,47 +135,42 @@ def metric_values(acc: np.ndarray, mp: np.ndarray) -> dict[str, np.ndarray | int
 # the same order (each e, each e * e rounded), and the metrics of a decimated run equal
 # those the log of a full one gives. LLVM inlines it, keeping these flags.
 @kernel(refcount=False, fastmath=False, llvm_inline=True)
-def accumulate_metrics(acc, mp, k, Xd, x, qd, q, tau, R, Jq, qw):
-    """Add period k to the accumulators ``acc``: errors e = (X_d - X, q_d - q) scaled,
+def accumulate_metrics(acc, mp, k, Xd, x, qd, q, tau, R, Jq, qw, e):
+    """Add period k to the accumulators ``acc``: errors e (7,) = (X_d - X, q_d - q) scaled,
     tau (4,) the limb forces at t_k, x the plant state at t_k (true limb speeds
-    |J(X) Xdot| when a speed limit is set; R, Jq, qw scratch)."""
-    nw = int(mp[0])
-    for i in range(7):
-        if i < 3:
-            e = (Xd[i] - x[i]) * mp[_MP_SCALE + i]
-        else:
-            e = (qd[i - 3] - q[i - 3]) * mp[_MP_SCALE + i]
-        ae = abs(e)
-        for w in range(nw):
-            if k >= mp[_MP_START + w]:
-                b = w * _PER_WINDOW + i
-                acc[b] += e
-                acc[b + 7] += e * e
-                if ae > acc[b + 14]:
-                    acc[b + 14] = ae
-    t = nw * _PER_WINDOW
-    at = False
+    |J(X) Xdot| when a speed limit is set; R, Jq, qw scratch). Branch-free inner loops
+    of fixed length, so that LLVM can vectorise them."""
+    for i in range(3):
+        e[i] = (Xd[i] - x[i]) * mp[_MP_SCALE + i]
     for i in range(4):
-        if k > 0:
+        e[3 + i] = (qd[i] - q[i]) * mp[_MP_SCALE + 3 + i]
+    nw = int(mp[0])
+    for w in range(nw):
+        if k >= mp[_MP_START + w]:
+            b = w * _PER_WINDOW
+            for i in range(7):
+                acc[b + i] += e[i]
+                acc[b + 7 + i] += e[i] * e[i]
+                acc[b + 14 + i] = max(acc[b + 14 + i], abs(e[i]))
+    t = nw * _PER_WINDOW
+    if k > 0:
+        for i in range(4):
             acc[t + _A_CHAT + i] += abs(tau[i] - acc[t + _A_PREV + i])
+    at = 0
+    for i in range(4):
         acc[t + _A_PREV + i] = tau[i]
-        a = abs(tau[i])
-        if a > acc[t + _A_PEAK + i]:
-            acc[t + _A_PEAK + i] = a
-        if a >= mp[_MP_FLIM]:
-            at = True
-    if at:
+        acc[t + _A_PEAK + i] = max(acc[t + _A_PEAK + i], abs(tau[i]))
+        at += abs(tau[i]) >= mp[_MP_FLIM]
+    if at > 0:
         acc[t + _A_AT] += 1.0
     if mp[_MP_VLIM] < math.inf:
         limb_jacobian(mp[_MP_GEOM : _MP_GEOM + 11], x[0:3], R, Jq, qw)
-        over = False
+        over = 0
         for i in range(4):
             v = abs(Jq[i, 0] * x[3] + Jq[i, 1] * x[4] + Jq[i, 2] * x[5])
-            if v > acc[t + _A_SPEED + i]:
-                acc[t + _A_SPEED + i] = v
-            if v > mp[_MP_VLIM]:
-                over = True
-        if over:
+            acc[t + _A_SPEED + i] = max(acc[t + _A_SPEED + i], v)
+            over += v > mp[_MP_VLIM]
+        if over > 0:
             acc[t + _A_OVER] += 1.0
 
 
@@ -204,7 +199,7 @@ def _run_loop(
     y, F, cmd, tau, q, Fa = vec[0], vec[1, 0:3], vec[2, 0:4], vec[3, 0:4], vec[4, 0:4], vec[5, 0:3]
     xs = rk[4, 0:nx]
     log_X, log_Xd, log_y, log_F, log_tau, log_q, log_dist = logs
-    R, Jm, qm = mw
+    R, Jm, qm, ev = mw
     h = Tc / substeps
     log_c_on = log_c.shape[0] > 0
     log_s_on = log_s.shape[0] > 0
@@ -260,7 +255,7 @@ def _run_loop(
                             log_q[row, i] = q[i]
                         for i in range(3):
                             log_F[row, i] = Fa[i]
-                    accumulate_metrics(acc, mp, k, r, x, qdes[j], q, tau, R, Jm, qm)
+                    accumulate_metrics(acc, mp, k, r, x, qdes[j], q, tau, R, Jm, qm, ev)
             for i in range(nx):
                 x[i] += h / 6.0 * (rk[0, i] + 2.0 * rk[1, i] + 2.0 * rk[2, i] + rk[3, i])
             for i in range(n_z):
@@ -395,7 +390,7 @@ class Setup:
     n_slog: int
     every: int
     metrics: np.ndarray  # the accumulators
-    metric_work: tuple  # their scratch: R (3, 3), Jq (4, 3), q (4,)
+    metric_work: tuple  # their scratch: R (3, 3), Jq (4, 3), q (4,), e (7,)
 
     def bundle(self, kind: str) -> tuple:
         return self.bundles[kind]
@@ -430,7 +425,7 @@ def setup(
         raise ValueError(f"buffers: {logs.n} rows, the run logs {n}")
     if logs.sensor.shape != ((n, n_slog) if n_slog else (0, 1)):  # buffers of another sensor
         logs.sensor = np.empty((n if n_slog else 0, max(1, n_slog)))
-    work = (np.empty((3, 3)), np.empty((4, 3)), np.empty(4))
+    work = (np.empty((3, 3)), np.empty((4, 3)), np.empty(4), np.empty(7))
     return Setup(
         copied, logs, parts["actuator"].continuous, n_log, n_slog, int(inputs.every),
         _accumulators(inputs.metrics), work,

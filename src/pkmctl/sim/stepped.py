@@ -87,7 +87,7 @@ def _period(
             log_dist[row, i] = dist[i]
         for i in range(6):
             log_y[row, i] = y[i]
-    R, Jm, qm = mw
+    R, Jm, qm, ev = mw
     for sub in range(taus.shape[0]):
         tau = taus[sub]
         actuator_force(act, ast, cmd, tau)
@@ -99,7 +99,7 @@ def _period(
                     log_q[row, i] = qs[i]
                 for i in range(3):
                     log_F[row, i] = Fa[i]
-            accumulate_metrics(acc, mp, k, ref, x, qdes, qs, tau, R, Jm, qm)
+            accumulate_metrics(acc, mp, k, ref, x, qdes, qs, tau, R, Jm, qm, ev)
         if n_z > 0:  # RK4 of the actuator's continuous state over the sub-step
             for st in range(4):
                 if st == 0:
