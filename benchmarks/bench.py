@@ -453,7 +453,7 @@ def rows(res: dict) -> list[tuple[str, str, str, str]]:
     enc = res.get("encoder")
     if enc:
         row(
-            "encoder measure: q^, FK, J^+ (compiled, warm)",
+            "encoder measure, compiled, warm",
             f"{enc['measure_us']:.3f} us",
             "encoder",
             enc["measure_us"],
