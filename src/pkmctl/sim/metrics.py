@@ -134,7 +134,7 @@ def _use_loop(result, source: str) -> bool:
     every = _every(result)
     if source == "log" and every > 1:
         raise ValueError(
-            f"source = 'log': this run logged every {every}th period only "
+            f"source = 'log': this run logged one row every {every} periods "
             "(logging.every); its metrics over every period are source='loop'"
         )
     if source == "loop" or (source == "auto" and every > 1):

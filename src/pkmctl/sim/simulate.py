@@ -130,7 +130,7 @@ def check_memory(need: int, what: str, *, decimated=None, every: int = 1, period
         for n in _EVERY_SUGGESTIONS:
             if every < n <= periods and decimated(n) <= have:
                 hint = (
-                    f"log every {n}th period (logging.every = {n} needs "
+                    f"log one row every {n} periods (logging.every = {n} needs "
                     f"{_gib(decimated(n))}; the metrics still cover every period), "
                 )
                 break
