@@ -16,7 +16,7 @@ import numpy as np
 from benchmarks.timing import best_time
 from pkmctl._jit import kernel
 from pkmctl.model.dynamics import dynamics_kernel, make_work, regressor_kernel
-from pkmctl.parts import controller_step, plant_derivative
+from pkmctl.parts import controller_step, plant_derivative, sensor_measure
 
 __all__ = ["render", "run_all"]
 
@@ -59,6 +59,53 @@ def _loop_control(p, state, work, y, ref, F, n):
         controller_step(p, state, work, y, ref, F)
         acc += F[0]
     return acc
+
+
+@kernel(refcount=False)
+def _loop_sensor(p, state, work, x, y, k0, n, Tc, measure):
+    acc = 0.0
+    for k in range(k0, k0 + n):
+        t = k * Tc  # the paper's trajectory (eq. 54), one sample per control period
+        x[0] = 0.7 + 0.02 * np.sin(2.0 * t)
+        x[1] = np.pi / 6 * np.sin(2.0 * t)
+        x[2] = np.pi / 6 * np.cos(2.0 * t)
+        x[3] = 0.04 * np.cos(2.0 * t)
+        if measure:
+            sensor_measure(p, state, work, x, y)
+        acc += y[0] + y[4] + x[0]
+    return acc
+
+
+def bench_encoder(quick: bool = False) -> dict[str, float]:
+    """Microseconds per call of the ``encoder`` sensor's measure (quantise the plant's four
+    lengths, forward kinematics warm-started at the previous pose, J^+ rate) from compiled
+    code, warm, on the ``prototype`` scenario's encoder at 1 kHz along the paper's
+    trajectory; the same loop without the call (the pose's sines) is subtracted."""
+    import pkmctl
+    from pkmctl.fuzzy import FLC
+    from pkmctl.parts import PartContext, get_part
+
+    sc = pkmctl.Scenario.builtin("prototype")
+    Tc = sc.timing.control_period
+    ctx = PartContext(sc.plant(), sc.controller_mechanism(), sc.controller_gains(), Tc, FLC(), sc)
+    p, state, work = get_part("sensor", "encoder").make(ctx)
+    x, y = np.array([0.7, 0.0, 0.0, 0.0, 0.0, 0.0]), np.zeros(6)
+    n = 20_000 if quick else 200_000
+    _loop_sensor(p, state, work, x, y, 0, 100, Tc, True)  # compile; the sensor is warm
+    k0 = [100]
+
+    def run(measure: bool) -> None:
+        _loop_sensor(p, state, work, x, y, k0[0], n, Tc, measure)
+        k0[0] += n if measure else 0
+
+    with_call = best_time(lambda: run(True), 5)
+    without = best_time(lambda: run(False), 5)
+    return {
+        "measure_us": (with_call - without) / n * 1e6,
+        "loop_us": with_call / n * 1e6,
+        "fk_max_iterations": float(state[27]),
+        "samples": n,
+    }
 
 
 def bench_model(quick: bool = False) -> dict[str, float]:
@@ -340,6 +387,8 @@ def run_all(quick: bool = False, progress: Callable[[str], None] | None = None) 
     from benchmarks.flops import estimate as flop_estimate
 
     res["model"] = bench_model(quick=quick)
+    say("encoder sensor: quantise, forward kinematics, J^+ rate")
+    res["encoder"] = bench_encoder(quick=quick)
     say("closed-loop steps per second, one core")
     res["steps"] = bench_steps(0.2 if quick else 10.0, 1 if quick else 3)
     say("the prototype loop beside the ideal one")
@@ -374,6 +423,7 @@ TARGETS = {
     "batch": (">=", 350_000.0),
     "reproduce": ("<=", 15.0),
     "prototype_ratio": (">=", 0.5),
+    "encoder": ("<=", 1.0),
 }
 
 
@@ -404,6 +454,14 @@ def rows(res: dict) -> list[tuple[str, str, str, str]]:
         "regressor",
         md["regressor_us"],
     )
+    enc = res.get("encoder")
+    if enc:
+        row(
+            "encoder measure, compiled, warm",
+            f"{enc['measure_us']:.3f} us",
+            "encoder",
+            enc["measure_us"],
+        )
     for name, v in res["steps"].items():
         loop = v["loop_steps_per_s"]
         text = f"{loop:,.0f} steps/s"

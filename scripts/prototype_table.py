@@ -10,33 +10,35 @@ from __future__ import annotations
 import argparse
 import math
 
-import numpy as np
-
 import pkmctl
-from pkmctl.sim.metrics import chattering_index, peak_forces, rmse
+from pkmctl.sim.metrics import (
+    chattering_index,
+    limb_speed,
+    peak_forces,
+    rmse,
+    time_at_force_limit,
+    time_over_speed_limit,
+)
 
 CONTROLLERS = ("smc", "fsmc", "afsmc", "pd", "ctc")
 
 
 def measure(scenario: pkmctl.Scenario, controller: str) -> dict:
+    """The table's columns, from :mod:`pkmctl.sim.metrics` (over every control period,
+    whatever ``logging.every`` the scenario has)."""
     r = pkmctl.simulate(scenario, controller=controller)
-    a = scenario.actuators
-    lead = scenario.plant_spec.screw_lead
-    peak = 2 * math.pi * a.efficiency * a.peak_torque / lead
-    vmax = a.max_speed / 60 * lead
-    J = scenario.plant().jacobian(r.X)  # (N, 4, 3)
-    qd = np.abs(np.einsum("nij,nj->ni", J, r.Xdot)).max(axis=1)
-    Tc = scenario.timing.control_period
-    at = np.any(np.abs(r.tau) >= peak * (1 - 1e-9), axis=1)
+    lm = r.loop_metrics
+    duration = lm.periods * lm.period
+    speed = limb_speed(r)
     return {
         "rmse": rmse(r),
         "rmse1": rmse(r, t_from=1.0),
         "peak": float(peak_forces(r).max()),
-        "limit": peak,
-        "at_limit": float(at.mean()),
-        "speed": float(qd.max()),
-        "vmax": vmax,
-        "over": float((qd > vmax).sum() * (r.t[1] - r.t[0]) if r.t.size > 1 else Tc),
+        "limit": lm.force_limit,
+        "at_limit": (time_at_force_limit(r) or 0.0) / duration,
+        "speed": math.nan if speed is None else float(speed.max()),
+        "vmax": lm.speed_limit,
+        "over": time_over_speed_limit(r) or 0.0,
         "chat": chattering_index(r),
     }
 

@@ -36,6 +36,9 @@ def test_bench_quick_smoke(tmp_path):
     ):
         assert label in labels
     assert {r[0]: r[2] for r in rows(data)}["  prototype / ideal"] == "≥ 0.5 x"
+    enc = data["encoder"]  # issue 10: the encoder's measure from compiled code, warm
+    assert enc["measure_us"] > 0 and enc["samples"] > 0
+    assert {r[0]: r[2] for r in rows(data)}["encoder measure, compiled, warm"] == "≤ 1.0 us"
     assert data["flc"]["compiled_us"] > 0 and data["batch"]["workers"] >= 1
     assert data["flops"]["flops_per_step"] > data["flops"]["plant_eval_flops"] * 4
     assert data["reproduce"]["warm_s"] > 0

@@ -96,6 +96,29 @@ def test_encoder_pose_error_within_the_resolution_bound():
     assert r.info["fk_max_iterations"] <= 6
 
 
+def test_encoder_forward_kinematics_is_converged_to_its_tolerance():
+    """The encoder stops Gauss-Newton as soon as the error it predicts is below the 1e-12
+    step tolerance (two iterations from its extrapolated warm start, where waiting for a
+    step under 1e-12 took three and a fourth J): X^ must still be the least-squares pose
+    of q^ to that tolerance, and Xdot^ = J^+(X^) qdot^ with J within 1e-11 of X^."""
+    sc = _scenario(
+        **{"sensor.kind": "encoder", "timing.control_period": 1e-3, "timing.substeps": 20,
+           "timing.duration": 2.0}
+    )  # fmt: skip
+    r = pkmctl.simulate(sc, controller="pd")
+    model = sc.controller_mechanism()  # the geometry the forward kinematics assumes
+    X = r.X_measured.copy()
+    for _ in range(4):  # Gauss-Newton on |q(X) - q^|^2 from X^, to full convergence
+        residual = model.inverse_kinematics(X) - r.q_measured
+        X -= np.einsum("nij,nj->ni", np.linalg.pinv(model.jacobian(X)), residual)
+    assert np.abs(r.X_measured - X).max() <= 1e-12
+    # velocity_filter = 0, no delay: qdot^ is the backward difference of q^
+    qdot = np.diff(r.q_measured, axis=0) / 1e-3
+    rate = np.einsum("nij,nj->ni", np.linalg.pinv(model.jacobian(X[1:])), qdot)
+    np.testing.assert_allclose(r.Xdot_measured[1:], rate, rtol=1e-9, atol=1e-10)
+    assert r.info["fk_max_iterations"] <= 3
+
+
 def test_encoder_noise_is_seeded():
     sc = _scenario(
         **{"sensor.kind": "encoder", "sensor.noise": 1e-6, "timing.control_period": 1e-3,

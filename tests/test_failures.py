@@ -204,7 +204,19 @@ def test_what_does_not_fit_in_memory_is_refused_in_one_line(tmp_path, monkeypatc
     args = [*command, "--out", str(out), "--duration", "60"]
     line = one_line(runner.invoke(app, args), 2)
     assert "needs" in line and "64 MiB available" in line
+    assert "logging.every = " in line  # the way out that keeps the duration
     assert not out.exists() and not leftovers(tmp_path)
+
+
+@pytest.mark.parametrize("value", ["0", "-5", "2.5", '"ten"', "1001", "true"])
+def test_bad_logging_every_is_one_line_with_the_range(tmp_path, value):
+    text = f"[timing]\nduration = 0.05\n\n[logging]\nevery = {value}\n"
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    line = one_line(runner.invoke(app, ["simulate", str(path), "--out", str(tmp_path / "o")]), 2)
+    shown = {"true": "True", '"ten"': "'ten'"}.get(value, value)
+    assert f"logging.every = {shown}: must be an integer in [1, 1000]" in line
+    assert not (tmp_path / "o").exists()
 
 
 def test_memory_estimate_is_the_size_of_the_logs():

@@ -29,7 +29,13 @@ from pkmctl.io.atomic import atomic_write, check_output_folder, staged_folder
 from pkmctl.io.results import save_result
 from pkmctl.sim.result import Result
 from pkmctl.sim.scenario import Scenario
-from pkmctl.sim.simulate import check_memory, memory_needed, precompile, simulate
+from pkmctl.sim.simulate import (
+    _disturbance_count,
+    check_memory,
+    memory_needed,
+    precompile,
+    simulate,
+)
 
 __all__ = ["CONTROLLER_ORDER", "ReproduceOutput", "reproduce"]
 
@@ -69,13 +75,17 @@ def reproduce(
         raise TypeError(f"scenario: expected a pkmctl.Scenario, got {scenario!r}")
     if duration is not None:
         scenario = scenario.replace(**{"timing.duration": float(duration)})
-    n = int(round(scenario.timing.duration / scenario.timing.control_period))
+    n = scenario.timing.periods
     # All five runs' results are kept for the tables and figures: they must fit together.
     runs = len(CONTROLLER_ORDER)
-    check_memory(
-        memory_needed(n, _MAX_CONTROLLER_LOG, runs=runs),
-        f"reproduce ({runs} runs of {scenario.timing.duration:g} s)",
-    )
+    every = scenario.logging.every
+
+    def need(e: int) -> int:
+        return memory_needed(n, _MAX_CONTROLLER_LOG, runs=runs, every=e, sensor_log=4,
+                             disturbance_values=_disturbance_count(scenario))  # fmt: skip
+
+    check_memory(need(every), f"reproduce ({runs} runs of {scenario.timing.duration:g} s)",
+                 decimated=need, every=every, periods=n)  # fmt: skip
 
     def compiling(todo: list[str], n: int) -> None:
         say(f"compiling {len(todo)} control loops in {n} processes (once per machine)…")

@@ -45,7 +45,9 @@ Every control period the loop runs sensor → controller → actuator → plant 
    there and :func:`pkmctl.simulate` raises ``SimulationDiverged`` naming the time.
 5. optionally a **report**, ``report(p, final_state) -> dict``, plain Python, run once
    after the loop: what the part counted (the drive: speed-limit violations), put into
-   ``Result.info``.
+   ``Result.info``; an actuator may state its **limits**, ``limits(p) -> (force, speed)``
+   (N per limb, m/s of limb speed; inf: none), which the loop's metrics count periods
+   against (time at the force limit, time over the speed limit, peak limb speed).
 
 Each kind has a registry (name → :class:`Part`); scenarios and the CLI choose parts by
 name. A user adds one from their own module with a decorator
@@ -147,6 +149,7 @@ class Part:
     sources: tuple[str, ...] = ()
     builtin: bool = False
     stepper: Callable[[Any, PartContext, float], Any] | None = None
+    limits: Callable[[Any], tuple[float, float]] | None = None
     compiled: dict[str, Any] = field(default_factory=dict)
 
     def make(self, ctx: PartContext) -> tuple[Any, np.ndarray, np.ndarray]:
@@ -244,6 +247,7 @@ def _register(
     report: Callable | None = None,
     builtin: bool = False,
     stepper: Callable | None = None,
+    limits: Callable | None = None,
 ) -> Part:
     reg = _REGISTRY[kind]
     if not isinstance(name, str) or not name or name != name.strip():
@@ -265,6 +269,9 @@ def _register(
         )
     if stepper is not None and kind != "plant":
         raise PartError(f"{kind} {name!r}: only a plant can have a stepper")
+    if limits is not None and (kind != "actuator" or not callable(limits)):
+        raise PartError(f"{kind} {name!r}: limits = {limits!r}: only an actuator has limits, "
+                        "a function of its bundle giving (force N, speed m/s)")  # fmt: skip
     for role in _REQUIRED[kind]:
         if role == "derivative" and stepper is not None:
             continue  # a stepped plant is advanced by its stepper, not integrated by the loop
@@ -316,6 +323,7 @@ def _register(
         sources=tuple(sorted(sources)),
         builtin=builtin,
         stepper=stepper,
+        limits=limits,
     )
     reg[name] = part
     _BY_TYPE[(kind, params)] = part
@@ -360,7 +368,8 @@ def _decorator(kind: str, main_role: str):
     Options: ``state_size`` (int, or a function of the bundle), ``work`` (an int n for
     one float64 array of n, or a function of the bundle giving a tuple of arrays),
     ``initial_state`` (function of the bundle), ``description``, ``label`` (its name in
-    reports), and the other step functions of a {kind} ({_others(kind, main_role)}).
+    reports), ``limits`` (an actuator's (force N, speed m/s) from its bundle, inf: none),
+    and the other step functions of a {kind} ({_others(kind, main_role)}).
     Raises :class:`PartError` (one line) on a taken name or a wrong signature.
     """
     return register

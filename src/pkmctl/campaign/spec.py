@@ -344,7 +344,10 @@ class CampaignSpec:
         if not isinstance(name, str) or not name:
             raise _fail(f"name = {name!r}: must be a non-empty string")
         identity = {
-            "base": base.model_dump(mode="json", by_alias=True),
+            # logging.every changes no record (metrics are computed over every period in the
+            # loop), so it is not part of what the campaign is: a store made before the
+            # option existed, or with another value, still resumes
+            "base": base.model_dump(mode="json", by_alias=True, exclude={"logging"}),
             "cells": cells,
             "controllers": controllers,
             "seeds": seeds,

@@ -3,9 +3,10 @@
 ``save_result(result, directory)`` writes ``<stem>.parquet`` (or ``<stem>.csv`` with
 ``fmt="csv"``): one row per control period with t, X, Xdot, X_desired, Xdot_desired, q,
 q_desired, F, tau, tau_desired, disturbance and, for AFSMC, theta_hat; and ``<stem>.json``
-(the scenario as TOML text, the controller, the metrics, the column names and the
-table's file name). ``load_result`` reads them back into a
-:class:`~pkmctl.Result`, bit for bit.
+(the scenario as TOML text, the controller, the metrics, the loop's metric accumulators,
+the column names and the table's file name). ``load_result`` reads them back into a
+:class:`~pkmctl.Result`, bit for bit; a decimated run's metrics (``logging.every`` > 1)
+come back from the accumulators, not from the rows it logged.
 
 Parquet is the default: a 10 s run at 20 kHz has 200,000 rows and up to 83 columns,
 which takes ~8 s to print as CSV with round-trip precision and ~0.2 s as Parquet
@@ -108,6 +109,7 @@ def save_result(
         "columns": names,
         "table": table_path.name,
         "metrics": metrics.summary(result) if result.t.size > 1 else None,
+        "loop_metrics": None if result.loop_metrics is None else result.loop_metrics.to_dict(),
         "scenario_toml": result.scenario.to_toml(),
     }
     with atomic_write(json_path) as fh:
@@ -137,7 +139,9 @@ def load_result(json_path: Path) -> Result:
         fields[name] = data[:, col : col + width]
         col += width
     theta = data[:, col:] if col < data.shape[1] else None
+    lm = meta.get("loop_metrics")
     return Result(
+        loop_metrics=None if lm is None else metrics.LoopMetrics.from_dict(lm),
         scenario=Scenario.from_toml(meta["scenario_toml"]),
         controller=meta["controller"],
         theta_hat=theta,

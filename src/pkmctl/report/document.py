@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pkmctl.sim.metrics import RMSE_KEYS, chattering_index, peak_forces, rmse
+from pkmctl.sim.metrics import RMSE_KEYS, chattering_index, peak_forces, rmse, sample_count
 
 from .figures import FIGURES
 from .tables import (
@@ -166,8 +166,7 @@ def _transient_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
     for c, r in pairs:
         if r.t[-1] <= _T_TRANSIENT:
             continue
-        n_all = r.t.size
-        n_after = int(np.sum(r.t >= _T_TRANSIENT - 1e-12))
+        n_all, n_after = sample_count(r), sample_count(r, t_from=_T_TRANSIENT)
         sse_all = n_all * rmse(r)["beta_deg"] ** 2
         sse_after = n_after * rmse(r, t_from=_T_TRANSIENT)["beta_deg"] ** 2
         if sse_all > 0:

@@ -60,6 +60,7 @@ builtin_part(
     build=None,
     state_size=0,
     work=lambda p: (np.empty((3, 3)), np.empty((4, 3)), np.empty(4)),
+    limits=lambda p: (p.force_limit if p.force_limit > 0 else math.inf, math.inf),
     description="minimum-norm split at the measured pose, optional force limit",
 )
 
@@ -186,5 +187,6 @@ builtin_part(
     continuous=4,
     work=lambda p: (np.empty((3, 3)), np.empty((4, 3)), np.empty(4), np.empty(4)),
     report=_drive_report,
+    limits=lambda p: (p.gain * p.peak_torque, p.max_speed),  # peak force, maximum limb speed
     description="servo drives on ball screws: split, f = 2 pi eta T / l, peak torque, lag",
 )

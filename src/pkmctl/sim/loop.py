@@ -6,6 +6,13 @@ the period the plant (and the actuator's continuous state, if any) is integrated
 fixed-step RK4 with ``substeps`` steps, under the actuator's limb forces and the
 disturbance tau_d' (redrawn every ``disturbance.hold`` seconds, seeded, held).
 
+Every ``every``-th period (k = 0, every, 2 every, ...) is logged; every period adds to the
+metrics' accumulators (:func:`accumulate_metrics`), so a decimated log changes no metric.
+The per-period inputs (reference, desired limb lengths, disturbance index) come in chunks
+(:class:`Inputs`): the whole run at once when every period is logged (the prepared arrays
+are then the log's own), a few seconds at a time otherwise, so that memory grows with the
+log, not with the run.
+
 :func:`run_parts` compiles one loop per combination of part types (cached on disk,
 keyed by the parts' sources: :func:`pkmctl._jit.specialise`) and runs it. Nothing in
 this file knows any part by name: the parts are selected by the types of their
@@ -17,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +32,7 @@ import numpy as np
 from numba.core.errors import NumbaError
 
 from pkmctl._jit import kernel, specialise, specialised_dir
+from pkmctl.model.kinematics import limb_jacobian
 from pkmctl.parts import (
     Part,
     PartError,
@@ -40,12 +49,16 @@ from pkmctl.parts import (
 
 __all__ = [
     "LOG_NAMES",
+    "Inputs",
     "LoopOutput",
     "STATUS",
     "Setup",
+    "accumulate_metrics",
     "compile_error",
     "is_compiled",
     "loop_for",
+    "metric_params",
+    "metric_values",
     "pose_status",
     "run_parts",
     "setup",
@@ -70,17 +83,114 @@ def pose_status(x):
     return 0
 
 
+# ------------------------------------------------------------------ in-loop metrics
+# The metrics' parameters (float64, :func:`metric_params`): the number of windows W, the
+# scale of the 7 errors to Table 4's units, the force at which a limb counts as at its
+# limit and the limb speed limit (inf: none), the true machine's geometry (11), the first
+# period of each window (W). The accumulators (:func:`metric_values` reads them): per
+# window [sum e (7), sum e^2 (7), max |e| (7)], then sum |tau(k) - tau(k-1)| (4), tau of
+# the previous period (4), max |tau| (4), periods at the force limit, max limb speed (4),
+# periods over the speed limit.
+_MP_SCALE, _MP_FLIM, _MP_VLIM, _MP_GEOM, _MP_START = 1, 8, 9, 10, 21
+_PER_WINDOW = 21
+_A_CHAT, _A_PREV, _A_PEAK, _A_AT, _A_SPEED, _A_OVER = 0, 4, 8, 12, 13, 17
+_A_TAIL = 18
+
+
+def metric_params(
+    starts, scale, force_threshold: float, speed_limit: float, geometry
+) -> np.ndarray:
+    """The metrics' parameter vector: window starts (periods) (W,), scale (7,) of the
+    errors [z, alpha, beta, q1..q4], the force threshold and speed limit (inf: none), the
+    true machine's geometry (11,)."""
+    starts = [float(s) for s in starts]
+    head = [float(len(starts)), *map(float, scale), float(force_threshold), float(speed_limit)]
+    return np.array([*head, *map(float, geometry), *starts])
+
+
+def _accumulators(mp: np.ndarray) -> np.ndarray:
+    return np.zeros(int(mp[0]) * _PER_WINDOW + _A_TAIL)
+
+
+def metric_values(acc: np.ndarray, mp: np.ndarray) -> dict[str, np.ndarray | int]:
+    """The accumulators by name: sum_error, sum_squared_error, max_abs_error (W, 7),
+    chattering_sum, peak_force, peak_limb_speed (4,), periods_at_force_limit,
+    periods_over_speed_limit."""
+    w = int(mp[0])
+    per = acc[: w * _PER_WINDOW].reshape(w, 3, 7)
+    tail = acc[w * _PER_WINDOW :]
+    return {
+        "sum_error": per[:, 0].copy(),
+        "sum_squared_error": per[:, 1].copy(),
+        "max_abs_error": per[:, 2].copy(),
+        "chattering_sum": tail[_A_CHAT : _A_CHAT + 4].copy(),
+        "peak_force": tail[_A_PEAK : _A_PEAK + 4].copy(),
+        "periods_at_force_limit": int(tail[_A_AT]),
+        "peak_limb_speed": tail[_A_SPEED : _A_SPEED + 4].copy(),
+        "periods_over_speed_limit": int(tail[_A_OVER]),
+    }
+
+
+# Without FMA contraction: the sums then add exactly the terms NumPy's reductions add, in
+# the same order (each e, each e * e rounded), and the metrics of a decimated run equal
+# those the log of a full one gives. LLVM inlines it, keeping these flags.
+@kernel(refcount=False, fastmath=False, llvm_inline=True)
+def accumulate_metrics(acc, mp, k, Xd, x, qd, q, tau, R, Jq, qw, e):
+    """Add period k to the accumulators ``acc``: errors e (7,) = (X_d - X, q_d - q) scaled,
+    tau (4,) the limb forces at t_k, x the plant state at t_k (true limb speeds
+    |J(X) Xdot| when a speed limit is set; R, Jq, qw scratch). Branch-free inner loops
+    of fixed length, so that LLVM can vectorise them."""
+    for i in range(3):
+        e[i] = (Xd[i] - x[i]) * mp[_MP_SCALE + i]
+    for i in range(4):
+        e[3 + i] = (qd[i] - q[i]) * mp[_MP_SCALE + 3 + i]
+    nw = int(mp[0])
+    for w in range(nw):
+        if k >= mp[_MP_START + w]:
+            b = w * _PER_WINDOW
+            for i in range(7):
+                acc[b + i] += e[i]
+                acc[b + 7 + i] += e[i] * e[i]
+                acc[b + 14 + i] = max(acc[b + 14 + i], abs(e[i]))
+    t = nw * _PER_WINDOW
+    if k > 0:
+        for i in range(4):
+            acc[t + _A_CHAT + i] += abs(tau[i] - acc[t + _A_PREV + i])
+    at = 0
+    for i in range(4):
+        acc[t + _A_PREV + i] = tau[i]
+        acc[t + _A_PEAK + i] = max(acc[t + _A_PEAK + i], abs(tau[i]))
+        at += abs(tau[i]) >= mp[_MP_FLIM]
+    if at > 0:
+        acc[t + _A_AT] += 1.0
+    if mp[_MP_VLIM] < math.inf:
+        limb_jacobian(mp[_MP_GEOM : _MP_GEOM + 11], x[0:3], R, Jq, qw)
+        over = 0
+        for i in range(4):
+            v = abs(Jq[i, 0] * x[3] + Jq[i, 1] * x[4] + Jq[i, 2] * x[5])
+            acc[t + _A_SPEED + i] = max(acc[t + _A_SPEED + i], v)
+            over += v > mp[_MP_VLIM]
+        if over > 0:
+            acc[t + _A_OVER] += 1.0
+
+
 def _run_loop(
     plant, x, pw, sensor, ss, sw, ctrl, cs, cw, act, ast, aw, n_z, Tc, substeps,
-    ref, dist_values, dist_index, rk, ast_s, vec, logs, log_c, log_s,
+    k0, every, ref, qdes, dist_values, dist_index, rk, ast_s, vec, logs, log_c, log_s,
+    acc, mp, mw,
 ):  # fmt: skip
-    """The loop over len(ref) periods on preallocated arrays; returns (status, k).
+    """The loop over periods k0 .. k0 + len(ref) - 1 on preallocated arrays; returns
+    (status, k).
 
     x, ss, cs, ast are the parts' states, advanced in place; ``rk`` (5 + 5, n) holds the
     RK4 stages of the plant (rows 0-4) and of the actuator's continuous state (rows 5-9);
-    ``vec`` (6, 6) the per-period vectors y, F, cmd, tau, q, J^T tau; ``logs`` the
-    (n, .) arrays X, Xdot, y, F, tau, q, disturbance; ``log_c`` the controller's log
-    (n, m), or (0, m) for none, ``log_s`` the sensor's likewise. Returns status 0 when all
+    ``vec`` (6, 6) the per-period vectors y, F, cmd, tau, q, J^T tau. ``ref`` (c, 9),
+    ``qdes`` (c, 4) and ``dist_index`` (c,) are this chunk's reference, desired limb
+    lengths and disturbance index, from period k0 on. ``logs`` the (rows, .) arrays X,
+    Xdot, y, F, tau, q, disturbance of the whole run, row k // every for the periods
+    k = 0, every, 2 every, ...; ``log_c`` the controller's log (rows, m), or (0, m) for
+    none, ``log_s`` the sensor's likewise. ``acc`` the metrics' accumulators, ``mp`` their
+    parameters (:func:`metric_params`), ``mw`` their scratch. Returns status 0 when all
     periods ran, else the code of :data:`STATUS` with k the first period whose state (or
     measurement: status 3) is invalid.
     """
@@ -89,10 +199,14 @@ def _run_loop(
     y, F, cmd, tau, q, Fa = vec[0], vec[1, 0:3], vec[2, 0:4], vec[3, 0:4], vec[4, 0:4], vec[5, 0:3]
     xs = rk[4, 0:nx]
     log_X, log_Xd, log_y, log_F, log_tau, log_q, log_dist = logs
+    R, Jm, qm, ev = mw
     h = Tc / substeps
-    log_c_on = log_c.shape[0] == n
-    log_s_on = log_s.shape[0] == n
-    for k in range(n):
+    log_c_on = log_c.shape[0] > 0
+    log_s_on = log_s.shape[0] > 0
+    row = (k0 + every - 1) // every  # the first row at or after k0, logged at k = nxt
+    nxt = row * every
+    for j in range(n):
+        k = k0 + j
         status = pose_status(x)
         if status != 0:
             return status, k
@@ -100,20 +214,22 @@ def _run_loop(
         for i in range(6):
             if not math.isfinite(y[i]):
                 return 3, k
-        if log_s_on:
-            sensor_log(sensor, ss, log_s[k])
-        if log_c_on:
-            controller_log(ctrl, cs, log_c[k])  # the state used for F_k
-        r = ref[k]
+        logged = k == nxt
+        if logged and log_s_on:
+            sensor_log(sensor, ss, log_s[row])
+        if logged and log_c_on:
+            controller_log(ctrl, cs, log_c[row])  # the state used for F_k
+        r = ref[j]
         controller_step(ctrl, cs, cw, y, r, F)
         actuator_command(act, ast, aw, y, F, cmd)
-        dist = dist_values[dist_index[k]]
-        for i in range(3):
-            log_X[k, i] = x[i]
-            log_Xd[k, i] = x[3 + i]
-            log_dist[k, i] = dist[i]
-        for i in range(6):
-            log_y[k, i] = y[i]
+        dist = dist_values[dist_index[j]]
+        if logged:
+            for i in range(3):
+                log_X[row, i] = x[i]
+                log_Xd[row, i] = x[3 + i]
+                log_dist[row, i] = dist[i]
+            for i in range(6):
+                log_y[row, i] = y[i]
         for sub in range(substeps):
             for st in range(4):  # the RK4 stages, with one call site per part function
                 kx, kz = rk[st, 0:nx], rk[5 + st, 0:n_z]
@@ -133,23 +249,58 @@ def _run_loop(
                 actuator_derivative(act, ast_s, cmd, kz)
                 if sub == 0 and st == 0:
                     plant_observe(plant, xs, tau, pw, q, Fa)
-                    for i in range(4):
-                        log_tau[k, i] = tau[i]
-                        log_q[k, i] = q[i]
-                    for i in range(3):
-                        log_F[k, i] = Fa[i]
+                    if logged:
+                        for i in range(4):
+                            log_tau[row, i] = tau[i]
+                            log_q[row, i] = q[i]
+                        for i in range(3):
+                            log_F[row, i] = Fa[i]
+                    accumulate_metrics(acc, mp, k, r, x, qdes[j], q, tau, R, Jm, qm, ev)
             for i in range(nx):
                 x[i] += h / 6.0 * (rk[0, i] + 2.0 * rk[1, i] + 2.0 * rk[2, i] + rk[3, i])
             for i in range(n_z):
                 ast[i] += h / 6.0 * (rk[5, i] + 2.0 * rk[6, i] + 2.0 * rk[7, i] + rk[8, i])
             if pose_status(x) != 0:
                 break
-    return 0, n
+        if logged:
+            row += 1
+            nxt += every
+    return 0, k0 + n
+
+
+@dataclass(frozen=True, eq=False)
+class Inputs:
+    """What the loop reads every period, in chunks of ``chunk_size`` periods.
+
+    ``chunk(k0, k1)`` gives, for periods k0 .. k1 - 1, the reference (k1 - k0, 9)
+    [X_d, Xdot_d, Xddot_d], the desired limb lengths (k1 - k0, 4) (for the metrics) and the
+    index (k1 - k0,) into ``dist_values`` (m, 3), the held disturbance. ``periods`` in the
+    run; one logged row every ``every`` periods; ``metrics`` the metrics' parameters
+    (:func:`metric_params`).
+    """
+
+    periods: int
+    every: int
+    chunk_size: int
+    chunk: Callable[[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]
+    dist_values: np.ndarray
+    metrics: np.ndarray
+
+    @property
+    def rows(self) -> int:
+        """Logged rows of the whole run."""
+        return -(-self.periods // self.every)
+
+    def chunks(self) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+        """(k0, reference, desired lengths, disturbance index) of each chunk in turn."""
+        for k0 in range(0, self.periods, self.chunk_size):
+            yield (k0, *self.chunk(k0, min(self.periods, k0 + self.chunk_size)))
 
 
 @dataclass(frozen=True, eq=False)
 class LoopOutput:
-    """What :func:`run_parts` returns: status, periods run, logs and final states."""
+    """What :func:`run_parts` returns: status, periods run, logs (their rows), final
+    states, and the metrics' raw accumulators (:func:`metric_values`)."""
 
     status: int
     steps: int
@@ -158,10 +309,11 @@ class LoopOutput:
     sensor_log: np.ndarray | None
     final_state: dict[str, np.ndarray]
     kernel_seconds: float
+    metrics: np.ndarray
 
 
 class LogBuffers:
-    """The arrays one run logs into, (n, ...) each; reusable from run to run."""
+    """The arrays one run logs into, (rows, ...) each; reusable from run to run."""
 
     def __init__(self, n: int, controller_log: int = 0, sensor_log: int = 0) -> None:
         self.n = n
@@ -236,35 +388,48 @@ class Setup:
     n_z: int
     n_log: int
     n_slog: int
+    every: int
+    metrics: np.ndarray  # the accumulators
+    metric_work: tuple  # their scratch: R (3, 3), Jq (4, 3), q (4,), e (7,)
 
     def bundle(self, kind: str) -> tuple:
         return self.bundles[kind]
 
-    def output(self, status: int, m: int, dt: float, *, sensor_log: bool = True) -> LoopOutput:
+    def output(self, status: int, m: int, dt: float) -> LoopOutput:
         """The LoopOutput of a run that stopped after m periods with ``status``."""
         logs = self.logs
+        rows = -(-m // self.every)  # k = 0, every, ... < m
         return LoopOutput(
             status=int(status),
             steps=int(m),
-            logs={name: a[:m] for name, a in zip(LOG_NAMES, logs.arrays, strict=True)},
-            controller_log=logs.controller[:m] if self.n_log else None,
-            sensor_log=logs.sensor[:m] if self.n_slog and sensor_log else None,
+            logs={name: a[:rows] for name, a in zip(LOG_NAMES, logs.arrays, strict=True)},
+            controller_log=logs.controller[:rows] if self.n_log else None,
+            sensor_log=logs.sensor[:rows] if self.n_slog else None,
             final_state={k: b[1] for k, b in self.bundles.items()},
             kernel_seconds=dt,
+            metrics=self.metrics,
         )
 
 
 def setup(
-    parts: dict[str, Part], bundles: dict[str, tuple], n: int, buffers: LogBuffers | None
+    parts: dict[str, Part], bundles: dict[str, tuple], inputs: Inputs, buffers: LogBuffers | None
 ) -> Setup:
-    """Copy the bundles' states (the loop advances the copies) and size the log buffers."""
+    """Copy the bundles' states (the loop advances the copies), size the log buffers (one
+    row per logged period) and zero the metrics' accumulators."""
     copied = {k: (p, s.copy(), w) for k, (p, s, w) in bundles.items()}
     n_log = int(parts["controller"].log_size(bundles["controller"][0]))
     n_slog = int(parts["sensor"].log_size(bundles["sensor"][0]))
+    n = inputs.rows
     logs = LogBuffers(n, n_log, n_slog) if buffers is None else buffers
+    if logs.n != n:
+        raise ValueError(f"buffers: {logs.n} rows, the run logs {n}")
     if logs.sensor.shape != ((n, n_slog) if n_slog else (0, 1)):  # buffers of another sensor
         logs.sensor = np.empty((n if n_slog else 0, max(1, n_slog)))
-    return Setup(copied, logs, parts["actuator"].continuous, n_log, n_slog)
+    work = (np.empty((3, 3)), np.empty((4, 3)), np.empty(4), np.empty(7))
+    return Setup(
+        copied, logs, parts["actuator"].continuous, n_log, n_slog, int(inputs.every),
+        _accumulators(inputs.metrics), work,
+    )  # fmt: skip
 
 
 def compile_error(parts: dict[str, Part], exc: Exception) -> PartError:
@@ -278,20 +443,14 @@ def run_parts(
     *,
     period: float,
     substeps: int,
-    reference: np.ndarray,
-    dist_values: np.ndarray,
-    dist_index: np.ndarray,
+    inputs: Inputs,
     buffers: LogBuffers | None = None,
 ) -> LoopOutput:
     """Run the loop of ``parts`` (kind → :class:`~pkmctl.parts.Part`) from ``bundles``
-    (kind → (params, initial state, work)) over ``len(reference)`` periods.
-
-    ``reference`` (n, 9) is [X_d, Xdot_d, Xddot_d] at every t_k; ``dist_values``
-    (m, 3) and ``dist_index`` (n,) the held disturbance. The states in ``bundles`` are
-    copied, not changed.
+    (kind → (params, initial state, work)) over ``inputs.periods`` periods, chunk by chunk
+    (:class:`Inputs`). The states in ``bundles`` are copied, not changed.
     """
-    n = reference.shape[0]
-    run = setup(parts, bundles, n, buffers)
+    run = setup(parts, bundles, inputs, buffers)
     (plant_p, x, pw), (sensor_p, ss, sw) = run.bundle("plant"), run.bundle("sensor")
     (ctrl_p, cs, cw), (act_p, ast, aw) = run.bundle("controller"), run.bundle("actuator")
     logs, n_z = run.logs, run.n_z
@@ -299,15 +458,20 @@ def run_parts(
     vec = np.zeros((6, 6))
     ast_s = np.zeros(max(ast.shape[0], 1))[: ast.shape[0]]
     loop = loop_for(parts)
-    t0 = time.perf_counter()
+    head = (plant_p, x, pw, sensor_p, ss, sw, ctrl_p, cs, cw, act_p, ast, aw, n_z,
+            float(period), int(substeps))  # fmt: skip
+    tail = (rk, ast_s, vec, logs.arrays, logs.controller, logs.sensor, run.metrics,
+            inputs.metrics, run.metric_work)  # fmt: skip
+    status, k, dt = 0, inputs.periods, 0.0
     try:
-        status, k = loop(
-            plant_p, x, pw, sensor_p, ss, sw, ctrl_p, cs, cw, act_p, ast, aw, n_z,
-            float(period), int(substeps), reference, dist_values, dist_index, rk, ast_s, vec,
-            logs.arrays, logs.controller, logs.sensor,
-        )  # fmt: skip
+        for k0, ref, qdes, dist_index in inputs.chunks():
+            t0 = time.perf_counter()
+            status, k = loop(*head, k0, run.every, ref, qdes, inputs.dist_values, dist_index,
+                             *tail)  # fmt: skip
+            dt += time.perf_counter() - t0
+            if status:
+                break
     except NumbaError as exc:
         raise compile_error(parts, exc) from exc
-    dt = time.perf_counter() - t0
     _mark_compiled(loop)
-    return run.output(status, k if status else n, dt)
+    return run.output(status, k if status else inputs.periods, dt)

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pkmctl.sim.metrics import LoopMetrics
 from pkmctl.sim.scenario import Scenario
 
 __all__ = ["Result"]
@@ -13,7 +14,8 @@ __all__ = ["Result"]
 
 @dataclass(frozen=True, eq=False)
 class Result:
-    """One closed-loop run, sampled at every control period (N samples).
+    """One closed-loop run, sampled every ``logging.every`` control periods (N samples:
+    t = 0, every T_c, 2 every T_c, ...; every period by default).
 
     Carries its scenario and controller name. Arrays: ``t`` (N,); ``X``, ``Xdot``,
     ``X_desired``, ``Xdot_desired``, ``F`` (N, 3) (F: task-space force J^T tau applied
@@ -25,7 +27,10 @@ class Result:
     "sensor", "controller", "actuator") to its state array at the end; ``parts`` maps it
     to the part's name. ``success`` is False only for a partial result kept in a
     :class:`~pkmctl.SimulationDiverged`; ``message`` says why. ``info`` holds
-    ``kernel_seconds`` (wall time of the compiled loop) and ``steps``.
+    ``kernel_seconds`` (wall time of the compiled loop) and ``steps`` (control periods
+    run). ``loop_metrics``: the metrics the loop accumulated over every period
+    (:class:`pkmctl.sim.metrics.LoopMetrics`; what :mod:`pkmctl.sim.metrics` reports when
+    the log is decimated).
     """
 
     scenario: Scenario
@@ -51,6 +56,12 @@ class Result:
     success: bool = True
     message: str = "ok"
     info: dict = field(default_factory=dict)
+    loop_metrics: LoopMetrics | None = None
+
+    @property
+    def every(self) -> int:
+        """Control periods per logged sample (the scenario's ``logging.every``)."""
+        return int(self.scenario.logging.every)
 
     def rmse(self) -> dict[str, float]:
         """RMSE over all control samples (eq. 55-57): z in mm, angles in degrees, q in m."""
@@ -59,7 +70,8 @@ class Result:
         return rmse(self)
 
     def __repr__(self) -> str:
+        every = f", every={self.every}" if self.every > 1 else ""
         return (
             f"Result(controller={self.controller!r}, scenario={self.scenario.name!r}, "
-            f"N={self.t.size}, success={self.success})"
+            f"N={self.t.size}{every}, success={self.success})"
         )

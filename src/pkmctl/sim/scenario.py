@@ -160,6 +160,24 @@ class TimingSpec(_Model):
     substeps: int = Field(1, ge=1, le=1000)
     duration: float = Field(10.0, gt=0, le=3600)
 
+    @property
+    def periods(self) -> int:
+        """Control periods of the run, round(duration / control_period)."""
+        return int(round(self.duration / self.control_period))
+
+
+class LoggingSpec(_Model):
+    """What the loop keeps of the run: one row every ``every`` control periods (t = 0,
+    every T_c, 2 every T_c, ...); 1 = every period (the default). The metrics
+    (:mod:`pkmctl.sim.metrics`) are computed over every period inside the loop whatever
+    ``every`` is: decimating shrinks the time series, not what the run is judged by. An
+    hour at 20 kHz is 72 million periods (tens of GiB of log); every = 200 keeps one row
+    per 10 ms. Checked against the run's periods by :class:`Scenario`."""
+
+    # Any here, checked with the run's length in Scenario._physics: the message must give
+    # the range [1, periods], which this section alone does not know.
+    every: Any = 1
+
 
 def _in_range(lo: float, hi: float = math.inf, *, lo_open: bool = False, unit: str = ""):
     """A validator: a finite number in [lo, hi] ((lo, hi] if lo_open), one-line message."""
@@ -300,6 +318,7 @@ class Scenario(_Model):
     initial: InitialSpec = InitialSpec()
     disturbance: DisturbanceSpec = DisturbanceSpec()
     timing: TimingSpec = TimingSpec()
+    logging: LoggingSpec = LoggingSpec()
     actuators: ActuatorSpec = ActuatorSpec()
     plant_spec: PlantSpec = Field(PlantSpec(), alias="plant")
     payload: PayloadSpec = PayloadSpec()
@@ -323,6 +342,12 @@ class Scenario(_Model):
         if t.duration < t.control_period:
             raise ValueError(
                 f"timing.duration = {t.duration}: must be >= control_period ({t.control_period})"
+            )
+        every = self.logging.every
+        if not (isinstance(every, int) and not isinstance(every, bool) and 1 <= every <= t.periods):
+            raise ValueError(
+                f"logging.every = {every!r}: must be an integer in [1, {t.periods}] "
+                f"(control periods; {t.periods} is the run's length)"
             )
         # The whole desired trajectory must stay in the workspace, away from singularities.
         ts = np.linspace(0.0, t.duration, int(min(20001, max(2, t.duration / 1e-3))))

@@ -27,7 +27,16 @@ from pkmctl.model.dynamics import (
 )
 from pkmctl.model.mechanism import Mechanism
 from pkmctl.parts import Part, PartContext, PartError, get_part
-from pkmctl.sim.loop import STATUS, LogBuffers, is_compiled, run_parts
+from pkmctl.sim import metrics
+from pkmctl.sim.loop import (
+    STATUS,
+    Inputs,
+    LogBuffers,
+    is_compiled,
+    metric_params,
+    metric_values,
+    run_parts,
+)
 from pkmctl.sim.result import Result
 from pkmctl.sim.scenario import Scenario, ScenarioError
 from pkmctl.sim.stepped import run_stepped
@@ -41,16 +50,40 @@ __all__ = [
     "simulate_many",
 ]
 
-# Doubles per control period: what _prepare keeps (t, reference 9, q_d 4, tau_d 4) plus
-# the trajectory's temporaries (3 x 3), and the loop's logs (LogBuffers: 26 columns).
+# Doubles per logged row: what _prepare keeps (t, reference 9, q_d 4, tau_d 4) plus the
+# trajectory's temporaries (3 x 3), and the loop's logs (LogBuffers: 26 columns).
 _PREPARED_COLUMNS = 1 + 9 + 4 + 4 + 9
 _LOG_COLUMNS = 3 + 3 + 6 + 3 + 4 + 4 + 3
+# Per period of a chunk of a decimated run's inputs: t, the trajectory (3 x 3), the
+# reference 9, q_d 4, tau_d 4 and the disturbance index.
+_CHUNK_COLUMNS = 1 + 9 + 9 + 4 + 4 + 1
+#: Periods per chunk of a decimated run's inputs (about 15 MB of arrays).
+CHUNK_PERIODS = 1 << 16
+# logging.every values a refusal suggests (the smallest that fits)
+_EVERY_SUGGESTIONS = tuple(m * 10**e for e in range(7) for m in (1, 2, 5))[1:]
 
 
-def memory_needed(periods: int, controller_log: int = 0, *, runs: int = 1) -> int:
-    """Bytes of the arrays ``runs`` runs of ``periods`` control periods allocate (their
-    prepared reference, their logs and a controller log of ``controller_log`` columns)."""
-    return 8 * periods * (_PREPARED_COLUMNS + runs * (_LOG_COLUMNS + controller_log))
+def memory_needed(
+    periods: int,
+    controller_log: int = 0,
+    *,
+    runs: int = 1,
+    every: int = 1,
+    sensor_log: int = 0,
+    disturbance_values: int = 0,
+) -> int:
+    """Bytes of the arrays ``runs`` runs of ``periods`` control periods allocate, each
+    logging every ``every``-th period: the prepared reference (every period, or the
+    logged rows and one chunk of inputs at a time when decimated), the disturbance index,
+    the logs, a controller log of ``controller_log`` and a sensor log of ``sensor_log``
+    columns, and ``disturbance_values`` held disturbance values (3 each) per run."""
+    rows = -(-periods // every)
+    per_run = rows * (_LOG_COLUMNS + controller_log + sensor_log) + 3 * disturbance_values
+    if every == 1:
+        shared = periods * (_PREPARED_COLUMNS + 1)  # + the disturbance index (int64)
+    else:
+        shared = rows * _PREPARED_COLUMNS + min(periods, CHUNK_PERIODS) * _CHUNK_COLUMNS
+    return 8 * (shared + runs * per_run)
 
 
 def _available_memory() -> int | None:
@@ -82,16 +115,30 @@ def _gib(n: int) -> str:
     return f"{n / 2**30:.2f} GiB" if n >= 2**28 else f"{n / 2**20:.0f} MiB"
 
 
-def check_memory(need: int, what: str) -> None:
+def check_memory(need: int, what: str, *, decimated=None, every: int = 1, periods: int = 0) -> None:
     """Raise :class:`~pkmctl.errors.InsufficientMemory` (one line) if ``need`` bytes do not
-    fit in the memory available, before anything is allocated."""
+    fit in the memory available, before anything is allocated.
+
+    ``decimated(N)``, if given, is the need with ``logging.every = N``: the message then
+    offers the smallest N (1, 2, 5, 10, 20, ... up to ``periods``) that would fit.
+    """
     have = _available_memory()
-    if have is not None and need > have:
-        raise InsufficientMemory(
-            f"{what} needs {_gib(need)} of memory for its arrays, this machine has "
-            f"{_gib(max(have, 0))} available: shorten timing.duration or lengthen "
-            f"timing.control_period"
-        )
+    if have is None or need <= have:
+        return
+    hint = ""
+    if decimated is not None:
+        for n in _EVERY_SUGGESTIONS:
+            if every < n <= periods and decimated(n) <= have:
+                hint = (
+                    f"log one row every {n} periods (logging.every = {n} needs "
+                    f"{_gib(decimated(n))}; the metrics still cover every period), "
+                )
+                break
+    raise InsufficientMemory(
+        f"{what} needs {_gib(need)} of memory for its arrays, this machine has "
+        f"{_gib(max(have, 0))} available: {hint}shorten timing.duration or lengthen "
+        f"timing.control_period"
+    )
 
 
 def desired_forces(plant: Mechanism, Xd, Xdd, Xddd) -> tuple[np.ndarray, np.ndarray]:
@@ -117,29 +164,59 @@ def _desired_kernel(geom, theta, Xd, Xdd, Xddd, q_out, tau_out):
         q_out[k, :] = work[Q]
 
 
-def _disturbance(scenario: Scenario, n: int, Tc: float):
+def _disturbance_count(scenario: Scenario) -> int:
+    """How many held values the disturbance draws for the run."""
+    t_end = scenario.timing.periods * scenario.timing.control_period
+    return int(math.floor(t_end / scenario.disturbance.hold + 1e-9)) + 1
+
+
+def _disturbance_values(scenario: Scenario) -> np.ndarray:
     d = scenario.disturbance
-    t_end = n * Tc
-    n_hold = int(math.floor(t_end / d.hold + 1e-9)) + 1
     rng = np.random.default_rng(d.seed)
-    values = np.asarray(d.amplitude) * rng.uniform(-1.0, 1.0, size=(n_hold, 3))
-    # period k starts at k Tc; the value held then is number floor(k Tc / hold)
-    index = np.floor(np.arange(n) * Tc / d.hold + 1e-9).astype(np.int64)
-    return values, index
+    return np.asarray(d.amplitude) * rng.uniform(-1.0, 1.0, size=(_disturbance_count(scenario), 3))
+
+
+def _disturbance_index(k0: int, k1: int, Tc: float, hold: float) -> np.ndarray:
+    """Period k starts at k Tc; the value held then is number floor(k Tc / hold)."""
+    return np.floor(np.arange(k0, k1) * Tc / hold + 1e-9).astype(np.int64)
+
+
+def _desired(scenario: Scenario, plant: Mechanism, periods: np.ndarray):
+    """t (m,), the reference [X_d, Xdot_d, Xddot_d] (m, 9), q_d and tau_d (m, 4) at the
+    periods k of ``periods`` (each row computed alone: any subset gives the same bits)."""
+    t = periods * scenario.timing.control_period
+    Xdes, Xddes, Xdddes = scenario.trajectory.build().evaluate(t)
+    q_des, tau_des = desired_forces(plant, Xdes, Xddes, Xdddes)
+    reference = np.ascontiguousarray(np.hstack([Xdes, Xddes, Xdddes]))
+    return t, reference, q_des, tau_des
 
 
 @dataclass(frozen=True, eq=False)
 class _Prepared:
-    """What every run of one scenario shares, whatever the seed and controller."""
+    """What every run of one scenario shares, whatever the seed and controller: the
+    desired trajectory, limb lengths and forces at the logged periods (every period, or
+    every ``logging.every``-th), and for a log of every period the disturbance index."""
 
     scenario: Scenario
     plant: Mechanism
     model: Mechanism
-    t: np.ndarray
-    reference: np.ndarray  # (n, 9): X_d, Xdot_d, Xddot_d
+    t: np.ndarray  # (rows,)
+    reference: np.ndarray  # (rows, 9): X_d, Xdot_d, Xddot_d
     q_des: np.ndarray
     tau_des: np.ndarray
     flc: MamdaniSystem
+    periods: int
+    every: int
+    dist_index: np.ndarray | None  # (periods,) when every == 1
+
+    def chunk(self, k0: int, k1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The loop's inputs for periods k0 .. k1 - 1 (:class:`pkmctl.sim.loop.Inputs`):
+        views of the prepared arrays when they hold every period, else computed."""
+        if self.every == 1:
+            return self.reference[k0:k1], self.q_des[k0:k1], self.dist_index[k0:k1]
+        _, reference, q_des, _ = _desired(self.scenario, self.plant, np.arange(k0, k1))
+        Tc, hold = self.scenario.timing.control_period, self.scenario.disturbance.hold
+        return reference, q_des, _disturbance_index(k0, k1, Tc, hold)
 
 
 def _prepare(scenario: Scenario | str, duration: float | None) -> _Prepared:
@@ -153,17 +230,23 @@ def _prepare(scenario: Scenario | str, duration: float | None) -> _Prepared:
         scenario = scenario.replace(**{"timing.duration": float(duration)})
     plant = scenario.plant()
     Tc = scenario.timing.control_period
-    n = int(round(scenario.timing.duration / Tc))
+    n = scenario.timing.periods
     if n < 1:
         raise ScenarioError("timing.duration: shorter than one control period")
+    every = scenario.logging.every
+    holds = _disturbance_count(scenario)
     # Refuse what cannot fit before allocating any of it (a 1 h run at 20 kHz: ~27 GiB).
-    check_memory(memory_needed(n), f"a {n * Tc:g} s run at T_c = {Tc:g} s")
-    t = np.arange(n) * Tc
-    Xdes, Xddes, Xdddes = scenario.trajectory.build().evaluate(t)
-    q_des, tau_des = desired_forces(plant, Xdes, Xddes, Xdddes)
-    reference = np.ascontiguousarray(np.hstack([Xdes, Xddes, Xdddes]))
+    check_memory(
+        memory_needed(n, every=every, disturbance_values=holds),
+        f"a {n * Tc:g} s run at T_c = {Tc:g} s" + (f" logged every {every}" if every > 1 else ""),
+        decimated=lambda e: memory_needed(n, every=e, disturbance_values=holds),
+        every=every,
+        periods=n,
+    )
+    t, reference, q_des, tau_des = _desired(scenario, plant, np.arange(0, n, every))
+    index = _disturbance_index(0, n, Tc, scenario.disturbance.hold) if every == 1 else None
     model = scenario.controller_mechanism()
-    return _Prepared(scenario, plant, model, t, reference, q_des, tau_des, FLC())
+    return _Prepared(scenario, plant, model, t, reference, q_des, tau_des, FLC(), n, every, index)
 
 
 def _with_seed(scenario: Scenario, seed: int) -> Scenario:
@@ -237,11 +320,33 @@ def _run(
     )
     x0 = np.concatenate([scenario.initial.X, scenario.initial.Xdot]).astype(float)
     bundles = _build(parts, ctx, x0)
-    n = prep.t.size
+    n, every = prep.periods, prep.every
+    holds = _disturbance_count(scenario)
     if buffers is None:  # the prepared arrays exist already: only the logs are new
         n_log = int(parts["controller"].log_size(bundles["controller"][0]))
-        check_memory(8 * n * (_LOG_COLUMNS + n_log), f"the logs of a {n * Tc:g} s run")
-    dvals, didx = _disturbance(scenario, n, Tc)
+        n_slog = int(parts["sensor"].log_size(bundles["sensor"][0]))
+
+        def logs_need(e: int) -> int:
+            rows = -(-n // e)
+            return 8 * (rows * (_LOG_COLUMNS + n_log + n_slog) + 3 * holds)
+
+        check_memory(logs_need(every), f"the logs of a {n * Tc:g} s run",
+                     decimated=logs_need, every=every, periods=n)  # fmt: skip
+    force_limit, speed_limit = math.inf, math.inf
+    if parts["actuator"].limits is not None:
+        limits = parts["actuator"].limits(bundles["actuator"][0])
+        force_limit, speed_limit = (float(v) for v in limits)
+    starts = tuple(metrics.first_period(w, Tc) for w in metrics.WINDOWS)
+    mp = metric_params(starts, metrics.ERROR_SCALE, force_limit * (1 - metrics.LIMIT_MARGIN),
+                       speed_limit, prep.plant.geometry)  # fmt: skip
+    inputs = Inputs(
+        periods=n,
+        every=every,
+        chunk_size=n if every == 1 else CHUNK_PERIODS,
+        chunk=prep.chunk,
+        dist_values=_disturbance_values(scenario),
+        metrics=mp,
+    )
     stepped = parts["plant"].stepper is not None
     out = (run_stepped if stepped else run_parts)(
         parts,
@@ -249,12 +354,18 @@ def _run(
         *((ctx,) if stepped else ()),
         period=Tc,
         substeps=scenario.timing.substeps,
-        reference=prep.reference,
-        dist_values=dvals,
-        dist_index=didx,
+        inputs=inputs,
         buffers=buffers,
     )
     m, lg = out.steps, out.logs
+    rows = -(-m // every)
+    values = metric_values(out.metrics, mp)
+    if not math.isfinite(speed_limit):
+        values["peak_limb_speed"] = np.full(4, np.nan)
+    loop_metrics = metrics.LoopMetrics(
+        periods=m, period=Tc, windows=metrics.WINDOWS, starts=starts,
+        force_limit=force_limit, speed_limit=speed_limit, **values,
+    )  # fmt: skip
     ctrl = parts["controller"]
     logs = {}
     theta_hat = None
@@ -278,16 +389,16 @@ def _run(
     result = Result(
         scenario=scenario,
         controller=ctrl.name,
-        t=prep.t[:m],
+        t=prep.t[:rows],
         X=lg["X"],
         Xdot=lg["Xdot"],
-        X_desired=ref[:m, 0:3],
-        Xdot_desired=ref[:m, 3:6],
+        X_desired=ref[:rows, 0:3],
+        Xdot_desired=ref[:rows, 3:6],
         q=lg["q"],
-        q_desired=prep.q_des[:m],
+        q_desired=prep.q_des[:rows],
         F=lg["F"],
         tau=lg["tau"],
-        tau_desired=prep.tau_des[:m],
+        tau_desired=prep.tau_des[:rows],
         disturbance=lg["disturbance"],
         theta_hat=theta_hat,
         X_measured=lg["y"][:, 0:3],
@@ -299,6 +410,7 @@ def _run(
         success=out.status == 0,
         message="ok" if out.status == 0 else STATUS[out.status],
         info=info,
+        loop_metrics=loop_metrics,
     )
     if out.status:
         tk = m * Tc
@@ -386,7 +498,7 @@ def _compile_group(scenario_toml: str, controllers: list[str]) -> str:
     into the disk cache. Returns "" or the first error (the caller will meet it again)."""
     try:
         sc = Scenario.from_toml(scenario_toml)
-        sc = sc.replace(**{"timing.duration": sc.timing.control_period})
+        sc = sc.replace(**{"timing.duration": sc.timing.control_period, "logging.every": 1})
         for c in controllers:
             simulate(sc, controller=c)
     except Exception as exc:  # noqa: BLE001 - reported by the run that follows

@@ -4,11 +4,13 @@ Compiled code cannot call MuJoCo, so this loop is cut at the plant. Every period
 compiled function, specialised to the sensor, controller and actuator types exactly as
 :func:`pkmctl.sim.loop.loop_for` does, runs sensor → controller → actuator command, the
 actuator's limb forces for each sub-step (its continuous state, e.g. a drive's lag,
-integrated by RK4 over the sub-step: it does not depend on the plant) and the log of the
-period; then Python steps the plant's stepper ``substeps`` times with those forces and
-the held disturbance, and reads the state back. The limb forces are held over each
-sub-step (the closed-form loop evaluates them at each RK4 stage: the same for an ideal
-actuator, whose forces are constant over the period).
+integrated by RK4 over the sub-step: it does not depend on the plant), the metrics'
+accumulators and, every ``logging.every`` periods, the log of the period (the sensor's
+and the controller's rows included); then Python steps the plant's stepper ``substeps``
+times with those forces and the held disturbance, and reads the state back. The limb
+forces are held over each sub-step (the closed-form loop evaluates them at each RK4
+stage: the same for an ideal actuator, whose forces are constant over the period). The
+logged and measured-against limb lengths q are the stepper's own (MuJoCo's slides).
 
 The status codes are those of :data:`pkmctl.sim.loop.STATUS`; a stepper adds 4 (its
 state blew up: for MuJoCo a fatal warning or a closure residual over 1 um).
@@ -16,6 +18,7 @@ state blew up: for MuJoCo a fatal warning or a closure residual over 1 um).
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -31,22 +34,35 @@ from pkmctl.parts import (
     controller_log,
     controller_step,
     plant_observe,
+    sensor_log,
     sensor_measure,
 )
-from pkmctl.sim.loop import LOG_NAMES, LogBuffers, LoopOutput, compile_error, pose_status, setup
+from pkmctl.sim.loop import (
+    Inputs,
+    LogBuffers,
+    LoopOutput,
+    accumulate_metrics,
+    compile_error,
+    pose_status,
+    setup,
+)
 
 __all__ = ["run_stepped"]
 
 
 def _period(
-    plant, x, pw, sensor, ss, sw, ctrl, cs, cw, act, ast, aw, n_z, h, k,
-    ref, dist, taus, rk, ast_s, vec, logs, log_c,
+    plant, x, pw, sensor, ss, sw, ctrl, cs, cw, act, ast, aw, n_z, h, k, row,
+    ref, qdes, dist, qs, taus, rk, ast_s, vec, logs, log_c, log_s, acc, mp, mw,
 ):  # fmt: skip
-    """Period k up to the plant: returns the status of x (0: valid) and fills ``taus``.
+    """Period k up to the plant: returns the status of x (0: valid, 3: the sensor could
+    not measure) and fills ``taus``.
 
-    ``taus`` (substeps, 4): the limb forces at the start of each sub-step; ``rk`` (5, n_z)
-    the actuator's RK4 stages; ``vec`` (6, 6) the period's y, F, cmd, tau, q, J^T tau;
-    ``logs`` and ``log_c`` as in :func:`pkmctl.sim.loop._run_loop`.
+    ``row``: the log's row of this period, -1 if it is not logged; ``ref`` (9,) and
+    ``qdes`` (4,) its reference and desired limb lengths; ``qs`` (4,) the stepper's limb
+    lengths at t_k (logged, and measured against); ``taus`` (substeps, 4): the limb
+    forces at the start of each sub-step; ``rk`` (5, n_z) the actuator's RK4 stages;
+    ``vec`` (6, 6) the period's y, F, cmd, tau, q, J^T tau; ``logs``, ``log_c``,
+    ``log_s``, ``acc``, ``mp``, ``mw`` as in :func:`pkmctl.sim.loop._run_loop`.
     """
     status = pose_status(x)
     if status != 0:
@@ -54,26 +70,36 @@ def _period(
     y, F, cmd, q, Fa = vec[0], vec[1, 0:3], vec[2, 0:4], vec[4, 0:4], vec[5, 0:3]
     log_X, log_Xd, log_y, log_F, log_tau, log_q, log_dist = logs
     sensor_measure(sensor, ss, sw, x, y)
-    if log_c.shape[0] == log_X.shape[0]:
-        controller_log(ctrl, cs, log_c[k])
+    for i in range(6):
+        if not math.isfinite(y[i]):
+            return 3
+    logged = row >= 0
+    if logged and log_s.shape[0] > 0:
+        sensor_log(sensor, ss, log_s[row])
+    if logged and log_c.shape[0] > 0:
+        controller_log(ctrl, cs, log_c[row])
     controller_step(ctrl, cs, cw, y, ref, F)
     actuator_command(act, ast, aw, y, F, cmd)
-    for i in range(3):
-        log_X[k, i] = x[i]
-        log_Xd[k, i] = x[3 + i]
-        log_dist[k, i] = dist[i]
-    for i in range(6):
-        log_y[k, i] = y[i]
+    if logged:
+        for i in range(3):
+            log_X[row, i] = x[i]
+            log_Xd[row, i] = x[3 + i]
+            log_dist[row, i] = dist[i]
+        for i in range(6):
+            log_y[row, i] = y[i]
+    R, Jm, qm, ev = mw
     for sub in range(taus.shape[0]):
         tau = taus[sub]
         actuator_force(act, ast, cmd, tau)
         if sub == 0:
             plant_observe(plant, x, tau, pw, q, Fa)
-            for i in range(4):
-                log_tau[k, i] = tau[i]
-                log_q[k, i] = q[i]
-            for i in range(3):
-                log_F[k, i] = Fa[i]
+            if logged:
+                for i in range(4):
+                    log_tau[row, i] = tau[i]
+                    log_q[row, i] = qs[i]
+                for i in range(3):
+                    log_F[row, i] = Fa[i]
+            accumulate_metrics(acc, mp, k, ref, x, qdes, qs, tau, R, Jm, qm, ev)
         if n_z > 0:  # RK4 of the actuator's continuous state over the sub-step
             for st in range(4):
                 if st == 0:
@@ -103,21 +129,18 @@ def run_stepped(
     *,
     period: float,
     substeps: int,
-    reference: np.ndarray,
-    dist_values: np.ndarray,
-    dist_index: np.ndarray,
+    inputs: Inputs,
     buffers: LogBuffers | None = None,
 ) -> LoopOutput:
-    """Run the parts over ``len(reference)`` periods with the plant's stepper.
+    """Run the parts over ``inputs.periods`` periods with the plant's stepper.
 
     Arguments as :func:`pkmctl.sim.loop.run_parts`, plus ``ctx`` for the stepper. The log's
     q is the stepper's own (MuJoCo's slide positions), not ``observe``'s.
     """
-    n = reference.shape[0]
-    run = setup(parts, bundles, n, buffers)
+    run = setup(parts, bundles, inputs, buffers)
     (plant_p, x, pw), (sensor_p, ss, sw) = run.bundle("plant"), run.bundle("sensor")
     (ctrl_p, cs, cw), (act_p, ast, aw) = run.bundle("controller"), run.bundle("actuator")
-    logs, n_z = run.logs, run.n_z
+    logs, n_z, every = run.logs, run.n_z, run.every
     h = period / substeps
     machine = parts["plant"].stepper(plant_p, ctx, h)
     taus = np.zeros((substeps, 4))
@@ -125,31 +148,33 @@ def run_stepped(
     vec = np.zeros((6, 6))
     ast_s = np.zeros(max(ast.shape[0], 1))[: ast.shape[0]]
     q = np.empty(4)
-    log_q = logs.arrays[LOG_NAMES.index("q")]
     step = period_for(parts)
     args = (plant_p, x, pw, sensor_p, ss, sw, ctrl_p, cs, cw, act_p, ast, aw, n_z, float(h))
-    tail = (taus, rk, ast_s, vec, logs.arrays, logs.controller)
+    tail = (q, taus, rk, ast_s, vec, logs.arrays, logs.controller, logs.sensor, run.metrics,
+            inputs.metrics, run.metric_work)  # fmt: skip
+    dist_values = inputs.dist_values
     machine.reset(x[:6])
-    status, m = machine.read(x, q), n
+    status, m = machine.read(x, q), 0
     t0 = time.perf_counter()
     try:
-        for k in range(n if status == 0 else 0):
-            dist = dist_values[dist_index[k]]
-            status = step(*args, k, reference[k], dist, *tail)
-            if status:
-                m = k
-                break
-            log_q[k] = q
-            for sub in range(substeps):
-                machine.step(taus[sub], dist)
-            status = machine.read(x, q)
-            if status:
+        for k0, ref, qdes, dist_index in inputs.chunks() if status == 0 else ():
+            for j in range(ref.shape[0]):
+                k = k0 + j
+                dist = dist_values[dist_index[j]]
+                row = k // every if k % every == 0 else -1
+                status = step(*args, k, row, ref[j], qdes[j], dist, *tail)
+                if status:
+                    m = k
+                    break
+                for sub in range(substeps):
+                    machine.step(taus[sub], dist)
+                status = machine.read(x, q)
                 m = k + 1
+                if status:
+                    break
+            if status:
                 break
-        else:
-            m = n if status == 0 else 0
     except NumbaError as exc:
         raise compile_error(parts, exc) from exc
     dt = time.perf_counter() - t0
-    # this driver does not log a sensor's row (q_measured is the stepper's q)
-    return run.output(status, m, dt, sensor_log=False)
+    return run.output(status, m, dt)
