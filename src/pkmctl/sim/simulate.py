@@ -16,7 +16,7 @@ import numpy as np
 
 from pkmctl._jit import kernel
 from pkmctl.errors import InsufficientMemory, SimulationDiverged
-from pkmctl.fuzzy import FLC, MamdaniSystem
+from pkmctl.fuzzy import FuzzySystem, MamdaniSystem
 from pkmctl.model.dynamics import (
     JQ,
     Q,
@@ -139,7 +139,7 @@ class _Prepared:
     reference: np.ndarray  # (n, 9): X_d, Xdot_d, Xddot_d
     q_des: np.ndarray
     tau_des: np.ndarray
-    flc: MamdaniSystem
+    flc: MamdaniSystem | FuzzySystem  # the fuzzy term's system ([fuzzy])
 
 
 def _prepare(scenario: Scenario | str, duration: float | None) -> _Prepared:
@@ -163,7 +163,8 @@ def _prepare(scenario: Scenario | str, duration: float | None) -> _Prepared:
     q_des, tau_des = desired_forces(plant, Xdes, Xddes, Xdddes)
     reference = np.ascontiguousarray(np.hstack([Xdes, Xddes, Xdddes]))
     model = scenario.controller_mechanism()
-    return _Prepared(scenario, plant, model, t, reference, q_des, tau_des, FLC())
+    flc = scenario.fuzzy_system()
+    return _Prepared(scenario, plant, model, t, reference, q_des, tau_des, flc)
 
 
 def _with_seed(scenario: Scenario, seed: int) -> Scenario:
