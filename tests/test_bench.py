@@ -37,6 +37,8 @@ def test_bench_quick_smoke(tmp_path):
         assert label in labels
     assert {r[0]: r[2] for r in rows(data)}["  prototype / ideal"] == "≥ 0.5 x"
     assert data["flc"]["compiled_us"] > 0 and data["batch"]["workers"] >= 1
+    assert data["flc"]["term_us"] > 0 and data["flc"]["term_general_us"] > 0  # issue 15
+    assert "FLC as FSMC's fuzzy term (term_eval)" in labels
     assert data["flops"]["flops_per_step"] > data["flops"]["plant_eval_flops"] * 4
     assert data["reproduce"]["warm_s"] > 0
     assert "≥ 200,000 steps/s" in res.output  # the table, with its targets

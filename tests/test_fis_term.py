@@ -113,8 +113,9 @@ def test_paper_flc_as_a_fis_file_is_the_builtin_bit_for_bit():
 def test_paper_flc_on_the_general_engine_agrees_to_rounding(controller):
     """The general engine integrates the same aggregate by another route (Gauss-Legendre
     between clip points and crossings found by bisection, against the fast kernel's closed
-    form per cell): the FLC differs by ~1e-16, F by a few 1e-13 N, the pose not at all
-    or by an ulp over a 10 s run (measured; docs/fuzzy.md). Checked here over 2 s."""
+    form per cell): the FLC differs by <= 7e-16 (at two thirds of 1e5 random points), F by
+    a few 1e-13 N, the pose not at all or by an ulp over a 10 s run (measured;
+    docs/fuzzy.md). Checked here over 2 s."""
     sc = paper(2.0)
     general = sc.replace(**{"fuzzy.fis": PAPER_FIS, "fuzzy.engine": "general"})
     assert isinstance(general.fuzzy_system(), FuzzySystem)
