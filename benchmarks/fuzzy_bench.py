@@ -229,7 +229,7 @@ def run_corpus(path, n: int = 200, *, echo: bool = False) -> dict:
     import skfuzzy as fuzz
     from skfuzzy import control as ctrl
 
-    from .fis import read_fis
+    from pkmctl.fuzzy.fis import read_fis
 
     general = read_fis(path, general=True)
     exact = read_fis(path)
@@ -283,7 +283,7 @@ def run_corpus(path, n: int = 200, *, echo: bool = False) -> dict:
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
     from test_fis_corpus import _safe_names, fuzzylite_engine
 
     eng = fuzzylite_engine(_safe_names(general))
