@@ -516,6 +516,13 @@ def rows(res: dict) -> list[tuple[str, str, str, str]]:
         "flc_compiled",
         f["compiled_us"],
     )
+    row(
+        "FLC as FSMC's fuzzy term (term_eval)",
+        f"{f['term_us']:.3f} us",
+        "flc_compiled",
+        f["term_us"],
+    )
+    row("  the same FLC on the general engine", f"{f['term_general_us']:.2f} us")
     row("FLC, batched", f"{f['batched_us']:.3f} us per point")
     row("FLC, Python call of the system", f"{f['python_scalar_us']:.2f} us")
     for peer in ("skfuzzy", "simpful"):

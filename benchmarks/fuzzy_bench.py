@@ -14,6 +14,7 @@ import numpy as np
 from benchmarks.timing import best_time
 from pkmctl._jit import kernel
 from pkmctl.fuzzy import FLC, PAPER_RULE_TABLE, TERM_NAMES, flc_eval
+from pkmctl.fuzzy.term import term_eval, term_system, term_work
 
 
 @kernel
@@ -22,6 +23,36 @@ def _loop(tables, s, sdot):
     for n in range(s.shape[0]):
         acc += flc_eval(tables, s[n], sdot[n])
     return acc
+
+
+@kernel(refcount=False)
+def _term_loop(tables, work, s, sdot):
+    """The fuzzy term's call (FSMC/AFSMC, pkmctl.fuzzy.term) as the control loop makes it:
+    compiled without reference counting, the work made once."""
+    acc = 0.0
+    for n in range(s.shape[0]):
+        acc += term_eval(tables, work, s[n], sdot[n])
+    return acc
+
+
+def term_us(system, n: int, *, repeats: int = 3, seed: int = 0) -> tuple[float, float]:
+    """(random, smooth): microseconds per evaluation of ``system`` as the fuzzy term of
+    FSMC/AFSMC runs it (:func:`pkmctl.fuzzy.term.term_system`), from compiled code, on n
+    random inputs over 1.2 times its input ranges and on a smooth trajectory over them."""
+    run = term_system(system)
+    tables = run.compiled()
+    work = term_work(tables)
+    (a0, a1), (b0, b1) = (v.universe for v in run.inputs)
+    ca, ra, cb, rb = 0.5 * (a0 + a1), 0.6 * (a1 - a0), 0.5 * (b0 + b1), 0.6 * (b1 - b0)
+    rng = np.random.default_rng(seed)
+    x1, x2 = ca + rng.uniform(-ra, ra, n), cb + rng.uniform(-rb, rb, n)
+    t = np.arange(n) * 50e-6  # 20 kHz
+    y1, y2 = ca + 0.8 * ra * np.sin(2 * t), cb + 0.8 * rb * np.cos(3 * t)
+    _term_loop(tables, work, x1[:10], x2[:10])  # compile
+    return tuple(
+        best_time(lambda u=u, v=v: _term_loop(tables, work, u, v), repeats) / n * 1e6
+        for u, v in ((x1, x2), (y1, y2))
+    )
 
 
 def _skfuzzy_flc():
@@ -108,7 +139,11 @@ def run(quick: bool = False, *, echo: bool = False) -> dict:
     dict
         ``compiled_us``: one ``flc_eval`` call from an njit loop over 10^6 random inputs
         (10^5 if quick); ``compiled_smooth_us``: the same on a smooth trajectory, as in the
-        control loop; ``batched_us``: per point of ``flc(s, sdot)`` on 10^5 points;
+        control loop; ``term_us``, ``term_smooth_us``: the same through the fuzzy term's
+        entry point (``term_eval``, what FSMC/AFSMC call), ``term_general_us``,
+        ``term_general_smooth_us``: the paper's FLC on the general engine there (what a
+        ``.fis`` system outside the fast kernel costs; 10^5 inputs, 10^4 if quick);
+        ``batched_us``: per point of ``flc(s, sdot)`` on 10^5 points;
         ``python_scalar_us``: one ``flc(s, sdot)`` call from Python; ``skfuzzy_us`` and
         ``simpful_us`` (if installed) with ``skfuzzy_max_diff``/``simpful_max_diff`` to
         pkmctl, and the ratios ``ratio_<peer>_over_compiled``, ``ratio_<peer>_over_batched``.
@@ -127,6 +162,9 @@ def run(quick: bool = False, *, echo: bool = False) -> dict:
     out["compiled_smooth_us"] = (
         best_time(lambda: _loop(tables, s_smooth, sdot_smooth), 3) / n_loop * 1e6
     )
+    out["term_us"], out["term_smooth_us"] = term_us(flc, n_loop)
+    general = term_system(flc, engine="general")
+    out["term_general_us"], out["term_general_smooth_us"] = term_us(general, n_loop // 10)
     nb = 10**5
     flc(s[:nb], sdot[:nb])
     out["batched_us"] = best_time(lambda: flc(s[:nb], sdot[:nb]), 3) / nb * 1e6
@@ -153,6 +191,10 @@ def run(quick: bool = False, *, echo: bool = False) -> dict:
         "pkmctl FLC (paper, DESIGN.md §3), exact centroid, per evaluation:",
         f"  compiled flc_eval in an njit loop : {out['compiled_us'] * 1e3:8.1f} ns (random inputs)",
         f"                                      {out['compiled_smooth_us'] * 1e3:8.1f} ns (smooth)",
+        f"  as FSMC's fuzzy term (term_eval)  : {out['term_us'] * 1e3:8.1f} ns (random inputs)",
+        f"                                      {out['term_smooth_us'] * 1e3:8.1f} ns (smooth)",
+        f"  the same on the general engine    : {out['term_general_us']:8.2f} us (random inputs)",
+        f"                                      {out['term_general_smooth_us']:8.2f} us (smooth)",
         f"  batched flc(s, sdot), 1e5 points  : {out['batched_us'] * 1e3:8.1f} ns",
         f"  flc(s, sdot) from Python, scalar  : {out['python_scalar_us']:8.2f} us",
     ]
@@ -187,7 +229,7 @@ def run_corpus(path, n: int = 200, *, echo: bool = False) -> dict:
     import skfuzzy as fuzz
     from skfuzzy import control as ctrl
 
-    from .fis import read_fis
+    from pkmctl.fuzzy.fis import read_fis
 
     general = read_fis(path, general=True)
     exact = read_fis(path)
@@ -241,7 +283,7 @@ def run_corpus(path, n: int = 200, *, echo: bool = False) -> dict:
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
     from test_fis_corpus import _safe_names, fuzzylite_engine
 
     eng = fuzzylite_engine(_safe_names(general))

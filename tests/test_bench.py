@@ -40,6 +40,8 @@ def test_bench_quick_smoke(tmp_path):
     assert enc["measure_us"] > 0 and enc["samples"] > 0
     assert {r[0]: r[2] for r in rows(data)}["encoder measure, compiled, warm"] == "≤ 1.0 us"
     assert data["flc"]["compiled_us"] > 0 and data["batch"]["workers"] >= 1
+    assert data["flc"]["term_us"] > 0 and data["flc"]["term_general_us"] > 0  # issue 15
+    assert "FLC as FSMC's fuzzy term (term_eval)" in labels
     assert data["flops"]["flops_per_step"] > data["flops"]["plant_eval_flops"] * 4
     assert data["reproduce"]["warm_s"] > 0
     camp = data["campaign"]  # issue 11: campaign speed, side by side in one run

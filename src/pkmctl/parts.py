@@ -72,7 +72,7 @@ from pkmctl.errors import PkmctlError
 
 if TYPE_CHECKING:
     from pkmctl.control.gains import Gains
-    from pkmctl.fuzzy import MamdaniSystem
+    from pkmctl.fuzzy import FuzzySystem, MamdaniSystem
     from pkmctl.model import Mechanism
 
 __all__ = [
@@ -115,14 +115,16 @@ class PartContext:
     ``scenario`` is the :class:`~pkmctl.Scenario` of the run (None when a controller is
     built alone, e.g. for a hardware loop); ``plant`` the true machine, ``model`` the
     controllers' model (never the plant's parameters), ``gains`` the scenario's gains,
-    ``period`` the control period T_c (s), ``flc`` the fuzzy system of FSMC/AFSMC.
+    ``period`` the control period T_c (s), ``flc`` the fuzzy system of FSMC/AFSMC (the
+    scenario's ``[fuzzy]`` system, compiled as :func:`pkmctl.fuzzy.term.term_system` says:
+    the paper's FLC by default).
     """
 
     plant: Mechanism
     model: Mechanism
     gains: Gains
     period: float
-    flc: MamdaniSystem
+    flc: MamdaniSystem | FuzzySystem
     scenario: Any = None
 
 

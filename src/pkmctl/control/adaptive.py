@@ -16,16 +16,17 @@ import numpy as np
 
 from pkmctl._jit import kernel
 from pkmctl.control.sliding import (
+    FUZZY_WORK,
     SLIDING_STATE,
-    controller_work,
     filter_sdot,
     fuzzy_surface_gain,
     fuzzy_term,
+    fuzzy_work,
     machine_force,
     machine_model,
     sliding_surface,
 )
-from pkmctl.fuzzy import FISTables
+from pkmctl.fuzzy import FISTables, SystemTables
 from pkmctl.model.dynamics import regressor_kernel
 from pkmctl.model.machine import extended_regressor_kernel
 from pkmctl.parts import PartContext, builtin_part
@@ -45,7 +46,7 @@ class AFSMCParams(NamedTuple):
     Ku: np.ndarray
     Tc: float
     alpha_f: float
-    flc: FISTables
+    flc: FISTables | SystemTables
     gamma_vec: np.ndarray
     theta_min: np.ndarray
     theta_max: np.ndarray
@@ -93,7 +94,7 @@ def afsmc_step(p, state, work, y, ref, F):
     machine_force(p, X, Xd, xr_d, xr_dd, work, F)  # fixed, not adapted
     for i in range(3):
         F[i] += p.K[i] * s[i]
-    fuzzy_term(p.flc, p.Ks, p.Ksd, p.Ku, s, state[3:6], F)
+    fuzzy_term(p.flc, work[FUZZY_WORK], p.Ks, p.Ksd, p.Ku, s, state[3:6], F)
     adapt(theta_hat, Y, s, p.Tc, p.gamma_vec, p.theta_min, p.theta_max)
 
 
@@ -110,7 +111,7 @@ def _initial(p: AFSMCParams) -> np.ndarray:
 
 builtin_part("controller", "afsmc", {"step": afsmc_step, "log": afsmc_log}, params=AFSMCParams,
          build=None, state_size=lambda p: SLIDING_STATE + p.theta0.shape[0],
-         work=lambda p: controller_work(p.theta0.shape[0]), initial_state=_initial,
+         work=lambda p: fuzzy_work(p, p.theta0.shape[0]), initial_state=_initial,
          log_size=lambda p: p.theta0.shape[0], log_name="theta_hat",
          description="adaptive fuzzy sliding mode control (eq. 46, 50-51 corrected)",
              label="AFSMC", surface_gain=fuzzy_surface_gain, adaptive=True)  # fmt: skip
@@ -139,7 +140,7 @@ class AFSMCExtParams(NamedTuple):
     Ku: np.ndarray
     Tc: float
     alpha_f: float
-    flc: FISTables
+    flc: FISTables | SystemTables
     gamma_vec: np.ndarray
     theta_min: np.ndarray
     theta_max: np.ndarray
@@ -178,14 +179,14 @@ def afsmc_ext_step(p, state, work, y, ref, F):
         F[i] = acc
     for i in range(3):
         F[i] += p.K[i] * s[i]
-    fuzzy_term(p.flc, p.Ks, p.Ksd, p.Ku, s, state[3:6], F)
+    fuzzy_term(p.flc, work[FUZZY_WORK], p.Ks, p.Ksd, p.Ku, s, state[3:6], F)
     adapt(theta_hat, Y, s, p.Tc, p.gamma_vec, p.theta_min, p.theta_max)
 
 
 builtin_part("controller", "afsmc-ext", {"step": afsmc_ext_step, "log": afsmc_log},
              params=AFSMCExtParams, build=None,
              state_size=lambda p: SLIDING_STATE + p.theta0.shape[0],
-             work=lambda p: controller_work(p.theta0.shape[0]), initial_state=_initial,
+             work=lambda p: fuzzy_work(p, p.theta0.shape[0]), initial_state=_initial,
              log_size=lambda p: p.theta0.shape[0], log_name="theta_hat",
              description="AFSMC adapting over Theta_ext = [Theta, m_r, F_c, F_v] (DESIGN.md §7)",
              label="AFSMC-ext", surface_gain=fuzzy_surface_gain, adaptive=True)  # fmt: skip

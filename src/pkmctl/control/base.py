@@ -27,7 +27,8 @@ from pkmctl._jit import specialise
 from pkmctl.control.gains import Gains
 from pkmctl.control.sliding import SLIDING_STATE
 from pkmctl.errors import NonFiniteInputError
-from pkmctl.fuzzy import FLC, MamdaniSystem
+from pkmctl.fuzzy import FLC, FuzzySystem, MamdaniSystem
+from pkmctl.fuzzy.term import term_system
 from pkmctl.model.mechanism import Mechanism
 from pkmctl.parts import PartContext, controller_step, get_part, names
 
@@ -106,6 +107,9 @@ class Controller:
     ``Controller(model, gains, period=T_c, name="pd")`` builds any registered controller;
     the subclasses :class:`SMC`, :class:`FSMC`, :class:`AFSMC`, :class:`PD` and
     :class:`CTC` fix the name.
+    ``flc`` is the fuzzy term's system of FSMC/AFSMC (default: the paper's FLC): any
+    two-input, one-output MamdaniSystem or FuzzySystem, e.g. ``read_fis(path)``
+    (:func:`pkmctl.fuzzy.term.term_system`; ValueError otherwise).
     """
 
     name: ClassVar[str] = ""
@@ -116,7 +120,7 @@ class Controller:
         gains: Gains | None = None,
         *,
         period: float,
-        flc: MamdaniSystem | None = None,
+        flc: MamdaniSystem | FuzzySystem | None = None,
         name: str | None = None,
     ) -> None:
         if not isinstance(model, Mechanism):
@@ -128,7 +132,8 @@ class Controller:
         self.model = model
         self.gains = Gains() if gains is None else gains
         self.period = float(period)
-        self.flc = FLC() if flc is None else flc
+        # the fuzzy term's system (two inputs, one output), as the loop compiles it
+        self.flc = FLC() if flc is None else term_system(flc)
         ctx = PartContext(model, model, self.gains, self.period, self.flc)
         self.params, self._initial, self._work = self.part.make(ctx)
         self._state = self._initial.copy()

@@ -7,7 +7,9 @@ Xr_ddot = Xddot_d + lambda edot.
 - FSMC (eq. 26): F = M^ Xr_ddot + C^ Xr_dot + G^(X_d) + K s + u_f
 
 with u_f,i = -K_u,i FLC(K_s,i s_i, K_sdot,i sdot_i). The minus makes the paper's rule
-table (positive s -> negative output) stabilising: s^T u_f >= 0.
+table (positive s -> negative output) stabilising: s^T u_f >= 0. FLC is the scenario's
+fuzzy system (``[fuzzy]``: the paper's by default, or a ``.fis`` file), compiled as
+:mod:`pkmctl.fuzzy.term` says; its work arrays are the last item of the work tuple.
 
 sdot is the backward difference of s over one period, low-pass filtered with time
 constant tau_f = ``filter_periods`` T_c; on the first step there is no previous s and
@@ -21,17 +23,20 @@ from typing import NamedTuple
 import numpy as np
 
 from pkmctl._jit import kernel
-from pkmctl.fuzzy import FISTables, flc_eval
+from pkmctl.fuzzy import FISTables, SystemTables
+from pkmctl.fuzzy.term import term_eval, term_work
 from pkmctl.model.dynamics import dynamics_kernel, gravity_kernel, inverse_dynamics, make_work
 from pkmctl.model.machine import N_MACHINE_MODEL, add_machine_model, reflected_inertia
 from pkmctl.parts import PartContext, builtin_part
 
 __all__ = [
     "FSMCParams",
+    "FUZZY_WORK",
     "SLIDING_STATE",
     "SMCParams",
     "controller_work",
     "fuzzy_surface_gain",
+    "fuzzy_work",
     "smc_surface_gain",
     "filter_sdot",
     "fuzzy_term",
@@ -97,11 +102,22 @@ def filter_sdot(state, s, Tc, alpha_f):
     state[6] = 1.0
 
 
+def fuzzy_work(p, n_theta: int = 0) -> tuple:
+    """Work of a fuzzy sliding-mode controller: :func:`controller_work` and, last (index
+    :data:`FUZZY_WORK`), the work arrays of its fuzzy system ``p.flc``."""
+    return controller_work(n_theta) + (term_work(p.flc),)
+
+
+#: Index of the fuzzy system's work arrays in :func:`fuzzy_work`.
+FUZZY_WORK = 14
+
+
 @kernel(inline="always", refcount=False)
-def fuzzy_term(flc, Ks, Ksd, Ku, s, sdot, F):
-    """F -= K_u FLC(K_s s, K_sdot sdot), component by component (eq. 26)."""
+def fuzzy_term(flc, fwork, Ks, Ksd, Ku, s, sdot, F):
+    """F -= K_u FLC(K_s s, K_sdot sdot), component by component (eq. 26); ``fwork`` is
+    the fuzzy system's work (:func:`pkmctl.fuzzy.term.term_work`)."""
     for i in range(3):
-        F[i] -= Ku[i] * flc_eval(flc, Ks[i] * s[i], Ksd[i] * sdot[i])
+        F[i] -= Ku[i] * term_eval(flc, fwork, Ks[i] * s[i], Ksd[i] * sdot[i])
 
 
 @kernel(inline="always", refcount=False)
@@ -150,7 +166,8 @@ def smc_step(p, state, work, y, ref, F):
 
 
 class FSMCParams(NamedTuple):
-    """FSMC: as :class:`SMCParams` with the FLC's scalings Ks, Ksd, Ku (3,) and its tables."""
+    """FSMC: as :class:`SMCParams` with the FLC's scalings Ks, Ksd, Ku (3,) and its tables
+    (``FISTables`` on the fast kernel, ``SystemTables`` on the general engine)."""
 
     geom: np.ndarray
     theta: np.ndarray
@@ -161,7 +178,7 @@ class FSMCParams(NamedTuple):
     Ku: np.ndarray
     Tc: float
     alpha_f: float
-    flc: FISTables
+    flc: FISTables | SystemTables
     mach: np.ndarray
     mach_on: float
 
@@ -184,7 +201,7 @@ def fsmc_step(p, state, work, y, ref, F):
     machine_force(p, X, Xd, xr_d, xr_dd, work, F)
     for i in range(3):
         F[i] += p.K[i] * s[i]
-    fuzzy_term(p.flc, p.Ks, p.Ksd, p.Ku, s, state[3:6], F)
+    fuzzy_term(p.flc, work[FUZZY_WORK], p.Ks, p.Ksd, p.Ku, s, state[3:6], F)
 
 
 def smc_surface_gain(g, flc) -> np.ndarray:
@@ -204,6 +221,6 @@ builtin_part("controller", "smc", {"step": smc_step}, params=SMCParams, build=No
              description="sliding mode control with a boundary layer (eq. 25)",
              surface_gain=smc_surface_gain)  # fmt: skip
 builtin_part("controller", "fsmc", {"step": fsmc_step}, params=FSMCParams, build=None,
-             state_size=SLIDING_STATE, work=lambda p: controller_work(), label="FSMC",
+             state_size=SLIDING_STATE, work=fuzzy_work, label="FSMC",
              description="fuzzy sliding mode control (eq. 26)",
              surface_gain=fuzzy_surface_gain)  # fmt: skip

@@ -13,6 +13,13 @@ intervals where the term is monotone) and the crossings of the top two implied s
 <= 8 for the polynomial kinds (trimf, trapmf, zmf, smf, pimf, linzmf, linsmf; not with
 probor aggregation), which 5-point Gauss-Legendre integrates exactly; other kinds are
 cut into panels of width <= range/256 as well.
+
+No kernel here allocates except the three entry points that say so (:func:`fis_eval`,
+:func:`eval_batch`, :func:`new_work`): every buffer comes from a *work* tuple made once by
+:func:`new_work` (layout: the ``_W_*`` names below; sizes from the header), so
+:func:`fis_eval_into` and :func:`fis_eval2` run in the control loop without allocating
+and are compiled without reference counting (``pkmctl._jit``: an array view taken in a
+function compiled with it costs two atomic operations).
 """
 
 from __future__ import annotations
@@ -24,9 +31,12 @@ import numpy as np
 from pkmctl._jit import kernel
 from pkmctl.fuzzy.mf import mf_value
 
-__all__ = ["fis_eval"]
+__all__ = ["eval_batch", "fis_eval", "fis_eval2", "fis_eval_into", "new_work"]
 
-_jit = kernel(fastmath=False)
+# No FMA contraction (the same numbers as Python's float arithmetic); the kernels that
+# allocate keep reference counting, the rest are compiled without it.
+_jit_alloc = kernel(fastmath=False)
+_jit = kernel(fastmath=False, refcount=False)
 
 # header of ints
 (_NIN, _NOUT, _R, _T, _KO, _P, _B, _SUGENO, _AND, _OR, _IMP, _AGG, _DEFUZZ, _CLIP,
@@ -50,6 +60,9 @@ DEFUZZ_CODES = {
 }
 CONSTANT, LINEAR = 100, 101  # kinds of Sugeno output terms
 _PANELS = 256
+# the work tuple (new_work): float64 arrays, then int64 arrays
+(_W_X, _W_OUT, _W_XS, _W_MU_IN, _W_W, _W_PH, _W_MU, _W_NODES, _W_SA, _W_SB, _W_SM, _W_VE,
+ _W_YE, _W_VM, _W_VALS, _W_YS, _W_PK, _W_PNEG) = range(18)  # fmt: skip
 
 _GL_X = np.array(
     [-0.9061798459386640, -0.5384693101056831, 0.0, 0.5384693101056831, 0.9061798459386640]
@@ -142,12 +155,11 @@ def _gl(kind, par, nt, pk, pneg, ph, na, imp, agg, a, b, mu):
 
 
 @_jit
-def _sampled(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, n, method, mu):
-    """MATLAB's defuzzification on n evenly spaced points (linspace(lo, hi, n)).
+def _sampled(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, n, method, mu, vals, ys):
+    """MATLAB's defuzzification on n evenly spaced points (linspace(lo, hi, n)); vals and
+    ys (n,) are scratch.
 
     Returns (value, zero-area flag)."""
-    vals = np.empty(n)
-    ys = np.empty(n)
     total = 0.0
     vmax = 0.0
     for i in range(n):
@@ -187,12 +199,27 @@ def _sampled(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, n, method, mu):
 
 
 @_jit
-def _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp, nbp, poly, method, mu):
-    """Defuzzification of the continuous aggregate (see the module docstring).
+def _sort(a, n):
+    """Sort a[:n] in place (insertion sort: a[:n] is mostly sorted here, and Numba's
+    ``sort`` needs reference counting)."""
+    for i in range(1, n):
+        v = a[i]
+        j = i - 1
+        while j >= 0 and a[j] > v:
+            a[j + 1] = a[j]
+            j -= 1
+        a[j + 1] = v
+
+
+@_jit
+def _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp, nbp, poly, method, mu, wk):
+    """Defuzzification of the continuous aggregate (see the module docstring); scratch
+    from the work tuple wk.
 
     Returns (value, zero-area flag)."""
-    # nodes: static breakpoints inside (lo, hi), the ends, and the clip points
-    nodes = np.empty(nbp + 2 + na * (nbp + 1))
+    # nodes: static breakpoints inside (lo, hi) (sorted by _compile), the ends, and the
+    # clip points
+    nodes = wk[_W_NODES]
     nn = 0
     nodes[nn] = lo
     nn += 1
@@ -202,7 +229,7 @@ def _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp, nbp, poly
             nn += 1
     nodes[nn] = hi
     nn += 1
-    nodes[:nn].sort()
+    _sort(nodes, nn)
     ns = nn
     if imp == 0:
         for i in range(na):
@@ -226,13 +253,12 @@ def _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp, nbp, poly
                             b = m
                     nodes[nn] = 0.5 * (a + b)
                     nn += 1
-        nodes[:nn].sort()
+        _sort(nodes, nn)
     hmax = (hi - lo) / _PANELS
     smooth = poly == 1 and agg != 2
-    nseg_max = 2 * (nn + (0 if smooth else _PANELS + 1))
-    sa = np.empty(nseg_max)
-    sb = np.empty(nseg_max)
-    sm = np.empty(nseg_max)
+    sa = wk[_W_SA]
+    sb = wk[_W_SB]
+    sm = wk[_W_SM]
     nseg = 0
     m0 = 0.0
     m1 = 0.0
@@ -276,7 +302,8 @@ def _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp, nbp, poly
                     m0 += i0
                     m1 += i1
     if method >= 2 or m0 <= 0.0:
-        return _points(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, sa, sb, nseg, method, mu)
+        return _points(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, sa, sb, nseg, method, mu,
+                       wk[_W_VE], wk[_W_YE], wk[_W_VM])  # fmt: skip
     if method == 0:
         return min(max(m1 / m0, lo), hi), 0
     # bisector: the segment where the running area reaches half, then bisection inside it
@@ -301,18 +328,17 @@ def _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp, nbp, poly
 
 
 @_jit
-def _points(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, sa, sb, nseg, method, mu):
+def _points(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, sa, sb, nseg, method, mu, ve, ye,
+            vm):  # fmt: skip
     """Maximum-based methods (mom, som, lom) and the zero-area fallback of centroid and
     bisector, from the aggregate at the segment ends and midpoints.
 
     mom is the mean of the maximum set (by length if it has intervals, else of its
     points; MATLAB's sampled mom in the limit); som/lom its smallest/largest point. A
     zero-area aggregate with firing rules is a set of point masses (singletons): the
-    centroid is their weighted mean, the bisector their weighted median (flag 1).
+    centroid is their weighted mean, the bisector their weighted median (flag 1). ve, ye
+    (>= nseg + 1) and vm (>= nseg) are scratch.
     """
-    ve = np.empty(nseg + 1)
-    ye = np.empty(nseg + 1)
-    vm = np.empty(nseg)
     vmax = 0.0
     for s in range(nseg + 1):
         ye[s] = sa[s] if s < nseg else sb[nseg - 1]
@@ -370,9 +396,10 @@ def _points(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, sa, sb, nseg, met
 
 
 @_jit
-def _eval_point(ints, reals, x, out):
-    """Evaluate a compiled system at x (n_in,) into out (n_out,); return the number of
-    outputs that took the zero-area fallback."""
+def _eval_point(ints, reals, x, out, wk):
+    """Evaluate a compiled system at x (n_in,) into out (n_out,) with the scratch of the
+    work tuple wk (:func:`new_work`); return the number of outputs that took the zero-area
+    fallback."""
     (in_nt, in_kind, out_nt, out_kind, ant, cons, is_or, nbp, poly, in_range, in_par,
      out_range, out_par, weight, bp) = _views(ints, reals)  # fmt: skip
     n_in = ints[_NIN]
@@ -382,15 +409,16 @@ def _eval_point(ints, reals, x, out):
         if x[i] != x[i]:
             out[:] = np.nan
             return 0
-    xs = np.empty(n_in)
+    xs = wk[_W_XS]
     for i in range(n_in):
         xs[i] = min(max(x[i], in_range[i, 0]), in_range[i, 1]) if ints[_CLIP] == 1 else x[i]
-    mu_in = np.empty((n_in, ints[_T]))
+    T = ints[_T]
+    mu_in = wk[_W_MU_IN]  # (n_in, T) row by row
     for i in range(n_in):
         for j in range(in_nt[i]):
             p = in_par[i, j]
-            mu_in[i, j] = mf_value(in_kind[i, j], p[0], p[1], p[2], p[3], xs[i])
-    w = np.empty(R)
+            mu_in[i * T + j] = mf_value(in_kind[i, j], p[0], p[1], p[2], p[3], xs[i])
+    w = wk[_W_W]
     and_prod = ints[_AND] == 1
     or_prob = ints[_OR] == 1
     for r in range(R):
@@ -400,7 +428,7 @@ def _eval_point(ints, reals, x, out):
             a = ant[r, i]
             if a == 0:
                 continue
-            m = mu_in[i, abs(a) - 1]
+            m = mu_in[i * T + abs(a) - 1]
             if a < 0:
                 m = 1.0 - m
             if orr:
@@ -410,10 +438,10 @@ def _eval_point(ints, reals, x, out):
         w[r] = acc * weight[r]
     flags = 0
     KO = ints[_KO]
-    pk = np.empty(max(R, 2 * KO), dtype=np.int64)
-    pneg = np.empty(max(R, 2 * KO), dtype=np.bool_)
-    ph = np.empty(max(R, 2 * KO))
-    mu = np.empty(KO)
+    pk = wk[_W_PK]
+    pneg = wk[_W_PNEG]
+    ph = wk[_W_PH]
+    mu = wk[_W_MU]
     imp = ints[_IMP]
     agg = ints[_AGG]
     method = ints[_DEFUZZ]
@@ -472,18 +500,79 @@ def _eval_point(ints, reals, x, out):
         nt = out_nt[o]
         if ints[_SAMPLES] > 1:
             v, f = _sampled(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, ints[_SAMPLES],
-                            method, mu)  # fmt: skip
+                            method, mu, wk[_W_VALS], wk[_W_YS])  # fmt: skip
         else:
             v, f = _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp[o], nbp[o],
-                               poly[o], method, mu)  # fmt: skip
+                               poly[o], method, mu, wk)  # fmt: skip
         out[o] = v
         flags += f
     return flags
 
 
+@_jit_alloc
+def new_work(ints):
+    """The work tuple of a compiled system (it allocates; once per run or batch).
+
+    Float64 arrays ``x`` (n_in,) and ``out`` (n_out,) for :func:`fis_eval2`, the clipped
+    inputs (n_in,), input memberships (n_in T,), rule strengths (R,), piece levels (P,),
+    output memberships (K,), the defuzzifier's nodes (N,), segments (3 of S,), their ends
+    and midpoints (S + 1, S + 1, S), samples (2 of n_samples), then int64 piece terms and
+    negations (P,). P = max(R, 2 K) pieces (max aggregation merges the rules of each signed
+    term), N = B + 2 + P (B + 1) nodes (B breakpoints, the ends, <= one clip point per
+    piece between two nodes) and S = 2 (N + 257) segments (each node interval cut into
+    panels of width <= range / 256, each panel split once at a crossing).
+    """
+    n_in, n_out, R, KO, B = ints[_NIN], ints[_NOUT], ints[_R], ints[_KO], ints[_B]
+    P = max(R, 2 * KO, 1)
+    N = B + 2 + P * (B + 1)
+    S = 2 * (N + _PANELS + 1)
+    ns = max(ints[_SAMPLES], 1)
+    e = np.empty
+    return (e(n_in), e(n_out), e(n_in), e(n_in * ints[_T]), e(max(R, 1)), e(P), e(max(KO, 1)),
+            e(N), e(S), e(S), e(S), e(S + 1), e(S + 1), e(S), e(ns), e(ns),
+            np.empty(P, np.int64), np.empty(P, np.int64))  # fmt: skip
+
+
 @_jit
+def fis_eval_into(tables, work, x, out):
+    """Evaluate a compiled system at one point without allocating (compiled code).
+
+    Parameters
+    ----------
+    tables : SystemTables
+        ``system.compiled()``.
+    work : tuple of arrays
+        ``new_work(tables.ints)``, made once; scratch, overwritten.
+    x : ndarray, shape (n_inputs,)
+    out : ndarray, shape (n_outputs,)
+        Receives the crisp outputs (NaN if an input is NaN).
+
+    Returns
+    -------
+    int
+        Number of outputs whose aggregate had zero area although rules fired.
+    """
+    return _eval_point(tables[0], tables[1], x, out, work)
+
+
+@_jit
+def fis_eval2(tables, work, x1, x2):
+    """The first output of a compiled system with two inputs, at (x1, x2), without
+    allocating (the fuzzy term of FSMC/AFSMC; ``work`` from :func:`new_work`)."""
+    x = work[_W_X]
+    out = work[_W_OUT]
+    x[0] = x1
+    x[1] = x2
+    _eval_point(tables[0], tables[1], x, out, work)
+    return out[0]
+
+
+@_jit_alloc
 def fis_eval(tables, x, out):
     """Evaluate a compiled :class:`~pkmctl.fuzzy.system.FuzzySystem` at one point.
+
+    Allocates its work arrays on every call; compiled code that calls it often should make
+    them once with :func:`new_work` and call :func:`fis_eval_into`.
 
     Parameters
     ----------
@@ -498,13 +587,14 @@ def fis_eval(tables, x, out):
     int
         Number of outputs whose aggregate had zero area although rules fired.
     """
-    return _eval_point(tables[0], tables[1], x, out)
+    return _eval_point(tables[0], tables[1], x, out, new_work(tables[0]))
 
 
-@_jit
+@_jit_alloc
 def eval_batch(ints, reals, X, out):
     """out[n] = system(X[n]) for X (N, n_in), out (N, n_out); returns the zero-area count."""
+    wk = new_work(ints)
     flags = 0
     for n in range(X.shape[0]):
-        flags += _eval_point(ints, reals, X[n], out[n])
+        flags += _eval_point(ints, reals, X[n], out[n], wk)
     return flags

@@ -345,15 +345,15 @@ def surface_gain(scenario, controller: str) -> np.ndarray | None:
     leaves a steady error of about dG / (gain lambda).
 
     SMC: K + Lambda / eps (inside the boundary layer); FSMC and AFSMC:
-    K + K_u K_s |dFLC/ds*(0, 0)| (slope of the fuzzy surface); PD: K_p / lambda.
+    K + K_u K_s |dFLC/ds*(0, 0)| (slope of the scenario's fuzzy surface); PD: K_p / lambda.
     """
-    from pkmctl.fuzzy import FLC
     from pkmctl.parts import get_part
 
     part = get_part("controller", controller)
     if part.surface_gain is None:
         return None
-    return np.asarray(part.surface_gain(scenario.controller_gains(), FLC()), dtype=float)
+    gain = part.surface_gain(scenario.controller_gains(), scenario.fuzzy_system())
+    return np.asarray(gain, dtype=float)
 
 
 def gravity_mismatch(scenario) -> np.ndarray:

@@ -2,8 +2,9 @@
 
 A scenario names the true plant (mechanism), the controller's model (the plant's
 parameters scaled by ``controller_model.theta_scale``, 0.85 in the paper: 15 % low),
-the gains (Table 3 and our gamma), the trajectory, the initial state, the disturbance
-and the timing. Built-ins: ``"paper"`` (T_c = 50 us) and ``"paper-1khz"`` (T_c = 1 ms).
+the gains (Table 3 and our gamma), the fuzzy system of FSMC/AFSMC (``[fuzzy]``: the
+paper's FLC, or a MATLAB ``.fis`` file), the trajectory, the initial state, the
+disturbance and the timing. Built-ins: ``"paper"`` (T_c = 50 us) and ``"paper-1khz"`` (T_c = 1 ms).
 
 Bad input raises :class:`ScenarioError` with a one-line message naming the field,
 the value and what is allowed.
@@ -12,6 +13,7 @@ the value and what is allowed.
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -30,6 +32,9 @@ from pydantic import (
 
 from pkmctl.control.gains import BASELINE_GAINS, TABLE3, Gains
 from pkmctl.errors import InvalidPoseError, PkmctlError
+from pkmctl.fuzzy import FLC, FuzzySystem, MamdaniSystem
+from pkmctl.fuzzy.fis import FISError, read_fis
+from pkmctl.fuzzy.term import term_system
 from pkmctl.model.mechanism import PAPER_TABLE2, Mechanism
 from pkmctl.sim.trajectory import TRAJECTORIES, Sinusoid, paper_trajectory
 
@@ -118,6 +123,55 @@ class GainsSpec(_Model):
         d = self.model_dump()
         d["theta_bounds"] = tuple(d["theta_bounds"])
         return Gains(**d)
+
+
+class FuzzySpec(_Model):
+    """The fuzzy system of FSMC's and AFSMC's fuzzy term (eq. 26; docs/fuzzy.md).
+
+    ``fis``: a MATLAB ``.fis`` file, Mamdani or Sugeno, with 2 inputs (s*, sdot*) and 1
+    output (absent: the paper's FLC). A relative path is relative to the folder of the
+    scenario file (to the working directory for a scenario made from a dict or TOML
+    text); the scenario keeps it absolute. ``engine``: ``"auto"`` runs a system that
+    qualifies on the paper's fast kernel and any other on the general engine,
+    ``"general"`` always the general engine. ``input_range``: ``"clip"`` (inputs clipped to
+    their ranges, as the paper's FLC) or ``"raw"`` (MATLAB's). ``samples``: none (the
+    continuous aggregate, exact) or n (MATLAB's defuzzification on n points; 101 there).
+    The last two put any system on the general engine.
+    """
+
+    fis: str | None = None
+    engine: Literal["auto", "general"] = "auto"  # pkmctl.fuzzy.term.ENGINES
+    input_range: Literal["clip", "raw"] = "clip"
+    samples: int | None = Field(None, ge=3, le=1_000_000)
+
+    @field_validator("fis")
+    @classmethod
+    def _fis(cls, v: str | None) -> str | None:
+        # Read and check the file now: a bad file is a bad scenario, refused before any run.
+        if v is None:
+            return v
+        path = os.path.abspath(Path(v).expanduser())
+        try:
+            term_system(read_fis(path), source=path)
+        except FISError as exc:
+            more = len(exc.problems) - 1
+            raise ValueError(
+                str(exc).splitlines()[0]
+                + (f" (and {more} more problem{'s' if more > 1 else ''})" if more else "")
+            ) from None
+        except ValueError as exc:
+            raise ValueError(str(exc)) from None
+        return path
+
+    def build(self) -> MamdaniSystem | FuzzySystem:
+        """The system the fuzzy term runs (:func:`pkmctl.fuzzy.term.term_system`)."""
+        system = FLC() if self.fis is None else read_fis(self.fis)
+        options: dict[str, Any] = {}
+        if self.input_range != "clip":
+            options["input_range"] = self.input_range
+        if self.samples is not None:
+            options["samples"] = self.samples
+        return term_system(system, engine=self.engine, source=self.fis, **options)
 
 
 def _paper_traj(field_name: str) -> list[float]:
@@ -314,6 +368,7 @@ class Scenario(_Model):
     mechanism: MechanismSpec = MechanismSpec()
     controller_model: ControllerModelSpec = ControllerModelSpec()
     gains: GainsSpec = GainsSpec()
+    fuzzy: FuzzySpec = FuzzySpec()
     trajectory: TrajectorySpec = TrajectorySpec()
     initial: InitialSpec = InitialSpec()
     disturbance: DisturbanceSpec = DisturbanceSpec()
@@ -412,6 +467,12 @@ class Scenario(_Model):
             raise ScenarioError(
                 f"{where}: empty (no field set; `pkmctl scenario paper` prints a full one)"
             )
+        fuzzy = data.get("fuzzy")
+        fis = fuzzy.get("fis") if isinstance(fuzzy, dict) else None
+        if where != "scenario TOML" and isinstance(fis, str):
+            # a .fis file named by a scenario file is relative to that file's folder
+            if not Path(fis).expanduser().is_absolute():
+                data["fuzzy"] = fuzzy | {"fis": str(Path(source).parent / fis)}
         return cls.from_dict(data)
 
     def to_toml(self) -> str:
@@ -448,6 +509,10 @@ class Scenario(_Model):
 
     def controller_gains(self) -> Gains:
         return self.gains.build()
+
+    def fuzzy_system(self) -> MamdaniSystem | FuzzySystem:
+        """The fuzzy term's system of FSMC/AFSMC, as the loop runs it (``[fuzzy]``)."""
+        return self.fuzzy.build()
 
 
 def _one_line(exc: ValidationError) -> str:

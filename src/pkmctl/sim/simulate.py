@@ -16,7 +16,7 @@ import numpy as np
 
 from pkmctl._jit import kernel
 from pkmctl.errors import InsufficientMemory, SimulationDiverged
-from pkmctl.fuzzy import FLC, MamdaniSystem
+from pkmctl.fuzzy import FuzzySystem, MamdaniSystem
 from pkmctl.model.dynamics import (
     JQ,
     Q,
@@ -204,7 +204,7 @@ class _Prepared:
     reference: np.ndarray  # (rows, 9): X_d, Xdot_d, Xddot_d
     q_des: np.ndarray
     tau_des: np.ndarray
-    flc: MamdaniSystem
+    flc: MamdaniSystem | FuzzySystem  # the fuzzy term's system ([fuzzy])
     periods: int
     every: int
     dist_index: np.ndarray | None  # (periods,) when every == 1
@@ -246,7 +246,8 @@ def _prepare(scenario: Scenario | str, duration: float | None) -> _Prepared:
     t, reference, q_des, tau_des = _desired(scenario, plant, np.arange(0, n, every))
     index = _disturbance_index(0, n, Tc, scenario.disturbance.hold) if every == 1 else None
     model = scenario.controller_mechanism()
-    return _Prepared(scenario, plant, model, t, reference, q_des, tau_des, FLC(), n, every, index)
+    flc = scenario.fuzzy_system()
+    return _Prepared(scenario, plant, model, t, reference, q_des, tau_des, flc, n, every, index)
 
 
 def _with_seed(scenario: Scenario, seed: int) -> Scenario:
