@@ -290,3 +290,17 @@ def test_command_errors_are_one_line_exit_2(tmp_path, args, words):
     assert r.returncode == 2, r.stderr
     assert words in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert not (tmp_path / "o").exists() and not (tmp_path / "o.toml").exists()
+
+
+def test_pkmctl_time_series_carry_the_measured_lengths(tmp_path, proto):
+    from pkmctl.ident.identify import read_log
+    from pkmctl.io.results import load_result, save_result
+
+    r = pkmctl.simulate(proto.replace(**{"sensor.noise": 1e-6}), controller="pd", duration=0.05)
+    table, meta = save_result(r, tmp_path)
+    back = load_result(meta)
+    np.testing.assert_array_equal(back.q_measured, r.q_measured)
+    log = read_log(table)
+    assert log.columns[1:5] == ("q1_m", "q2_m", "q3_m", "q4_m")
+    np.testing.assert_array_equal(log.q, r.q_measured)
+    assert not np.array_equal(log.q, r.q)  # the encoder's, not the truth
