@@ -124,6 +124,15 @@ def read_log(path: str | Path) -> Log:
     machine's CSV needs columns t (s), q1..q4 (m), tau1..tau4 (N, limb forces).
     """
     path = Path(path)
+    if path.suffix.lower() == ".json" and path.is_file():  # pkmctl's metadata: its table
+        import json
+
+        try:
+            path = path.with_name(json.loads(path.read_text(encoding="utf-8"))["table"])
+        except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+            raise IdentificationError(
+                f"log {str(path)!r}: not the metadata of a pkmctl time series"
+            ) from None
     cols = _read_table(path)
     where = f"log {str(path)!r}"
     qn = [f"q{i}_m" for i in range(1, 5)]
