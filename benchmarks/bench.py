@@ -368,6 +368,26 @@ def bench_prototype(duration: float, repeats: int) -> dict[str, float]:
     return out
 
 
+def bench_identify(quick: bool) -> dict[str, float]:
+    """Wall time of ``identify`` (forward kinematics, filters, OLS, WLS, jackknife, the
+    physically consistent fit) on a 60 s log at 1 kHz of an exciting trajectory, with
+    encoder quantisation and noise (issue 12 asks "a few seconds")."""
+    import pkmctl
+    from pkmctl.ident.excite import design_excitation
+    from pkmctl.ident.identify import identify
+    from pkmctl.ident.synthetic import synthetic_log
+
+    proto = pkmctl.Scenario.builtin("prototype")
+    sc = design_excitation(proto, restarts=1, max_iter=30).scenario(proto)
+    duration = 10.0 if quick else 60.0
+    log = synthetic_log(sc, duration=duration, quantise=True, q_noise=5e-7, tau_noise=1.0)
+    identify(synthetic_log(sc, duration=10.0), sc)  # warm: the kernels are compiled
+    t0 = time.perf_counter()
+    idn = identify(log, sc)
+    return {"seconds": time.perf_counter() - t0, "duration": duration, "samples": log.t.size,
+            "used": int(idn.observation.t.size)}  # fmt: skip
+
+
 def run_all(quick: bool = False, progress: Callable[[str], None] | None = None) -> dict:
     """Run every benchmark; ``quick`` shortens them to a smoke test."""
     say = progress or (lambda _m: None)
@@ -409,6 +429,8 @@ def run_all(quick: bool = False, progress: Callable[[str], None] | None = None) 
     res["campaign"] = bench_campaign(quick)
     say("pkmctl reproduce, end to end")
     res["reproduce"] = bench_reproduce(quick)
+    say("identification of a logged run")
+    res["identify"] = bench_identify(quick)
     say("floating-point operations per step")
     res["flops"] = flop_estimate(res["steps"]["afsmc"]["loop_steps_per_s"])
     return res
@@ -563,6 +585,9 @@ def rows(res: dict) -> list[tuple[str, str, str, str]]:
         "reproduce",
         rp["warm_s"],
     )
+    if "identify" in res:
+        ident = res["identify"]
+        row(f"identify, a {ident['duration']:g} s log at 1 kHz", f"{ident['seconds']:.2f} s")
     fl = res["flops"]
     row(
         "flops per AFSMC step (counted)",

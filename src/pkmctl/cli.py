@@ -10,6 +10,8 @@
     pkmctl campaign run SPEC.toml|NAME [--out DIR] [--workers N] [--scheduler ADDRESS] [--resume]
     pkmctl campaign show SPEC.toml|NAME
     pkmctl campaign report DIR
+    pkmctl excite [--scenario NAME|FILE] [--out FILE] [--harmonics H] [--base-frequency F]
+    pkmctl identify LOG [--out DIR] [--scenario NAME|FILE] [--validate LOG2] [--cutoff HZ]
 
 Every error a user can cause ends in one line on stderr naming the cause (the value,
 the field or the path) and exit status 2 for bad input or environment (output
@@ -769,6 +771,9 @@ def _import_benchmarks() -> None:
             sys.path.insert(0, str(root))
             return
     _fail("pkmctl bench runs from a source checkout: no benchmarks/bench.py here or beside pkmctl")
+
+
+from pkmctl import cli_identify as _cli_identify  # noqa: E402, F401  (registers excite, identify)
 
 
 def main() -> None:  # pragma: no cover - console entry

@@ -26,7 +26,7 @@ from pkmctl._jit import kernel
 from pkmctl.fuzzy import FISTables, SystemTables
 from pkmctl.fuzzy.term import term_eval, term_work
 from pkmctl.model.dynamics import dynamics_kernel, gravity_kernel, inverse_dynamics, make_work
-from pkmctl.model.machine import N_MACHINE_MODEL, add_machine_model, reflected_inertia
+from pkmctl.model.machine import N_MACHINE_MODEL, add_machine_model
 from pkmctl.parts import PartContext, builtin_part
 
 __all__ = [
@@ -68,10 +68,9 @@ def machine_model(ctx: PartContext) -> tuple[np.ndarray, float]:
     if sc is None:
         return mm, 0.0
     cm = sc.controller_model
-    mm[0:4] = reflected_inertia(cm.rotor_inertia, sc.plant_spec.screw_lead)
-    mm[4:8], mm[8:12], mm[12] = cm.friction_coulomb, cm.friction_viscous, cm.friction_velocity
-    on = cm.rotor_inertia > 0 or cm.friction_coulomb > 0 or cm.friction_viscous > 0
-    return mm, 1.0 if on else 0.0
+    mm[0:4], mm[4:8], mm[8:12] = cm.machine_terms(sc.plant_spec.screw_lead)
+    mm[12] = cm.friction_velocity
+    return mm, 1.0 if np.any(mm[0:12] > 0) else 0.0
 
 
 @kernel(inline="always", refcount=False)

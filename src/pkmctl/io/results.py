@@ -2,11 +2,12 @@
 
 ``save_result(result, directory)`` writes ``<stem>.parquet`` (or ``<stem>.csv`` with
 ``fmt="csv"``): one row per control period with t, X, Xdot, X_desired, Xdot_desired, q,
-q_desired, F, tau, tau_desired, disturbance and, for AFSMC, theta_hat; and ``<stem>.json``
-(the scenario as TOML text, the controller, the metrics, the loop's metric accumulators,
-the column names and the table's file name). ``load_result`` reads them back into a
-:class:`~pkmctl.Result`, bit for bit; a decimated run's metrics (``logging.every`` > 1)
-come back from the accumulators, not from the rows it logged.
+q_desired, F, tau, tau_desired, disturbance, the measured q1_m..q4_m when the sensor is
+not ideal and, for AFSMC, theta_hat; and ``<stem>.json`` (the scenario as TOML text, the
+controller, the metrics, the loop's metric accumulators, the column names and the
+table's file name). ``load_result`` reads them back into a :class:`~pkmctl.Result`, bit
+for bit; a decimated run's metrics (``logging.every`` > 1) come back from the
+accumulators, not from the rows it logged.
 
 Parquet is the default: a 10 s run at 20 kHz has 200,000 rows and up to 83 columns,
 which takes ~8 s to print as CSV with round-trip precision and ~0.2 s as Parquet
@@ -45,12 +46,18 @@ _FIELDS = (
 )
 
 
+_MEASURED = ("q1_m", "q2_m", "q3_m", "q4_m")
+
+
 def _columns(result: Result) -> tuple[list[str], list[np.ndarray]]:
     """Column names and the columns, each a contiguous 1-D copy."""
     names, blocks = ["t"], [result.t.reshape(-1, 1)]
     for name, _, cols in _FIELDS:
         names += list(cols)
         blocks.append(getattr(result, name))
+    if result.q_measured is not None and not np.array_equal(result.q_measured, result.q):
+        names += list(_MEASURED)  # what an encoder gave (pkmctl identify reads these)
+        blocks.append(result.q_measured)
     if result.theta_hat is not None:
         names += [f"theta_hat{k}" for k in range(result.theta_hat.shape[1])]
         blocks.append(result.theta_hat)
@@ -138,6 +145,9 @@ def load_result(json_path: Path) -> Result:
     for name, width, _ in _FIELDS:
         fields[name] = data[:, col : col + width]
         col += width
+    if names[col : col + 4] == list(_MEASURED):
+        fields["q_measured"] = data[:, col : col + 4]
+        col += 4
     theta = data[:, col:] if col < data.shape[1] else None
     lm = meta.get("loop_metrics")
     return Result(

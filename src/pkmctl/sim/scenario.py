@@ -24,7 +24,9 @@ from pydantic import (
     BaseModel,
     BeforeValidator,
     ConfigDict,
+    Discriminator,
     Field,
+    Tag,
     ValidationError,
     field_validator,
     model_validator,
@@ -36,7 +38,7 @@ from pkmctl.fuzzy import FLC, FuzzySystem, MamdaniSystem
 from pkmctl.fuzzy.fis import FISError, read_fis
 from pkmctl.fuzzy.term import term_system
 from pkmctl.model.mechanism import PAPER_TABLE2, Mechanism
-from pkmctl.sim.trajectory import TRAJECTORIES, Sinusoid, paper_trajectory
+from pkmctl.sim.trajectory import TRAJECTORIES, Fourier, Sinusoid, paper_trajectory
 
 __all__ = ["BUILTINS", "Scenario", "ScenarioError"]
 
@@ -192,6 +194,59 @@ class TrajectorySpec(_Model):
         return cls(*(tuple(getattr(self, k)) for k in ("offset", "amplitude", "omega", "phase")))
 
 
+Coefficients = Annotated[
+    list[
+        Annotated[
+            list[Annotated[float, Field(ge=-100, le=100)]], Field(min_length=1, max_length=20)
+        ]
+    ],
+    Field(min_length=3, max_length=3),
+]
+
+
+class FourierSpec(_Model):
+    """A finite Fourier series per coordinate (``pkmctl excite`` designs one, DESIGN.md §9):
+    X_i = offset_i + sum_l a_il / (w l) sin(w l t) - b_il / (w l) cos(w l t), w = 2 pi
+    ``base_frequency`` (Hz); ``a``, ``b``: 3 rows [z, alpha, beta] of H coefficients (m/s,
+    rad/s)."""
+
+    kind: Literal["fourier"] = "fourier"
+    base_frequency: float = Field(0.1, gt=0, le=100)  # Hz
+    offset: Vec3 = [0.7, 0.0, 0.0]  # m, rad
+    a: Coefficients = [[0.0], [0.0], [0.0]]
+    b: Coefficients = [[0.0], [0.0], [0.0]]
+
+    @model_validator(mode="after")
+    def _shapes(self) -> FourierSpec:
+        h = {len(r) for r in self.a} | {len(r) for r in self.b}
+        if len(h) != 1:
+            raise ValueError(
+                f"a and b: every row needs the same number of harmonics (got {sorted(h)})"
+            )
+        return self
+
+    def build(self) -> Fourier:
+        return Fourier(
+            self.base_frequency,
+            tuple(self.offset),
+            tuple(tuple(r) for r in self.a),
+            tuple(tuple(r) for r in self.b),
+        )
+
+
+def _trajectory_kind(v: Any) -> str:
+    if isinstance(v, dict):
+        return v.get("kind", "sinusoid")
+    return getattr(v, "kind", "sinusoid")
+
+
+#: A scenario's trajectory: a sinusoid (eq. 54, the default) or a Fourier series.
+AnyTrajectory = Annotated[
+    Annotated[TrajectorySpec, Tag("sinusoid")] | Annotated[FourierSpec, Tag("fourier")],
+    Discriminator(_trajectory_kind),
+]
+
+
 class InitialSpec(_Model):
     """Initial state of the plant (at rest at home in the paper)."""
 
@@ -282,6 +337,45 @@ class ControllerModelSpec(_Model):
     friction_coulomb: _nonneg("N", 1e5) = 0.0
     friction_viscous: _nonneg("N s/m", 1e6) = 0.0
     friction_velocity: _positive("m/s", 1.0) = 1e-3
+    #: An explicit model instead: Theta_ext = [Theta (36), m_r (4, kg), F_c (4, N),
+    #: F_v (4, N s/m)] of DESIGN.md §7, as ``pkmctl identify`` writes it. Replaces
+    #: theta_scale, rotor_inertia and the friction (not friction_velocity).
+    theta_ext: (
+        Annotated[list[Annotated[float, Field(ge=0, le=1e6)]], Field(min_length=48, max_length=48)]
+        | None
+    ) = None
+
+    @model_validator(mode="after")
+    def _explicit(self) -> ControllerModelSpec:
+        if self.theta_ext is None:
+            return self
+        both = sorted(
+            self.model_fields_set
+            & {"theta_scale", "rotor_inertia", "friction_coulomb", "friction_viscous"}
+        )
+        if both:
+            raise ValueError(
+                f"theta_ext is given, so {', '.join(both)} must not be (theta_ext holds them)"
+            )
+        bad = [k for k in range(36) if not self.theta_ext[k] > 0]
+        if bad:
+            raise ValueError(
+                f"theta_ext[{bad[0]}] = {self.theta_ext[bad[0]]!r}: masses and inertias "
+                "(theta_ext[0:36]) must be > 0"
+            )
+        return self
+
+    def machine_terms(self, screw_lead: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The model's m_r (4, kg), F_c (4, N), F_v (4, N s/m) per limb."""
+        if self.theta_ext is not None:
+            e = np.asarray(self.theta_ext[36:], dtype=float)
+            return e[0:4].copy(), e[4:8].copy(), e[8:12].copy()
+        m_r = self.rotor_inertia * (2.0 * math.pi / screw_lead) ** 2
+        return (
+            np.full(4, m_r),
+            np.full(4, float(self.friction_coulomb)),
+            np.full(4, float(self.friction_viscous)),
+        )
 
 
 class PlantSpec(_Model):
@@ -369,7 +463,7 @@ class Scenario(_Model):
     controller_model: ControllerModelSpec = ControllerModelSpec()
     gains: GainsSpec = GainsSpec()
     fuzzy: FuzzySpec = FuzzySpec()
-    trajectory: TrajectorySpec = TrajectorySpec()
+    trajectory: AnyTrajectory = TrajectorySpec()
     initial: InitialSpec = InitialSpec()
     disturbance: DisturbanceSpec = DisturbanceSpec()
     timing: TimingSpec = TimingSpec()
@@ -386,7 +480,7 @@ class Scenario(_Model):
         except ValueError as exc:
             raise ValueError(f"mechanism: {exc}") from None
         try:
-            plant.with_theta(self.controller_model.theta_scale * plant.theta)
+            self.controller_mechanism()
         except ValueError as exc:
             raise ValueError(f"controller_model: {exc}") from None
         try:
@@ -503,9 +597,13 @@ class Scenario(_Model):
         return self.mechanism.build()
 
     def controller_mechanism(self) -> Mechanism:
-        """The controllers' model: same geometry, Theta^ = theta_scale * Theta."""
+        """The controllers' model: same geometry, Theta^ = theta_scale * Theta (or the
+        first 36 entries of ``controller_model.theta_ext``)."""
         p = self.plant()
-        return p.with_theta(self.controller_model.theta_scale * p.theta)
+        cm = self.controller_model
+        if cm.theta_ext is not None:
+            return p.with_theta(np.asarray(cm.theta_ext[:36], dtype=float))
+        return p.with_theta(cm.theta_scale * p.theta)
 
     def controller_gains(self) -> Gains:
         return self.gains.build()
@@ -517,7 +615,15 @@ class Scenario(_Model):
 
 def _one_line(exc: ValidationError) -> str:
     err = exc.errors()[0]
-    loc = ".".join(str(p) for p in err["loc"]) or "scenario"
+    # the trajectory's kind tag ("sinusoid", "fourier") is pydantic's, not a field
+    parts = [p for i, p in enumerate(err["loc"]) if not (i == 1 and err["loc"][0] == "trajectory")]
+    loc = ".".join(str(p) for p in parts) or "scenario"
+    if err["type"] == "union_tag_invalid":  # an unknown trajectory kind
+        ctx = err.get("ctx", {})
+        return (
+            f"{loc}.kind = {ctx.get('tag')!r}: must be one of "
+            f"{str(ctx.get('expected_tags', '')).replace(chr(39), '')}"
+        )
     msg = err["msg"].removeprefix("Value error, ")
     if err["type"] in ("value_error", "assertion_error"):
         if msg.startswith("= "):  # a range check that shows the value: "field = v: ..."

@@ -16,7 +16,7 @@ from pkmctl.model.dynamics import _cholesky_solve3
 from pkmctl.model.kinematics import limb_jacobian
 from pkmctl.parts import NoParams, PartContext, builtin_part
 
-__all__ = ["EncoderSensor", "IdealSensor", "encoder_sensor"]
+__all__ = ["EncoderSensor", "IdealSensor", "encoder_sensor", "fk_batch"]
 
 
 class IdealSensor(NoParams):
@@ -199,6 +199,27 @@ def fk_gauss_newton(geom, qh, X, R, Jq, q, r, step_tol, grad_tol, max_iter):
                 return it
         prev = step
     return -1
+
+
+@kernel
+def fk_batch(geom, qh, X0, step_tol, grad_tol, max_iter, out):
+    """:func:`fk_gauss_newton` for every row of ``qh`` (n, 4), each warm-started at the
+    previous pose (``X0`` (3,) for the first, with four times the iterations); poses into
+    ``out`` (n, 3). Returns (the first row that failed, or -1; the largest |q(X) - qh| m)."""
+    R, Jq, q, r = np.empty((3, 3)), np.empty((4, 3)), np.empty(4), np.empty(4)
+    X = X0.copy()
+    worst = 0.0
+    for k in range(qh.shape[0]):
+        it = fk_gauss_newton(
+            geom, qh[k], X, R, Jq, q, r, step_tol, grad_tol, max_iter if k else 4 * max_iter
+        )
+        if it < 0:
+            return k, worst
+        for i in range(4):
+            worst = max(worst, abs(q[i] - qh[k, i]))
+        for i in range(3):
+            out[k, i] = X[i]
+    return -1, worst
 
 
 @kernel(refcount=False)

@@ -1,0 +1,239 @@
+"""``pkmctl excite`` and ``pkmctl identify`` (DESIGN.md §9), registered on the app of
+:mod:`pkmctl.cli` (imported there), with its one-line errors and Ctrl-C handling.
+
+    pkmctl excite [--scenario NAME|FILE] [--out FILE] [--harmonics H] [--base-frequency F]
+    pkmctl identify LOG [--out DIR] [--scenario NAME|FILE] [--validate LOG2] [--cutoff HZ]
+                    [--force-lead auto|SECONDS] [--physical/--no-physical]
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+from rich.text import Text
+
+from pkmctl.cli import (
+    _SCENARIO_NAMES,
+    _Compiles,
+    _fail,
+    _handle,
+    _interruptible,
+    _load_scenario,
+    _say,
+    _untouched,
+    app,
+    console,
+)
+
+
+def _scenario_for(ctx: typer.Context, spec: str | None, log: Path | None):
+    """The named scenario; else the one beside a pkmctl log (its .json); else prototype."""
+    if spec is None and log is not None:
+        meta = log.with_suffix(".json")
+        if meta.is_file():
+            from pkmctl.sim.scenario import Scenario
+
+            try:
+                text = json.loads(meta.read_text(encoding="utf-8"))["scenario_toml"]
+                return Scenario.from_toml(text)
+            except (OSError, ValueError, KeyError, TypeError):
+                pass  # not pkmctl's metadata: fall back to the default
+    try:
+        return _interruptible(lambda: _load_scenario(spec or "prototype"), lambda: "nothing done")
+    except Exception as exc:
+        _handle(ctx, exc)
+
+
+@app.command()
+def excite(
+    ctx: typer.Context,
+    scenario: Annotated[
+        str, typer.Option(help=f"The machine: a built-in ({_SCENARIO_NAMES}) or a TOML file.")
+    ] = "prototype",
+    out: Annotated[
+        Path, typer.Option(help="The scenario file to write (TOML), with the trajectory.")
+    ] = Path("excite.toml"),
+    harmonics: Annotated[int, typer.Option(help="Harmonics per coordinate (3-20).")] = 5,
+    base_frequency: Annotated[
+        float, typer.Option(help="Base frequency (Hz); the trajectory repeats at 1/F s.")
+    ] = 0.2,
+    periods: Annotated[int, typer.Option(help="Periods of the trajectory in the run.")] = 2,
+    seed: Annotated[int, typer.Option(help="Seed of the optimiser's random starts.")] = 0,
+) -> None:
+    """Design an exciting trajectory for identification: a Fourier series per coordinate
+    minimising the condition number of the base observation matrix inside the workspace
+    and the drives' limits, at rest at both ends. Writes SCENARIO on it as OUT."""
+    from pkmctl.io.atomic import atomic_write, check_output_file
+
+    if not 3 <= harmonics <= 20:
+        _fail(f"--harmonics = {harmonics}: must be in [3, 20]")
+    if not 0 < base_frequency <= 10:
+        _fail(f"--base-frequency = {base_frequency}: must be in (0, 10] Hz")
+    if not 1 <= periods <= 100:
+        _fail(f"--periods = {periods}: must be in [1, 100]")
+    try:
+        out = check_output_file(out, what="--out")
+    except Exception as exc:
+        _handle(ctx, exc)
+    base = _scenario_for(ctx, scenario, None)
+    from pkmctl.ident.excite import design_excitation
+
+    compiles = _Compiles()
+    try:
+        with (
+            console.status(Text(f"designing an exciting trajectory for {base.name!r}")),
+            compiles.listen(),
+        ):
+            exc_ = _interruptible(
+                lambda: design_excitation(
+                    base,
+                    harmonics=harmonics,
+                    base_frequency=base_frequency,
+                    periods=periods,
+                    seed=seed,
+                ),
+                lambda: f"nothing written{compiles.kept()}",
+            )
+            sc = exc_.scenario(base)
+    except Exception as exc:
+        _handle(ctx, exc)
+    with atomic_write(out) as fh:
+        fh.write(
+            f"# pkmctl excite --scenario {scenario} --harmonics {harmonics} "
+            f"--base-frequency {base_frequency:g} --periods {periods} --seed {seed}\n"
+        )
+        fh.write(sc.to_toml())
+    t = Table(title=f"Exciting trajectory for {base.name!r} ({exc_.seconds:.1f} s to design)")
+    t.add_column("")
+    t.add_column("this trajectory", justify="right")
+    t.add_column("limit / eq. 54", justify="right")
+    t.add_row("cond(W_b) over the run", f"{exc_.cond:.4g}", f"{exc_.cond_paper:.4g} (eq. 54)")
+    t.add_row("base parameters", str(exc_.base.count), "of 48")
+    t.add_row(Text("peak limb force [N]"), f"{exc_.peak_force:.4g}", f"{exc_.force_limit:.4g}")
+    t.add_row(Text("peak limb speed [m/s]"), f"{exc_.peak_speed:.3g}", f"{exc_.speed_limit:.3g}")
+    t.add_row("max cond(J)", f"{exc_.max_cond_j:.3g}", "50")
+    t.add_row(Text("z range [m]"), f"{exc_.z_range[0]:.3f}-{exc_.z_range[1]:.3f}", "0.62-0.78")
+    t.add_row(Text("max |alpha|, |beta| [rad]"), f"{exc_.max_angle:.3f}", "0.5")
+    console.print(t)
+    console.print(
+        Text(
+            f"wrote {out}: {exc_.duration:g} s; run it with "
+            f"pkmctl simulate {out} --controller pd --out DIR, then pkmctl identify DIR/pd.parquet"
+        )
+    )
+
+
+@app.command()
+def identify(
+    ctx: typer.Context,
+    log: Annotated[
+        Path,
+        typer.Argument(
+            help="A run's time series: pkmctl's Parquet/CSV, or a CSV with columns t (s), "
+            "q1..q4 (m), tau1..tau4 (N, limb forces)."
+        ),
+    ],
+    out: Annotated[
+        Path, typer.Option(help="Output folder: report.md, figures, the estimate.")
+    ] = Path("pkmctl-identify"),
+    scenario: Annotated[
+        str | None,
+        typer.Option(
+            help="The machine's geometry and the prior (a built-in or a TOML file; default: "
+            "the scenario beside a pkmctl log, else prototype)."
+        ),
+    ] = None,
+    validate: Annotated[
+        Path | None, typer.Option(help="A second log: predict its J^T tau and report the error.")
+    ] = None,
+    cutoff: Annotated[float, typer.Option(help="Parallel filter cutoff (Hz).")] = 10.0,
+    force_lead: Annotated[
+        str,
+        typer.Option(
+            help="Force timing: the force at t is the logged one at t - LEAD (s); 'auto' "
+            "estimates it (e.g. forces held over a control period: +T/2)."
+        ),
+    ] = "0",
+    physical: Annotated[
+        bool, typer.Option(help="Also a physically consistent estimate (controller_model.toml).")
+    ] = True,
+) -> None:
+    """Identify the base parameters and the joint friction from a logged run (OLS, WLS,
+    jackknife standard deviations), optionally validate on a second log; write a report
+    and the estimate as a scenario [controller_model] block."""
+    from pkmctl.ident.identify import identify as run_identify
+    from pkmctl.ident.identify import predict, read_log
+    from pkmctl.ident.report import write_identification
+    from pkmctl.io.atomic import check_output_folder, discard, staged_folder
+
+    if force_lead == "auto":
+        lead = None
+    else:
+        try:
+            lead = float(force_lead)
+        except ValueError:
+            _fail(f"--force-lead = {force_lead!r}: must be 'auto' or a number of seconds")
+        if not abs(lead) < 1.0:
+            _fail(f"--force-lead = {force_lead}: must be 'auto' or a time in (-1, 1) s")
+    try:
+        out = check_output_folder(out, what="--out")
+    except Exception as exc:
+        _handle(ctx, exc)
+    existed = out.is_dir()
+    sc = _scenario_for(ctx, scenario, log)
+    compiles = _Compiles()
+    try:
+        with (
+            staged_folder(out) as stage,
+            console.status(Text(f"identifying from {log}")),
+            compiles.listen(),
+        ):
+
+            def work():
+                idn = run_identify(read_log(log), sc, cutoff=cutoff, force_lead=lead,
+                                   physical=physical)  # fmt: skip
+                val = None
+                if validate is not None:
+                    val = predict(idn, read_log(validate), sc)
+                    val["source"] = str(validate)
+                return idn, val, write_identification(idn, stage, source=str(log),
+                                                      validation=val)  # fmt: skip
+
+            def interrupted() -> str:
+                discard(stage)
+                return _untouched(out, existed) + compiles.kept()
+
+            idn, val, paths = _interruptible(work, interrupted)
+    except Exception as exc:
+        _handle(ctx, exc, suffix="; " + _untouched(out, existed))
+    obs = idn.observation
+    used = obs.t.size
+    _say(
+        f"{obs.samples_in} samples, {used} used "
+        + "; ".join(f"{k} discarded ({why})" for why, k in obs.discarded.items())
+    )
+    t = Table(title=f"{idn.base.count} base parameters (cond {idn.cond:.4g}), WLS")
+    for c, j in (("#", "right"), ("base parameter", "left"), ("unit", "left"),
+                 ("estimate", "right"), ("std %", "right")):  # fmt: skip
+        t.add_column(c, justify=j, overflow="fold")
+    for k in range(idn.base.count):
+        t.add_row(
+            str(k + 1),
+            Text(idn.base.expressions[k]),
+            idn.base.units[k],
+            f"{idn.wls.beta[k]:.5g}",
+            f"{idn.wls.std_percent[k]:.3g}",
+        )
+    console.print(t)
+    msg = (
+        f"residual RMS (WLS) z {idn.wls.rms[0]:.3g} N, alpha {idn.wls.rms[1]:.3g} N m, "
+        f"beta {idn.wls.rms[2]:.3g} N m; relative error {100 * idn.wls.relative_error:.3g} %"
+    )
+    if val is not None:
+        msg += f"; validation on {validate}: {100 * val['relative_error']:.3g} %"
+    console.print(Text(msg))
+    console.print(Text(f"wrote {out / 'report.md'} and {len(paths) - 1} more files"))

@@ -1,0 +1,1 @@
+"""Identification of the dynamic parameters and the joint friction (DESIGN.md §9)."""

@@ -1,0 +1,260 @@
+"""An exciting trajectory for identification (DESIGN.md §9, Swevers et al. 1997).
+
+A finite Fourier series per coordinate (:class:`pkmctl.sim.trajectory.Fourier`), whose
+coefficients minimise the condition number of the base observation matrix W_b stacked
+over one period, subject to, at every sample of the period: the workspace (|alpha|,
+|beta| <= 0.5 rad, z in :data:`Z_RANGE`), cond(J) <= :data:`MAX_COND_J`, the limb
+speeds and forces of the scenario's drives with a margin (the controller needs room
+to correct). The start and end are at rest at the scenario's initial pose: per
+coordinate sum_l a_l = 0 (Xdot(0) = 0), sum_l l b_l = 0 (Xddot(0) = 0) and
+sum_l b_l / l = 0 (X(0) = offset), imposed exactly by optimising in their null space.
+Forces are predicted with the scenario's true machine (the designer's nominal model:
+for the prototype, the catalogue values of DESIGN.md §7).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+
+from pkmctl.ident.base import BaseParameters, base_parameters
+from pkmctl.model.machine import reflected_inertia
+from pkmctl.model.mechanism import _extended_regressor_batch, _limbs_batch
+from pkmctl.sim.scenario import Scenario
+from pkmctl.sim.trajectory import Fourier
+
+__all__ = ["MAX_COND_J", "Z_RANGE", "Excitation", "design_excitation", "observation_condition"]
+
+#: The z range of the exciting trajectory (m).
+Z_RANGE = (0.62, 0.78)
+#: Largest |alpha|, |beta| (rad).
+MAX_ANGLE = 0.5
+#: Largest condition number of J along the trajectory.
+MAX_COND_J = 50.0
+#: Fractions of the drives' peak force and maximum limb speed the design may use.
+FORCE_MARGIN, SPEED_MARGIN = 0.5, 0.8
+
+
+@dataclass(frozen=True, eq=False)
+class Excitation:
+    """A designed trajectory and what it reaches (units: s, m, rad, N, m/s)."""
+
+    trajectory: Fourier
+    duration: float
+    cond: float  # of W_b over the duration, the designed trajectory
+    cond_paper: float  # of W_b over the same duration, eq. 54
+    peak_force: float  # largest predicted |tau_i| (N), against force_limit
+    force_limit: float
+    peak_speed: float  # largest |qdot_i| (m/s), against speed_limit
+    speed_limit: float
+    max_cond_j: float
+    z_range: tuple[float, float]
+    max_angle: float
+    seconds: float
+    base: BaseParameters
+
+    def scenario(self, base: Scenario) -> Scenario:
+        """``base`` with this trajectory, its duration, at rest at X(0)."""
+        tr = self.trajectory
+        X0, _, _ = tr.evaluate(np.zeros(1))
+        return base.replace(
+            name=f"{base.name}-excite",
+            description=(
+                f"{base.name} on an exciting Fourier trajectory (pkmctl excite): "
+                f"{len(tr.a[0])} harmonics of {tr.base_frequency:g} Hz, "
+                f"cond(W_b) {self.cond:.3g} (eq. 54: {self.cond_paper:.3g})."
+            ),
+            trajectory={
+                "kind": "fourier",
+                "base_frequency": tr.base_frequency,
+                "offset": list(tr.offset),
+                "a": [list(r) for r in tr.a],
+                "b": [list(r) for r in tr.b],
+            },
+            **{
+                "timing.duration": self.duration,
+                "initial.X": [float(v) for v in X0[0]],
+                "initial.Xdot": [0.0, 0.0, 0.0],
+            },
+        )
+
+
+def _machine(sc: Scenario) -> tuple[np.ndarray, float]:
+    """The scenario's true Θ_ext (48,) and v_s."""
+    ps = sc.plant_spec
+    m_r = reflected_inertia(ps.rotor_inertia, ps.screw_lead)
+    th = np.concatenate(
+        [
+            sc.plant().theta,
+            np.full(4, m_r),
+            np.full(4, ps.friction_coulomb),
+            np.full(4, ps.friction_viscous),
+        ]
+    )
+    return th, ps.friction_velocity
+
+
+def _limits(sc: Scenario) -> tuple[float, float]:
+    """Force (N) and speed (m/s) limits of the scenario's actuators."""
+    a, lead = sc.actuators, sc.plant_spec.screw_lead
+    if a.kind == "drive":
+        force = 2 * math.pi * a.efficiency * a.peak_torque / lead
+        speed = a.max_speed / 60.0 * lead
+    else:
+        force = a.force_limit if a.force_limit is not None else 2160.0
+        speed = 5000.0 / 60.0 * lead
+    return force, speed
+
+
+def observation_condition(sc: Scenario, base: BaseParameters, X, Xd, Xdd) -> float:
+    """cond(W_b) of the stacked base regressor along samples X, Xd, Xdd (N, 3)."""
+    vs = sc.plant_spec.friction_velocity
+    W = sc.plant().extended_regressor(X, Xd, Xd, Xdd, vs)
+    return float(np.linalg.cond(base.reduce(W).reshape(-1, base.count)))
+
+
+def _null(A: np.ndarray) -> np.ndarray:
+    return scipy.linalg.null_space(A)
+
+
+def _cond(A: np.ndarray) -> float:
+    """2-norm condition number of A (m, n), m >= n, from the eigenvalues of A^T A (fast;
+    exact enough below 1e7)."""
+    ev = np.linalg.eigvalsh(A.T @ A)
+    return math.sqrt(ev[-1] / ev[0]) if ev[0] > 0 else math.inf
+
+
+def _split(J: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Minimum-norm limb forces J (J^T J)^-1 F, (N, 4) for J (N, 4, 3), F (N, 3)."""
+    JtJ = np.einsum("nji,njk->nik", J, J)
+    return np.einsum("nij,nj->ni", J, np.linalg.solve(JtJ, F[..., None])[..., 0])
+
+
+def design_excitation(
+    scenario: Scenario,
+    *,
+    harmonics: int = 5,
+    base_frequency: float = 0.2,
+    periods: int = 2,
+    samples: int = 200,
+    restarts: int = 4,
+    seed: int = 0,
+    max_iter: int = 200,
+) -> Excitation:
+    """Design an exciting trajectory for ``scenario``'s machine (see the module)."""
+    t0 = time.perf_counter()
+    H, f = int(harmonics), float(base_frequency)
+    if H < 3:
+        raise ValueError(f"harmonics = {H}: must be >= 3 (rest at both ends takes 3 conditions)")
+    plant = scenario.plant()
+    theta_ext, vs = _machine(scenario)
+    base = base_parameters(plant, vs)
+    f_lim, v_lim = _limits(scenario)
+    X0 = np.asarray(scenario.initial.X, dtype=float)
+    ls = np.arange(1, H + 1, dtype=float)
+    Na = _null(np.ones((1, H)))  # sum a = 0
+    Nb = _null(np.vstack([ls, 1.0 / ls]))  # sum l b = 0, sum b / l = 0
+    na, nb = Na.shape[1], Nb.shape[1]
+    t = np.linspace(0.0, 1.0 / f, samples, endpoint=False)
+    w = 2 * math.pi * f
+
+    def unpack(x: np.ndarray) -> Fourier:
+        x = x.reshape(3, na + nb)
+        a = x[:, :na] @ Na.T
+        b = x[:, na:] @ Nb.T
+        return Fourier(f, tuple(X0), tuple(map(tuple, a)), tuple(map(tuple, b)))
+
+    geom = plant.geometry
+
+    def kinematics(x):
+        tr = unpack(x)
+        X, Xd, Xdd = tr.evaluate(t)
+        _, J = _limbs_batch(geom, X)  # no checks: the constraints keep X valid
+        W = _extended_regressor_batch(geom, X, Xd, Xd, Xdd, vs)
+        return X, Xd, J, W
+
+    def constraints(x) -> np.ndarray:
+        X, Xd, J, W = kinematics(x)
+        sv = np.linalg.svd(J, compute_uv=False)
+        qd = np.einsum("nij,nj->ni", J, Xd)
+        tau = _split(J, W @ theta_ext)
+        return np.array(
+            [
+                (MAX_ANGLE - np.abs(X[:, 1:]).max()) / MAX_ANGLE,
+                (X[:, 0].min() - Z_RANGE[0]) / 0.1,
+                (Z_RANGE[1] - X[:, 0].max()) / 0.1,
+                (MAX_COND_J - (sv[:, 0] / sv[:, -1]).max()) / MAX_COND_J,
+                (SPEED_MARGIN * v_lim - np.abs(qd).max()) / v_lim,
+                (FORCE_MARGIN * f_lim - np.abs(tau).max()) / f_lim,
+            ]
+        )
+
+    def objective(x) -> float:
+        X, _, _, W = kinematics(x)
+        if X[:, 0].min() <= 0 or np.abs(X[:, 1:]).max() >= 1.2:
+            return 20.0
+        return math.log10(_cond(base.reduce(W).reshape(-1, base.count)))
+
+    rng = np.random.default_rng(seed)
+    best = None
+    scale = np.array([0.06, 0.4, 0.4]) * w  # m/s, rad/s: X near the limits
+    for _ in range(restarts):
+        x0 = (rng.normal(size=(3, na + nb)) * scale[:, None] / math.sqrt(H)).ravel()
+        for _shrink in range(30):  # start feasible
+            if constraints(x0).min() >= 0:
+                break
+            x0 *= 0.85
+        res = scipy.optimize.minimize(
+            objective,
+            x0,
+            method="SLSQP",
+            constraints=[{"type": "ineq", "fun": constraints}],
+            options={"maxiter": max_iter, "ftol": 1e-4},
+        )
+        x = res.x if constraints(res.x).min() >= -1e-9 else x0
+        val = objective(x)
+        if best is None or val < best[0]:
+            best = (val, x)
+    # The design saw `samples` points a period; between them a limit may be crossed by a
+    # hair: shrink the motion (X - X(0) is linear in the coefficients) until a grid twenty
+    # times finer meets every limit.
+    x = best[1]
+    t_fine = t
+    t = np.linspace(0.0, 1.0 / f, 20 * samples + 1)
+    for _ in range(200):
+        if constraints(x).min() >= 0:
+            break
+        x = 0.998 * x
+    t = t_fine
+    tr = unpack(x)
+    duration = periods / f
+    # What it reaches, checked on a grid four times finer than the design's.
+    tt = np.linspace(0.0, duration, 4 * samples * periods + 1)
+    X, Xd, Xdd = tr.evaluate(tt)
+    J = plant.jacobian(X)
+    W = plant.extended_regressor(X, Xd, Xd, Xdd, vs)
+    tau = _split(J, W @ theta_ext)
+    qd = np.einsum("nij,nj->ni", J, Xd)
+    cond = float(np.linalg.cond(base.reduce(W).reshape(-1, base.count)))
+    Xp, Xdp, Xddp = scenario.builtin("paper").trajectory.build().evaluate(tt)
+    cond_paper = observation_condition(scenario, base, Xp, Xdp, Xddp)
+    return Excitation(
+        trajectory=tr,
+        duration=duration,
+        cond=cond,
+        cond_paper=cond_paper,
+        peak_force=float(np.abs(tau).max()),
+        force_limit=f_lim,
+        peak_speed=float(np.abs(qd).max()),
+        speed_limit=v_lim,
+        max_cond_j=float(np.linalg.cond(J).max()),
+        z_range=(float(X[:, 0].min()), float(X[:, 0].max())),
+        max_angle=float(np.abs(X[:, 1:]).max()),
+        seconds=time.perf_counter() - t0,
+        base=base,
+    )

@@ -1,0 +1,233 @@
+"""What ``pkmctl identify`` writes: report.md, figures, estimate.json and the estimate as a
+scenario ``[controller_model]`` block (controller_model.toml)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import tomli_w
+
+from pkmctl.ident.base import PARAMETER_NAMES, PARAMETER_UNITS
+from pkmctl.ident.identify import Identification
+from pkmctl.io.atomic import atomic_write
+
+__all__ = ["write_identification"]
+
+_AXES = (("z", "N"), ("alpha", "N m"), ("beta", "N m"))
+
+
+def _figures(idn: Identification, folder: Path, validation: dict | None) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    obs = idn.observation
+    yhat = idn.base.reduce(obs.W) @ idn.wls.beta
+    out = []
+
+    def save(fig, name):
+        path = folder / name
+        with atomic_write(path, "wb") as fh:
+            fig.savefig(fh, format="png", dpi=110)
+        plt.close(fig)
+        out.append(path)
+
+    fig, axs = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
+    for a, (ax, (name, unit)) in enumerate(zip(axs, _AXES, strict=True)):
+        ax.plot(obs.t, obs.y[:, a], color="0.2", lw=1.2, label="measured J^T tau")
+        ax.plot(obs.t, yhat[:, a], color="C1", lw=0.9, ls="--", label="predicted (WLS)")
+        ax.set_ylabel(f"{name} [{unit}]")
+    axs[0].legend(loc="upper right", fontsize=8)
+    axs[0].set_title("Identification data: measured and predicted task-space force")
+    axs[-1].set_xlabel("t [s]")
+    fig.tight_layout()
+    save(fig, "fit.png")
+
+    fig, axs = plt.subplots(3, 1, figsize=(9, 6), sharex=True)
+    for a, (ax, (name, unit)) in enumerate(zip(axs, _AXES, strict=True)):
+        ax.plot(obs.t, obs.y[:, a] - yhat[:, a], color="C3", lw=0.8)
+        ax.axhline(0.0, color="0.5", lw=0.5)
+        ax.set_ylabel(f"{name} [{unit}]")
+    axs[0].set_title(f"Residuals (WLS), RMS {', '.join(f'{v:.3g}' for v in idn.wls.rms)}")
+    axs[-1].set_xlabel("t [s]")
+    fig.tight_layout()
+    save(fig, "residuals.png")
+
+    r = idn.base.count
+    fig, ax = plt.subplots(figsize=(9, 0.25 * r + 1.5))
+    pct = 196.0 * idn.wls.std / np.abs(idn.wls.beta)
+    ypos = np.arange(r)[::-1]
+    ax.barh(ypos, np.minimum(pct, 200.0), color=np.where(pct > 100, "C3", "C0"))
+    ax.set_yticks(ypos, idn.base.names, fontsize=7)
+    ax.set_xlabel("half-width of the 95 % interval, % of the estimate (bars capped at 200)")
+    ax.set_title("Base parameters: how well the data determines each (WLS)")
+    ax.set_xscale("log")
+    fig.tight_layout()
+    save(fig, "parameters.png")
+
+    if validation is not None:
+        vo = validation["observation"]
+        fig, axs = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
+        for a, (ax, (name, unit)) in enumerate(zip(axs, _AXES, strict=True)):
+            ax.plot(vo.t, vo.y[:, a], color="0.2", lw=1.2, label="measured")
+            ax.plot(vo.t, validation["predicted"][:, a], color="C2", lw=0.9, ls="--",
+                    label="predicted")  # fmt: skip
+            ax.set_ylabel(f"{name} [{unit}]")
+        axs[0].legend(loc="upper right", fontsize=8)
+        axs[0].set_title(
+            f"Validation log: relative error {100 * validation['relative_error']:.3g} %"
+        )
+        axs[-1].set_xlabel("t [s]")
+        fig.tight_layout()
+        save(fig, "validation.png")
+    return out
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.6g}"
+
+
+def _markdown(idn: Identification, validation: dict | None, source: str) -> str:
+    obs, base = idn.observation, idn.base
+    n_used = obs.t.size
+    lines = [
+        "# Identification report",
+        "",
+        f"Log: `{source}`: {obs.samples_in} samples at {obs.sample_rate:g} Hz. "
+        f"Used: {n_used} samples (3 equations each) after:",
+        "",
+    ]
+    lines += [f"- {why}: {k} samples discarded" for why, k in obs.discarded.items()]
+    lines += [
+        "",
+        f"Pose by least-squares forward kinematics (largest residual "
+        f"{obs.fk_residual:.3g} m); filters: zero-phase Butterworth, order 4, parallel "
+        f"filter at {obs.cutoff:g} Hz; force timing: the force acting at t is the logged "
+        f"one at t {'-' if obs.force_lead >= 0 else '+'} {abs(obs.force_lead):.4g} s; "
+        "friction smoothing v_s = "
+        f"{idn.friction_velocity:g} m/s (assumed, not identified).",
+        "",
+        f"**{base.count} base parameters** (of 48 standard ones), condition number of the "
+        f"base observation matrix **{idn.cond:.4g}**. Identification took "
+        f"{idn.seconds:.2f} s.",
+        "",
+        "| fit | residual RMS z [N] | alpha [N m] | beta [N m] | relative error |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    fits = [("OLS", idn.ols), ("WLS", idn.wls)]
+    if idn.physical_fit is not None:
+        fits.append(("physically consistent", idn.physical_fit))
+    for name, f in fits:
+        lines.append(
+            f"| {name} | {f.rms[0]:.4g} | {f.rms[1]:.4g} | {f.rms[2]:.4g} | "
+            f"{100 * f.relative_error:.4g} % |"
+        )
+    if validation is not None:
+        ea = validation["relative_error_axis"]
+        lines += [
+            "",
+            f"**Validation** on `{validation['source']}`: predicted J^T tau against the "
+            f"measured one, relative error {100 * validation['relative_error']:.4g} % "
+            f"(z {100 * ea[0]:.3g} %, alpha {100 * ea[1]:.3g} %, beta {100 * ea[2]:.3g} %).",
+        ]
+    lines += [
+        "",
+        "## Base parameters",
+        "",
+        "Standard deviations by a delete-a-block jackknife; intervals: estimate ± 1.96 std.",
+        "",
+        "| # | base parameter | unit | OLS | WLS | std (%) | 95 % interval |"
+        + (" physical |" if idn.physical_fit is not None else ""),
+        "|---:|---|---|---:|---:|---:|---|" + ("---:|" if idn.physical_fit is not None else ""),
+    ]
+    for k in range(base.count):
+        b, s = idn.wls.beta[k], idn.wls.std[k]
+        row = (
+            f"| {k + 1} | {base.expressions[k]} | {base.units[k]} | {_fmt(idn.ols.beta[k])} | "
+            f"{_fmt(b)} | {idn.wls.std_percent[k]:.3g} | [{_fmt(b - 1.96 * s)}, "
+            f"{_fmt(b + 1.96 * s)}] |"
+        )
+        if idn.physical_fit is not None:
+            row += f" {_fmt(idn.physical_fit.beta[k])} |"
+        lines.append(row)
+    if idn.physical is not None:
+        lines += [
+            "",
+            "## Physically consistent standard parameters",
+            "",
+            "Masses > 0, principal inertias satisfying the triangle inequality, rotor masses "
+            "and friction >= 0; where the data cannot see a parameter it stays near the "
+            "prior (the scenario's controller model). This vector is the "
+            "`[controller_model]` block of `controller_model.toml`.",
+            "",
+            "| parameter | unit | estimate |",
+            "|---|---|---:|",
+        ]
+        lines += [
+            f"| {n} | {u} | {_fmt(v)} |"
+            for n, u, v in zip(PARAMETER_NAMES, PARAMETER_UNITS, idn.physical, strict=True)
+        ]
+    if idn.notes:
+        lines += ["", "## Notes", ""] + [f"- {n}" for n in idn.notes]
+    lines += [
+        "",
+        "Figures: `fit.png` (measured and predicted J^T tau), `residuals.png`, "
+        "`parameters.png` (the width of each interval)"
+        + (", `validation.png`." if validation is not None else "."),
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def write_identification(
+    idn: Identification, folder: Path, *, source: str, validation: dict | None = None
+) -> list[Path]:
+    """Write report.md, estimate.json, controller_model.toml (if there is a physically
+    consistent estimate) and the figures into ``folder``; return their paths."""
+    folder = Path(folder)
+    paths = _figures(idn, folder, validation)
+    report = folder / "report.md"
+    with atomic_write(report) as fh:
+        fh.write(_markdown(idn, validation, source))
+    data = {
+        "log": source,
+        "base_parameters": [
+            {
+                "name": n,
+                "expression": e,
+                "unit": u,
+                "ols": float(idn.ols.beta[k]),
+                "wls": float(idn.wls.beta[k]),
+                "std": float(idn.wls.std[k]),
+            }
+            for k, (n, e, u) in enumerate(
+                zip(idn.base.names, idn.base.expressions, idn.base.units, strict=True)
+            )
+        ],
+        "K": idn.base.K.tolist(),
+        "cond": idn.cond,
+        "rms_wls": idn.wls.rms.tolist(),
+        "relative_error_wls": idn.wls.relative_error,
+        "samples_used": int(idn.observation.t.size),
+        "discarded": idn.observation.discarded,
+        "force_lead": idn.observation.force_lead,
+        "theta_ext_physical": None if idn.physical is None else idn.physical.tolist(),
+        "validation_relative_error": None if validation is None else validation["relative_error"],
+    }
+    est = folder / "estimate.json"
+    with atomic_write(est) as fh:
+        json.dump(data, fh, indent=1)
+    paths = [report, est, *paths]
+    if idn.physical is not None:
+        cm = folder / "controller_model.toml"
+        with atomic_write(cm) as fh:
+            fh.write(
+                "# The identified model (pkmctl identify): paste into a scenario, or\n"
+                "# merge it: Theta_ext = [Theta (36), m_r (4, kg), F_c (4, N), F_v (4, N s/m)]\n"
+            )
+            fh.write(tomli_w.dumps({"controller_model": idn.controller_model()}))
+        paths.insert(2, cm)
+    return paths

@@ -1,0 +1,306 @@
+"""Identification (DESIGN.md §9, issue 12): base parameters, the exciting trajectory, the
+estimate on noise-free and noisy data, honest intervals, bad logs, the two commands."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tomllib
+
+import numpy as np
+import pytest
+
+import pkmctl
+from pkmctl.ident.base import base_parameters, random_states
+from pkmctl.ident.excite import MAX_ANGLE, Z_RANGE, _machine, design_excitation
+from pkmctl.ident.identify import IdentificationError, Log, identify, predict
+from pkmctl.ident.synthetic import synthetic_log
+
+FULL = os.environ.get("PKMCTL_FULL") == "1"
+
+
+@pytest.fixture(scope="module")
+def proto() -> pkmctl.Scenario:
+    return pkmctl.Scenario.builtin("prototype")
+
+
+@pytest.fixture(scope="module")
+def exciting(proto):
+    """The designed trajectory (the defaults of pkmctl excite: ~20 s) and the prototype on it."""
+    e = design_excitation(proto)
+    return e, e.scenario(proto)
+
+
+# ------------------------------------------------------------------ base parameters
+def test_base_parameters_reproduce_the_full_regressor(robot):
+    bp = base_parameters(robot)
+    assert bp.count == 30  # the paper's geometry: 30 of the 48 combine identifiably
+    rng = np.random.default_rng(11)  # other states than the ones the QR saw
+    X, Xd, Xdd = random_states(robot, 80, rng)
+    W = robot.extended_regressor(X, Xd, Xd, Xdd, 1e-3)
+    Wb = bp.reduce(W).reshape(-1, bp.count)
+    assert np.linalg.matrix_rank(Wb) == bp.count  # full column rank
+    for _ in range(5):
+        theta = rng.uniform(-2.0, 2.0, 48)
+        full = W.reshape(-1, 48) @ theta
+        np.testing.assert_allclose(
+            Wb @ bp.base(theta), full, rtol=0, atol=1e-10 * np.abs(full).max()
+        )
+
+
+def test_base_parameters_are_named_combinations(robot):
+    bp = base_parameters(robot)
+    assert bp.expressions[0] == "m_platform"
+    assert any(" + " in e for e in bp.expressions)  # some are combinations
+    for k in range(bp.count):  # each starts with its own standard parameter, coefficient 1
+        assert bp.expressions[k].split(" ")[0] == bp.names[k]
+        assert bp.K[k, bp.independent[k]] == 1.0
+    assert "Fv4" in bp.table() and bp.rank_gap < 1e-6  # a clean rank decision
+
+
+# ------------------------------------------------------------------ the trajectory
+def test_fourier_derivatives_and_rest_at_the_ends(exciting):
+    e, sc = exciting
+    tr = e.trajectory
+    t = np.linspace(0.3, 4.7, 50)
+    h = 1e-5
+    X, Xd, Xdd = tr.evaluate(t)
+    Xp, Xdp, _ = tr.evaluate(t + h)
+    Xm, Xdm, _ = tr.evaluate(t - h)
+    np.testing.assert_allclose((Xp - Xm) / (2 * h), Xd, atol=1e-8)
+    np.testing.assert_allclose((Xdp - Xdm) / (2 * h), Xdd, atol=1e-7)
+    for t_end in (0.0, e.duration):
+        X0, Xd0, Xdd0 = tr.evaluate(np.array([t_end]))
+        np.testing.assert_allclose(X0[0], sc.initial.X, atol=1e-12)
+        np.testing.assert_allclose(Xd0[0], 0.0, atol=1e-12)
+        np.testing.assert_allclose(Xdd0[0], 0.0, atol=1e-10)
+
+
+def test_excitation_beats_the_papers_trajectory_inside_the_limits(exciting, proto):
+    e, sc = exciting
+    assert e.cond < e.cond_paper / 10
+    # the constraints, checked here on a fine grid with the public API
+    t = np.linspace(0.0, e.duration, 4001)
+    X, Xd, Xdd = sc.trajectory.build().evaluate(t)
+    assert np.abs(X[:, 1:]).max() <= MAX_ANGLE + 1e-6
+    assert Z_RANGE[0] - 1e-6 <= X[:, 0].min() and X[:, 0].max() <= Z_RANGE[1] + 1e-6
+    robot = sc.plant()
+    J = robot.jacobian(X)
+    assert np.linalg.cond(J).max() <= 50.0 + 1e-6
+    qd = np.einsum("nij,nj->ni", J, Xd)
+    assert np.abs(qd).max() <= 0.8 * 0.8334
+    theta_ext, vs = _machine(sc)
+    F = robot.extended_regressor(X, Xd, Xd, Xdd, vs) @ theta_ext
+    tau = np.array([robot.actuator_forces(X[k], F[k]) for k in range(0, t.size, 10)])
+    assert np.abs(tau).max() <= 0.5 * 2160.2
+    # the scenario is a valid one, and TOML round-trips it
+    again = pkmctl.Scenario.from_toml(sc.to_toml())
+    assert again == sc and again.trajectory.kind == "fourier"
+
+
+@pytest.mark.parametrize(
+    ("change", "words"),
+    [
+        ({"base_frequency": -1.0}, "trajectory.base_frequency"),
+        ({"a": [[0.1, 0.2], [0.1], [0.0, 0.0]]}, "same number of harmonics"),
+        ({"a": [[float("nan")], [0.0], [0.0]]}, "trajectory.a"),
+        ({"a": [[9.0], [0.0], [0.0]]}, "trajectory"),  # z leaves the workspace
+    ],
+)
+def test_bad_fourier_trajectory_is_one_line(change, words):
+    data = {"trajectory": {"kind": "fourier", "base_frequency": 0.2} | change}
+    with pytest.raises(pkmctl.ScenarioError, match=words) as info:
+        pkmctl.Scenario.from_dict(data)
+    assert "\n" not in str(info.value)
+
+
+# ------------------------------------------------------------------ estimation
+def test_noise_free_data_recover_the_base_parameters(exciting):
+    _, sc = exciting
+    log = synthetic_log(sc, internal=50.0)  # internal forces must change nothing
+    idn = identify(log, sc)
+    true = idn.base.base(_machine(sc)[0])
+    for fit in (idn.ols, idn.wls):
+        rel = np.abs(fit.beta - true) / np.abs(true)
+        assert rel.max() <= 1e-6, dict(zip(idn.base.names, rel, strict=True))
+    assert idn.wls.relative_error < 1e-8
+    # the physically consistent estimate also fits (a bound is never active here)
+    np.testing.assert_allclose(idn.physical_fit.beta, idn.wls.beta, rtol=1e-4, atol=1e-6)
+
+
+def test_intervals_are_honest_over_noise_draws(exciting):
+    """BIRDy's set-up: one trajectory, >= 20 draws of encoder quantisation, 0.5 um of noise
+    on q and 1 N on tau; the true base parameter inside its 95 % interval 90-99 % of the time."""
+    _, sc = exciting
+    true = None
+    inside = []
+    seeds = range(40 if FULL else 20)
+    for seed in seeds:
+        log = synthetic_log(sc, quantise=True, q_noise=5e-7, tau_noise=1.0, seed=seed)
+        idn = identify(log, sc, physical=False)
+        if true is None:
+            true = idn.base.base(_machine(sc)[0])
+            friction = [k for k, n in enumerate(idn.base.names) if n[:2] in ("Fc", "Fv")]
+        inside.append(np.abs(idn.wls.beta - true) <= 1.96 * idn.wls.std)
+    inside = np.array(inside)
+    assert 0.90 <= inside.mean() <= 0.99, inside.mean()
+    assert inside[:, friction].mean() >= 0.85, inside[:, friction].mean(axis=0)
+
+
+def test_validation_on_another_trajectory(exciting, proto):
+    _, sc = exciting
+    idn = identify(synthetic_log(sc, tau_noise=1.0, seed=1), sc)
+    other = synthetic_log(proto, duration=6.0, tau_noise=1.0, seed=2)  # eq. 54
+    val = predict(idn, other, proto)
+    assert val["relative_error"] < 0.01
+    assert val["predicted"].shape == val["observation"].y.shape
+
+
+def test_the_estimate_is_a_controller_model(exciting, proto):
+    _, sc = exciting
+    idn = identify(synthetic_log(sc, tau_noise=1.0, seed=3), sc)
+    block = idn.controller_model()
+    model = proto.replace(controller_model=block)
+    # the controllers' model now carries the identified rotor masses and friction
+    np.testing.assert_allclose(model.controller_mechanism().theta, block["theta_ext"][:36])
+    m_r, fc, fv = model.controller_model.machine_terms(0.01)
+    np.testing.assert_allclose(fc, block["theta_ext"][40:44])
+    assert np.all(fc > 25) and np.all(fv > 290)  # the truth: 30 N, 300 N s/m
+
+
+def test_theta_ext_equal_to_theta_scale_gives_the_same_run():
+    sc = pkmctl.Scenario.builtin("paper").replace(**{"timing.duration": 0.02})
+    th = list(0.85 * sc.plant().theta) + [0.0] * 12
+    same = sc.replace(controller_model={"theta_ext": th})
+    for ctrl in ("afsmc", "ctc"):
+        a, b = pkmctl.simulate(sc, controller=ctrl), pkmctl.simulate(same, controller=ctrl)
+        np.testing.assert_array_equal(a.F, b.F)
+
+
+def test_theta_ext_conflicts_are_one_line():
+    with pytest.raises(pkmctl.ScenarioError, match="theta_ext is given, so theta_scale"):
+        pkmctl.Scenario.from_dict(
+            {"controller_model": {"theta_ext": [1.0] * 48, "theta_scale": 0.9}}
+        )
+    with pytest.raises(pkmctl.ScenarioError, match=r"theta_ext\[3\]"):
+        pkmctl.Scenario.from_dict({"controller_model": {"theta_ext": [1.0] * 3 + [0.0] * 45}})
+
+
+# ------------------------------------------------------------------ bad logs
+def _clean(sc) -> Log:
+    return synthetic_log(sc, duration=10.0)
+
+
+def _with(log: Log, **changes) -> Log:
+    d = {"t": log.t.copy(), "q": log.q.copy(), "tau": log.tau.copy()}
+    for k, fn in changes.items():
+        d[k] = fn(d[k])
+    return Log(d["t"], d["q"], d["tau"], "bad.csv")
+
+
+def _set(a, idx, v):
+    a[idx] = v
+    return a
+
+
+@pytest.mark.parametrize(
+    ("changes", "words"),
+    [
+        ({"t": lambda t: _set(t, 500, t[499])}, "time is not increasing at data row 501"),
+        ({"t": lambda t: np.concatenate([t[:300], t[300:] + 0.05])}, "uneven sampling at t"),
+        ({"t": lambda t: t[:15], "q": lambda q: q[:15], "tau": lambda x: x[:15]}, "too few"),
+        ({"q": lambda q: -q}, "limb lengths q must be > 0"),
+        ({"q": lambda q: q * 3.0}, "forward kinematics failed"),
+    ],
+)
+def test_bad_logs_are_one_line(exciting, changes, words):
+    _, sc = exciting
+    log = _with(_clean(sc), **changes)
+    with pytest.raises(IdentificationError, match=words) as info:
+        identify(log, sc)
+    assert "\n" not in str(info.value)
+
+
+def test_short_and_unexciting_logs_are_refused(exciting, proto):
+    _, sc = exciting
+    short = synthetic_log(sc, duration=1.0)
+    with pytest.raises(IdentificationError, match="leave none|too short|too few"):
+        identify(short, sc)
+    # at rest at home for 10 s: nothing is excited
+    still = pkmctl.Scenario.from_dict(
+        {"trajectory": {"kind": "fourier", "base_frequency": 0.2}, "plant": {"kind": "rigid"}}
+    )
+    with pytest.raises(IdentificationError, match="no excitation: the observation matrix has rank"):
+        identify(synthetic_log(still, duration=10.0), still)
+
+
+# ------------------------------------------------------------------ the commands
+def _run(*args, cwd):
+    return subprocess.run(
+        [sys.executable, "-m", "pkmctl", *args], capture_output=True, text=True, cwd=cwd
+    )
+
+
+def _write_csv(path, log: Log):
+    data = np.column_stack([log.t, log.q, log.tau])
+    header = "t,q1,q2,q3,q4,tau1,tau2,tau3,tau4"
+    np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.17g")
+
+
+def test_excite_and_identify_commands(tmp_path, exciting, proto):
+    r = _run("excite", "--out", "ex.toml", "--harmonics", "4", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "cond(W_b)" in r.stdout and "eq. 54" in r.stdout
+    sc = pkmctl.Scenario.from_toml(tmp_path / "ex.toml")
+    assert sc.trajectory.kind == "fourier" and len(sc.trajectory.a[0]) == 4
+    _, exc_sc = exciting
+    _write_csv(tmp_path / "run.csv", synthetic_log(exc_sc, tau_noise=1.0, quantise=True))
+    _write_csv(tmp_path / "val.csv", synthetic_log(proto, duration=6.0, tau_noise=1.0))
+    r = _run("identify", "run.csv", "--out", "id", "--validate", "val.csv", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "validation on val.csv" in " ".join(r.stdout.split())
+    out = tmp_path / "id"
+    names = {p.name for p in out.iterdir()}
+    assert {"report.md", "estimate.json", "controller_model.toml", "fit.png",
+            "residuals.png", "parameters.png", "validation.png"} <= names  # fmt: skip
+    report = (out / "report.md").read_text()
+    assert "30 base parameters" in report and "discarded" in report
+    block = tomllib.loads((out / "controller_model.toml").read_text())["controller_model"]
+    pkmctl.Scenario.builtin("prototype").replace(controller_model=block)  # ready to use
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["identify", "missing.csv"], "no such file"),
+        (["identify", "cols.csv"], "missing column(s) tau1"),
+        (["identify", "nan.csv"], "column q2 holds 1 non-finite value(s), the first at data row 3"),
+        (["identify", "cols.csv", "--force-lead", "x"], "--force-lead = 'x'"),
+        (["excite", "--harmonics", "2"], "--harmonics = 2: must be in [3, 20]"),
+    ],
+)
+def test_command_errors_are_one_line_exit_2(tmp_path, args, words):
+    (tmp_path / "cols.csv").write_text("t,q1,q2,q3,q4\n0,1,1,1,1\n")
+    rows = "\n".join(
+        f"{k * 1e-3},0.7,{'nan' if k == 2 else 0.7},0.7,0.7,1,1,1,1" for k in range(30)
+    )
+    (tmp_path / "nan.csv").write_text("t,q1,q2,q3,q4,tau1,tau2,tau3,tau4\n" + rows + "\n")
+    r = _run(*args, "--out", "o" if args[0] == "identify" else "o.toml", cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert words in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "o").exists() and not (tmp_path / "o.toml").exists()
+
+
+def test_pkmctl_time_series_carry_the_measured_lengths(tmp_path, proto):
+    from pkmctl.ident.identify import read_log
+    from pkmctl.io.results import load_result, save_result
+
+    r = pkmctl.simulate(proto.replace(**{"sensor.noise": 1e-6}), controller="pd", duration=0.05)
+    table, meta = save_result(r, tmp_path)
+    back = load_result(meta)
+    np.testing.assert_array_equal(back.q_measured, r.q_measured)
+    log = read_log(table)
+    assert log.columns[1:5] == ("q1_m", "q2_m", "q3_m", "q4_m")
+    np.testing.assert_array_equal(log.q, r.q_measured)
+    assert not np.array_equal(log.q, r.q)  # the encoder's, not the truth
