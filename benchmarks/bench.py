@@ -284,6 +284,26 @@ def bench_flc(quick: bool) -> dict[str, float]:
     return run_fuzzy(quick=quick)
 
 
+def bench_fis_corpus(quick: bool) -> dict:
+    """The corpus's 4-input, 81-rule file (bank_choice4.fis) with pkmctl, scikit-fuzzy
+    and pyfuzzylite side by side, per evaluation (issue 15.4). The corpus is test data
+    outside the project: ``$PKMCTL_FIS_CORPUS`` or ``../shared/fis-corpus`` beside the
+    checkout; without it the row says so."""
+    from pathlib import Path
+
+    from benchmarks.fuzzy_bench import CORPUS_FILE, run_corpus
+
+    here = Path(__file__).resolve().parents[1]
+    folder = Path(os.environ.get("PKMCTL_FIS_CORPUS", here.parent / "shared" / "fis-corpus"))
+    path = folder / CORPUS_FILE
+    if not path.is_file():
+        return {"skipped": f"no {CORPUS_FILE} in {folder} (set PKMCTL_FIS_CORPUS)"}
+    try:
+        return run_corpus(path, n=50 if quick else 200)
+    except ModuleNotFoundError as exc:  # the peers are test dependencies
+        return {"skipped": f"{exc.name} is not installed"}
+
+
 def bench_mujoco(quick: bool) -> dict[str, float]:
     """MuJoCo stepping the same machine at the same 50 us step, if MuJoCo is installed
     (``pip install "pkmctl[mujoco]"``): open loop with RK4 and with Euler
@@ -417,6 +437,8 @@ def run_all(quick: bool = False, progress: Callable[[str], None] | None = None) 
     res["mujoco"] = bench_mujoco(quick)
     say("FLC and peers")
     res["flc"] = bench_flc(quick)
+    say("a 4-input, 81-rule .fis file and peers")
+    res["fis_corpus"] = bench_fis_corpus(quick)
     say("one AFSMC step, part by part")
     res["breakdown"] = bench_breakdown(res["steps"]["afsmc"]["loop_steps_per_s"], quick)
     say("controller step latency from Python")
@@ -585,6 +607,15 @@ def rows(res: dict) -> list[tuple[str, str, str, str]]:
         "reproduce",
         rp["warm_s"],
     )
+    fc = res.get("fis_corpus")
+    if fc is not None and "skipped" in fc:
+        row("FIS 4 inputs, 81 rules", f"skipped: {fc['skipped']}")
+    elif fc is not None:
+        row("FIS 4 inputs, 81 rules, pkmctl", f"{fc['pkmctl_exact_us']:.2f} us per evaluation")
+        row(
+            "  scikit-fuzzy, pyfuzzylite",
+            f"{fc['skfuzzy_us']:,.0f} us, {fc['fuzzylite_us']:,.0f} us",
+        )
     if "identify" in res:
         ident = res["identify"]
         row(f"identify, a {ident['duration']:g} s log at 1 kHz", f"{ident['seconds']:.2f} s")

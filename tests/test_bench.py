@@ -44,6 +44,10 @@ def test_bench_quick_smoke(tmp_path):
     assert "FLC as FSMC's fuzzy term (term_eval)" in labels
     assert data["flops"]["flops_per_step"] > data["flops"]["plant_eval_flops"] * 4
     assert data["reproduce"]["warm_s"] > 0
+    fc = data["fis_corpus"]  # issue 15.4: the corpus's 81-rule file beside its peers
+    assert "skipped" in fc or fc["pkmctl_exact_us"] > 0  # timed, never judged here
+    assert "skipped" in fc or max(fc["skfuzzy_max_diff"], fc["fuzzylite_max_diff"]) < 1e-6
+    assert data["identify"]["seconds"] > 0 and data["identify"]["used"] > 0
     camp = data["campaign"]  # issue 11: campaign speed, side by side in one run
     assert camp["one_worker"]["wall_s"] > 0 and camp["two_workers"]["work_s"] > 0
     assert camp["dask"]["wall_s"] > 0 and 0 < camp["overhead"]["overhead_fraction"] < 1
