@@ -294,10 +294,12 @@ def bench_fis_corpus(quick: bool) -> dict:
     from benchmarks.fuzzy_bench import CORPUS_FILE, run_corpus
 
     here = Path(__file__).resolve().parents[1]
-    folder = Path(os.environ.get("PKMCTL_FIS_CORPUS", here.parent / "shared" / "fis-corpus"))
-    path = folder / CORPUS_FILE
-    if not path.is_file():
-        return {"skipped": f"no {CORPUS_FILE} in {folder} (set PKMCTL_FIS_CORPUS)"}
+    env = os.environ.get("PKMCTL_FIS_CORPUS")
+    folders = [Path(env)] if env else [here.parent / "shared" / "fis-corpus"]
+    folders.append(Path("/work/shared/fis-corpus"))  # where the project's machines keep it
+    path = next((f / CORPUS_FILE for f in folders if (f / CORPUS_FILE).is_file()), None)
+    if path is None:
+        return {"skipped": "no corpus (PKMCTL_FIS_CORPUS)"}
     try:
         return run_corpus(path, n=50 if quick else 200)
     except ModuleNotFoundError as exc:  # the peers are test dependencies

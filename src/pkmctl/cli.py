@@ -69,8 +69,11 @@ class _OneLineGroup(TyperGroup):
             name = exc.ctx.command_path if getattr(exc, "ctx", None) else "pkmctl"
             _print_error(f"{exc.format_message()} (see {name} --help)")
             sys.exit(exc.exit_code)
-        except typer.Abort:
-            sys.exit(130)
+        except typer.Abort:  # Ctrl-C outside a command's interruptible work
+            # os._exit, not sys.exit: an interpreter shutdown would wait for worker
+            # processes still compiling (concurrent.futures joins them at exit)
+            _say("interrupted")
+            _hard_exit(130)
         sys.exit(code if isinstance(code, int) else 0)
 
 
