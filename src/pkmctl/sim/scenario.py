@@ -669,6 +669,14 @@ PROTOTYPE_MODEL: dict[str, Any] = {
 #: RK4 sub-steps per 1 ms period of the prototype, chosen by measurement (docs/machine.md).
 PROTOTYPE_SUBSTEPS = 10
 
+#: The sections every prototype scenario shares: the 1 kHz loop and the machine as built.
+PROTOTYPE_MACHINE: dict[str, Any] = {
+    "timing": {"control_period": 1e-3, "substeps": PROTOTYPE_SUBSTEPS, "duration": 10.0},
+    "plant": PROTOTYPE_PLANT,
+    "sensor": {"kind": "encoder", "counts_per_rev": 160_000},
+    "actuators": PROTOTYPE_DRIVE,
+}
+
 #: Built-in scenarios as data (DESIGN.md §4).
 BUILTINS: dict[str, dict[str, Any]] = {
     "paper": {
@@ -688,20 +696,14 @@ BUILTINS: dict[str, dict[str, Any]] = {
         "controller, servo drives on ball screws (peak torque, torque lag), reflected rotor "
         "inertia, joint friction, 17-bit encoders with forward kinematics, one period of "
         "computation delay.",
-        "timing": {"control_period": 1e-3, "substeps": PROTOTYPE_SUBSTEPS, "duration": 10.0},
-        "plant": PROTOTYPE_PLANT,
-        "sensor": {"kind": "encoder", "counts_per_rev": 160_000},
-        "actuators": PROTOTYPE_DRIVE,
+        **PROTOTYPE_MACHINE,
     },
     "prototype-model": {
         "name": "prototype-model",
         "description": "prototype, with the controllers' model given the reflected rotor "
         "inertia and the joint friction (the plant's values): rotor and friction feed-forward "
         "in every controller (PD: friction only). Theta^ still 0.85 Theta.",
-        "timing": {"control_period": 1e-3, "substeps": PROTOTYPE_SUBSTEPS, "duration": 10.0},
-        "plant": PROTOTYPE_PLANT,
-        "sensor": {"kind": "encoder", "counts_per_rev": 160_000},
-        "actuators": PROTOTYPE_DRIVE,
+        **PROTOTYPE_MACHINE,
         "controller_model": PROTOTYPE_MODEL,
     },
     "prototype-tuned": {
@@ -709,10 +711,7 @@ BUILTINS: dict[str, dict[str, Any]] = {
         "description": "prototype-model, with the sliding-mode controllers' beta-axis gains "
         "(K, Lam, Ku) cut tenfold for the 1 kHz loop, and the run starting on the trajectory "
         "(X_d(0), Xdot_d(0)) instead of at rest at home: no saturated start.",
-        "timing": {"control_period": 1e-3, "substeps": PROTOTYPE_SUBSTEPS, "duration": 10.0},
-        "plant": PROTOTYPE_PLANT,
-        "sensor": {"kind": "encoder", "counts_per_rev": 160_000},
-        "actuators": PROTOTYPE_DRIVE,
+        **PROTOTYPE_MACHINE,
         "controller_model": PROTOTYPE_MODEL,
         "gains": {"K": [1000.0, 200.0, 20.0], "Lam": [150.0, 40.0, 4.0], "Ku": [50.0, 30.0, 3.0]},
         "initial": {"X": [0.7, 0.0, math.pi / 6], "Xdot": [0.04, math.pi / 3, 0.0]},
