@@ -386,7 +386,23 @@ def _read_lines(stream, q):
     q.put(None)
 
 
-def test_sigint_while_compiling_stops_at_once_and_keeps_previous_results(tmp_path, old_results):
+# Where Ctrl-C lands on a first run: inside the model kernels' compile (scenario
+# check), between that step and the run, as the compiling processes start up (a child
+# still importing when its parent dies is not covered by PR_SET_PDEATHSIG alone), and
+# well inside the loops' compile.
+@pytest.mark.parametrize(
+    ("after", "wait"),
+    [
+        ("compiling the model kernels", 0.5),
+        ("compiled the model kernels", 0.0),
+        ("control loops", 0.3),
+        ("control loops", 2.0),
+    ],
+    ids=["model-kernels", "between-steps", "workers-starting", "loops-compiling"],
+)
+def test_sigint_while_compiling_stops_at_once_and_keeps_previous_results(
+    tmp_path, old_results, after, wait
+):
     cache = tempfile.mkdtemp(prefix="pkmctl-cache-", dir=tmp_path)  # empty: it must compile
     env = dict(os.environ, PKMCTL_CACHE_DIR=cache, PYTHONPATH=str(SRC))
     cmd = ["reproduce", "--duration", "0.05", "--out", str(old_results)]
@@ -399,22 +415,26 @@ def test_sigint_while_compiling_stops_at_once_and_keeps_previous_results(tmp_pat
     seen = []
     deadline = time.monotonic() + 180
     try:
-        while not any("compiling" in ln for ln in seen):  # a plain line, not a terminal
+        while not any(after in ln for ln in seen):  # plain lines: not a terminal
             line = lines.get(timeout=max(0.1, deadline - time.monotonic()))
             assert line is not None, "".join(seen)
             seen.append(line)
-        time.sleep(1.0)  # well inside the compilation (it takes minutes from scratch)
+        time.sleep(wait)
         t0 = time.monotonic()
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=10)
         waited = time.monotonic() - t0
     finally:
         proc.kill()
-    while (line := lines.get(timeout=5)) is not None:
-        seen.append(line)
+    # stderr ends only when every process holding it has: no compiling child is left
+    try:
+        while (line := lines.get(timeout=10)) is not None:
+            seen.append(line)
+    except queue.Empty:
+        pytest.fail("a compiling worker outlived the interrupted run:\n" + "".join(seen))
     assert proc.returncode == 130, "".join(seen)
     assert waited < 2.0, waited
     last = seen[-1]
-    assert last.startswith("interrupted after ") and "keeps its previous results" in last
+    assert last.startswith("interrupted after ") and "keeps its previous results" in last, last
     assert "Traceback" not in "".join(seen)
     assert untouched(old_results) and not leftovers(old_results.parent)

@@ -55,6 +55,10 @@ _CONTROLLERS = ", ".join(_part_names("controller"))
 _SCENARIO_NAMES = ", ".join(_SCENARIOS)
 
 
+# What an interrupt between a command's steps keeps (the command sets the note).
+_KEPT = {"t0": time.perf_counter(), "note": ""}
+
+
 class _OneLineGroup(TyperGroup):
     """Usage errors (a bad option, a missing argument) in one line, not a panel."""
 
@@ -69,10 +73,11 @@ class _OneLineGroup(TyperGroup):
             name = exc.ctx.command_path if getattr(exc, "ctx", None) else "pkmctl"
             _print_error(f"{exc.format_message()} (see {name} --help)")
             sys.exit(exc.exit_code)
-        except typer.Abort:  # Ctrl-C outside a command's interruptible work
+        except typer.Abort:  # Ctrl-C between a command's interruptible steps
             # os._exit, not sys.exit: an interpreter shutdown would wait for worker
             # processes still compiling (concurrent.futures joins them at exit)
-            _say("interrupted")
+            kept = f": {_KEPT['note']}" if _KEPT["note"] else ""
+            _say(f"interrupted after {time.perf_counter() - _KEPT['t0']:.1f} s{kept}")
             _hard_exit(130)
         sys.exit(code if isinstance(code, int) else 0)
 
@@ -333,6 +338,7 @@ def reproduce(
     except Exception as exc:
         _handle(ctx, exc)
     existed = out.is_dir()
+    _KEPT["note"] = _untouched(out, existed)
     sc = _scenario(ctx, scenario, seed, duration, _untouched(out, existed))
     steps = ["compile", *CONTROLLER_ORDER, "series", "table", "figures", "report", "machine"]
     with Progress(
@@ -413,6 +419,7 @@ def simulate(
     except Exception as exc:
         _handle(ctx, exc)
     existed = out.is_dir()
+    _KEPT["note"] = _untouched(out, existed)
     sc = _scenario(ctx, scenario_file, seed, duration, _untouched(out, existed))
     try:
         with (

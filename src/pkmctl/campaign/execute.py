@@ -150,20 +150,18 @@ class _Progress:
 def _local_results(spec: CampaignSpec, tasks: list[Task], workers: int) -> Iterable:
     """(task, table) as tasks finish, on ``workers`` spawned processes; a broken pool
     (a worker killed) is rebuilt and its unfinished tasks run again."""
-    import multiprocessing
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures import FIRST_COMPLETED, wait
     from concurrent.futures.process import BrokenProcessPool
 
-    from pkmctl.sim.simulate import _die_with_parent
+    from pkmctl.sim.workers import spawn_pool
 
     if workers == 1:  # no process to start: run here
         for t in tasks:
             yield t, run_task(spec, t)
         return
     todo = list(tasks)
-    spawn = multiprocessing.get_context("spawn")
     for attempt in range(_RETRIES + 1):
-        pool = ProcessPoolExecutor(workers, mp_context=spawn, initializer=_die_with_parent)
+        pool = spawn_pool(workers)
         try:
             futures = {pool.submit(run_task, spec, t): t for t in todo}
             pending = set(futures)

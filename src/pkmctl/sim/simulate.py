@@ -483,17 +483,6 @@ def simulate_many(
         return list(pool.map(one, seeds))
 
 
-def _die_with_parent() -> None:
-    """A compiling worker ends when the process that started it does (Ctrl-C, a kill)."""
-    try:
-        import ctypes
-        import signal
-
-        ctypes.CDLL(None).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG (Linux)
-    except (OSError, AttributeError):
-        pass
-
-
 def _compile_group(scenario_toml: str, controllers: list[str]) -> str:
     """In a worker process: run each controller for one period, which compiles its loop
     into the disk cache. Returns "" or the first error (the caller will meet it again)."""
@@ -536,8 +525,7 @@ def precompile(
     ``on_start(controllers, workers)`` before it starts; returns the controllers whose
     loops were compiled.
     """
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
+    from .workers import spawn_pool
 
     todo, fuzzy = [], set()
     for c in controllers:
@@ -554,7 +542,6 @@ def precompile(
     if on_start is not None:
         on_start(todo, n)
     text = scenario.to_toml()
-    spawn = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(n, mp_context=spawn, initializer=_die_with_parent) as pool:
+    with spawn_pool(n) as pool:
         list(pool.map(_compile_group, [text] * n, groups))
     return todo

@@ -1,0 +1,66 @@
+"""Worker processes that end with their parent and stay quiet when it is interrupted.
+
+Used by :func:`pkmctl.sim.simulate.precompile` and by local campaigns: both start
+``spawn`` processes that compile or run for minutes, and both must leave nothing behind
+when Ctrl-C ends the parent at once (``os._exit``, see ``pkmctl.cli``).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor
+
+
+def die_with_parent(parent: int) -> None:
+    """A worker ends when the process that started it does (Ctrl-C, a kill).
+
+    PR_SET_PDEATHSIG only covers a parent that dies after the call: a worker still
+    starting up (a second or more on a loaded machine) when Ctrl-C ends the parent would
+    be left compiling for minutes, holding the parent's stderr open. Hence the check of
+    the parent after the call."""
+    import signal
+
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG (Linux)
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() != parent:  # the parent is gone already
+        os._exit(1)
+
+
+def _quiet_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker with its stderr on /dev/null.
+
+    The tracker outlives a parent that ends by ``os._exit`` and then cleans up the
+    pool's semaphores, as it should, but also prints a multi-line warning about them
+    after the one line an interrupted command ends with. It inherits file descriptor 2
+    when it starts, so that is pointed at /dev/null for the few milliseconds of its
+    start; a tracker already running is left as it is."""
+    from multiprocessing import resource_tracker
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 2)
+        resource_tracker.ensure_running()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(null)
+
+
+def spawn_pool(workers: int) -> ProcessPoolExecutor:
+    """A pool of ``workers`` fresh (``spawn``) processes that die with this one."""
+    import multiprocessing
+
+    _quiet_resource_tracker()
+    return ProcessPoolExecutor(
+        workers,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=die_with_parent,
+        initargs=(os.getpid(),),
+    )
