@@ -91,7 +91,7 @@ def overhead(seeds: int = 10) -> dict[str, float]:
     from pkmctl.campaign.spec import CampaignSpec
     from pkmctl.campaign.store import write_task
     from pkmctl.sim.metrics import summary
-    from pkmctl.sim.simulate import _parts, _prepare, _run
+    from pkmctl.sim.simulate import prepare, resolve_parts, run_prepared
 
     spec = CampaignSpec.from_toml(SPEC.format(seeds=seeds))
     task = spec.tasks()[0]
@@ -119,13 +119,13 @@ def overhead(seeds: int = 10) -> dict[str, float]:
             sc = spec.scenario(0)
             keep("scenario", (time.perf_counter() - t) / per_task)
             t = time.perf_counter()
-            prep = _prepare(sc, None)
+            prep = prepare(sc, None)
             keep("prepare", (time.perf_counter() - t) / per_task)
             t = time.perf_counter()
-            result = _run(prep, _parts(prep.scenario, "smc"), 0)
+            result = run_prepared(prep, resolve_parts(prep.scenario, "smc"), 0)
             keep("run_outside_kernel", time.perf_counter() - t - result.info["kernel_seconds"])
             t = time.perf_counter()
-            summary(result, spec.metrics)
+            summary(result, spec.metrics, source="loop")  # as run_task
             keep("metrics", time.perf_counter() - t)
     out = {f"{k}_s": v for k, v in best.items()}
     out["runs_per_task"] = per_task

@@ -201,11 +201,11 @@ def test_one_hour_paper_run_fits_in_a_few_hundred_mb(monkeypatch):
     full = sim.memory_needed(n, 36, disturbance_values=holds)
     assert full > 30 * 2**30  # every period: tens of GiB
     monkeypatch.setattr(sim, "_available_memory", lambda: 2**30)
-    prep = sim._prepare(hour, None)  # accepted: the check passes and the rows are prepared
+    prep = sim.prepare(hour, None)  # accepted: the check passes and the rows are prepared
     held = sum(a.nbytes for a in (prep.t, prep.reference, prep.q_des, prep.tau_des))
     assert prep.t.size == 360_000 and held < need
     with pytest.raises(pkmctl.errors.InsufficientMemory, match=r"logging\.every = 50 needs"):
-        sim._prepare(hour.replace(**{"logging.every": 1}), None)
+        sim.prepare(hour.replace(**{"logging.every": 1}), None)
     # and a short run of the same scenario, logged every 200 periods, runs
     r = pkmctl.simulate(hour, "smc", duration=0.5)
     assert r.t.size == 50 and r.info["steps"] == 10_000

@@ -194,7 +194,7 @@ def test_baselines_track_the_paper_trajectory(controller):
 
 def test_precompile_deals_loops_to_workers_and_skips_what_is_compiled():
     from pkmctl.sim.loop import is_compiled
-    from pkmctl.sim.simulate import _groups, _parts, precompile
+    from pkmctl.sim.simulate import _groups, precompile, resolve_parts
 
     five = ["smc", "fsmc", "afsmc", "pd", "ctc"]
     assert _groups(five, {"fsmc", "afsmc"}, 2) == [["fsmc", "afsmc"], ["smc", "pd", "ctc"]]
@@ -202,5 +202,5 @@ def test_precompile_deals_loops_to_workers_and_skips_what_is_compiled():
     assert _groups(["smc", "pd", "ctc"], set(), 2) == [["smc", "ctc"], ["pd"]]
     sc = pkmctl.Scenario.builtin("paper")
     pkmctl.simulate(sc, controller="smc", duration=0.001)
-    assert is_compiled(_parts(sc, "smc"))  # a run leaves its marker ...
+    assert is_compiled(resolve_parts(sc, "smc"))  # a run leaves its marker ...
     assert precompile(sc, ["smc"]) == []  # ... so nothing is compiled again

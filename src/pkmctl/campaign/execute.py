@@ -44,11 +44,11 @@ _RETRIES = 3
 
 
 def _metric_values(spec: CampaignSpec, summary: dict | None) -> dict:
-    from pkmctl.campaign.store import _GROUP_KEYS
+    from pkmctl.campaign.store import GROUP_KEYS
 
     out = {}
     for g in spec.metrics:
-        keys = _GROUP_KEYS[g]
+        keys = GROUP_KEYS[g]
         v = None if summary is None else summary.get(g)
         if isinstance(v, dict):
             vals = [v[k] for k in keys]
@@ -85,23 +85,27 @@ def run_task(spec: CampaignSpec, task: Task) -> pa.Table:
     """
     from pkmctl.errors import SimulationDiverged
     from pkmctl.sim.metrics import summary
-    from pkmctl.sim.simulate import _parts, _prepare, _run
+    from pkmctl.sim.simulate import prepare, resolve_parts, run_prepared
 
     rows = []
     host = f"{socket.gethostname()}:{os.getpid()}"
     cell = task.runs[0].cell  # one cell a task
     factors = {factor_column(p): factor_value(spec, p, spec.cells[cell][p]) for p in spec.factors}
-    prep = _prepare(spec.scenario(cell), None)
-    buffers = None
+    # The trajectory is prepared once a task; records hold the metrics the loop computes
+    # over every period (not recomputed from the log).
+    prep = prepare(spec.scenario(cell), None)
+    buffers, parts_of = None, {}
     for run in task.runs:
         t0 = time.perf_counter()
         status, at, msg, metrics, kernel = "ok", None, "", None, math.nan
         try:
-            parts = _parts(prep.scenario, run.controller)
+            if run.controller not in parts_of:
+                parts_of[run.controller] = resolve_parts(prep.scenario, run.controller)
+            parts = parts_of[run.controller]
             if buffers is None:
                 buffers = _log_buffers(prep, parts)
-            result = _run(prep, parts, run.seed, buffers)
-            metrics = summary(result, spec.metrics)  # only the kept groups
+            result = run_prepared(prep, parts, run.seed, buffers)
+            metrics = summary(result, spec.metrics, source="loop")  # the kept groups
             kernel = result.info["kernel_seconds"]
         except SimulationDiverged as exc:
             status, at, msg = "diverged", float(exc.time), str(exc)

@@ -47,7 +47,7 @@ __all__ = [
 #: Columns that say how long a run took and where: they differ between two runs of the
 #: same campaign; every other column is reproducible bit for bit.
 TIMING_COLUMNS = ("wall_s", "kernel_s", "worker")
-_GROUP_KEYS = {
+GROUP_KEYS = {
     "rmse": RMSE_KEYS,
     "rmse_after_1s": RMSE_KEYS,
     "max_error": RMSE_KEYS,
@@ -63,7 +63,7 @@ def factor_column(path: str) -> str:
 
 def metric_columns(groups) -> list[str]:
     """The record columns of the kept metric groups, e.g. ``rmse_after_1s_z_mm``."""
-    return [f"{g}_{k}" for g in groups for k in _GROUP_KEYS[g]]
+    return [f"{g}_{k}" for g in groups for k in GROUP_KEYS[g]]
 
 
 def _numeric(values) -> bool:

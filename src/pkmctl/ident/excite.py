@@ -24,7 +24,7 @@ import scipy.optimize
 
 from pkmctl.ident.base import BaseParameters, base_parameters
 from pkmctl.model.machine import reflected_inertia
-from pkmctl.model.mechanism import _extended_regressor_batch, _limbs_batch
+from pkmctl.model.mechanism import extended_regressor_batch, limbs_batch
 from pkmctl.sim.scenario import Scenario
 from pkmctl.sim.trajectory import Fourier
 
@@ -174,8 +174,8 @@ def design_excitation(
     def kinematics(x):
         tr = unpack(x)
         X, Xd, Xdd = tr.evaluate(t)
-        _, J = _limbs_batch(geom, X)  # no checks: the constraints keep X valid
-        W = _extended_regressor_batch(geom, X, Xd, Xd, Xdd, vs)
+        _, J = limbs_batch(geom, X)  # no checks: the constraints keep X valid
+        W = extended_regressor_batch(geom, X, Xd, Xd, Xdd, vs)
         return X, Xd, J, W
 
     def constraints(x) -> np.ndarray:

@@ -230,12 +230,12 @@ def _check_poses(where: str, mech: Mechanism, X: np.ndarray) -> np.ndarray:
         MAX_CONDITION,
         MIN_LIMB_LENGTH,
         MIN_SINGULAR_VALUE,
-        _limbs_batch,
+        limbs_batch,
     )
 
     if not (np.all(X[:, 0] > 0) and np.all(np.abs(X[:, 1:]) < 0.5 * math.pi)):
         raise IdentificationError(f"{where}: the pose leaves the chart (z <= 0 or |angle| >= pi/2)")
-    q, J = _limbs_batch(mech.geometry, np.ascontiguousarray(X))
+    q, J = limbs_batch(mech.geometry, np.ascontiguousarray(X))
     ev = np.linalg.eigvalsh(np.einsum("nji,njk->nik", J, J))  # sigma^2, ascending
     ok = (q.min(axis=1) >= MIN_LIMB_LENGTH) & (ev[:, 0] > MIN_SINGULAR_VALUE**2)
     ok &= ev[:, -1] < MAX_CONDITION**2 * ev[:, 0]
@@ -303,11 +303,11 @@ def observe(
     Xd, Xdd = _d1(Xf, h), _d2(Xf, h)
     n = log.t.size
     inner = slice(3, n - 3)  # where the differences are defined
-    from pkmctl.model.mechanism import _extended_regressor_batch
+    from pkmctl.model.mechanism import extended_regressor_batch
 
     Xi, Xdi, Xddi = (np.ascontiguousarray(a[inner]) for a in (Xf, Xd, Xdd))
     J = _check_poses(f"log {log.source!r}", mechanism, Xi)
-    W = _extended_regressor_batch(mechanism.geometry, Xi, Xdi, Xdi, Xddi, friction_velocity)
+    W = extended_regressor_batch(mechanism.geometry, Xi, Xdi, Xdi, Xddi, friction_velocity)
     # Parallel filtering (Gautier): the same linear filter on y and on every column of W
     # keeps y = W Theta exact, also for the friction's steps at velocity reversals. A
     # zero-phase FIR, evaluated only at the samples kept after decimation.

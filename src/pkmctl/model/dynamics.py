@@ -287,13 +287,13 @@ def actuator_forces_kernel(Jq, F, tau):
         a11 += Jq[r, 1] * Jq[r, 1]
         a12 += Jq[r, 1] * Jq[r, 2]
         a22 += Jq[r, 2] * Jq[r, 2]
-    y0, y1, y2 = _cholesky_solve3(a00, a01, a02, a11, a12, a22, F[0], F[1], F[2])
+    y0, y1, y2 = cholesky_solve3(a00, a01, a02, a11, a12, a22, F[0], F[1], F[2])
     for i in range(4):
         tau[i] = Jq[i, 0] * y0 + Jq[i, 1] * y1 + Jq[i, 2] * y2
 
 
 @kernel(inline="always")
-def _cholesky_solve3(a00, a01, a02, a11, a12, a22, b0, b1, b2):
+def cholesky_solve3(a00, a01, a02, a11, a12, a22, b0, b1, b2):
     """x with A x = b for a symmetric positive definite 3x3 A given by its upper triangle."""
     l00 = np.sqrt(a00)
     l10 = a01 / l00
@@ -313,6 +313,6 @@ def _cholesky_solve3(a00, a01, a02, a11, a12, a22, b0, b1, b2):
 @kernel(inline="always")
 def solve_spd3(A, b):
     """Solve A x = b in place (b <- x) for a symmetric positive definite 3x3 A."""
-    b[0], b[1], b[2] = _cholesky_solve3(
+    b[0], b[1], b[2] = cholesky_solve3(
         A[0, 0], A[0, 1], A[0, 2], A[1, 1], A[1, 2], A[2, 2], b[0], b[1], b[2]
     )

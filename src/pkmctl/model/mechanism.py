@@ -249,7 +249,7 @@ class Mechanism:
         """2-norm condition number of J (sigma_max / sigma_min), float or (N,)."""
         Xb, single = _as_batch(X, "X")
         _check_basic(Xb)
-        q, J = _limbs_batch(self._geom, Xb)
+        q, J = limbs_batch(self._geom, Xb)
         c = np.linalg.cond(J)
         return float(c[0]) if single else c
 
@@ -352,7 +352,7 @@ class Mechanism:
             _like(a, Xb, n) for a, n in ((Xdot, "Xdot"), (Xr_dot, "Xr_dot"), (Xr_ddot, "Xr_ddot"))
         ]
         _check_poses(self._geom, Xb)
-        Y = _extended_regressor_batch(self._geom, Xb, *args, float(friction_velocity))
+        Y = extended_regressor_batch(self._geom, Xb, *args, float(friction_velocity))
         return Y[0] if single else Y
 
     def actuator_forces(self, X: np.ndarray, F: np.ndarray) -> np.ndarray:
@@ -404,7 +404,7 @@ def _check_basic(Xb: np.ndarray) -> None:
 def _check_poses(geom: np.ndarray, Xb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Validate a batch of poses; return their limb lengths (N, 4) and Jacobians (N, 4, 3)."""
     _check_basic(Xb)
-    q, J = _limbs_batch(geom, Xb)
+    q, J = limbs_batch(geom, Xb)
     short = np.argwhere(q < MIN_LIMB_LENGTH)
     if short.size:
         n, i = short[0]
@@ -426,7 +426,7 @@ def _check_poses(geom: np.ndarray, Xb: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 @kernel
-def _limbs_batch(geom, Xb):
+def limbs_batch(geom, Xb):
     n = Xb.shape[0]
     q = np.empty((n, 4))
     J = np.empty((n, 4, 3))
@@ -478,7 +478,7 @@ def _regressor_batch(geom, Xb, Xdb, Xrdb, Xrddb):
 
 
 @kernel
-def _extended_regressor_batch(geom, Xb, Xdb, Xrdb, Xrddb, vs):
+def extended_regressor_batch(geom, Xb, Xdb, Xrdb, Xrddb, vs):
     n = Xb.shape[0]
     Y = np.empty((n, 3, N_THETA_EXT))
     work = make_work()

@@ -12,7 +12,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pkmctl._jit import kernel
-from pkmctl.model.dynamics import _cholesky_solve3
+from pkmctl.model.dynamics import cholesky_solve3
 from pkmctl.model.kinematics import limb_jacobian
 from pkmctl.parts import NoParams, PartContext, builtin_part
 
@@ -182,7 +182,7 @@ def fk_gauss_newton(geom, qh, X, R, Jq, q, r, step_tol, grad_tol, max_iter):
         a00, a01, a02, a11, a12, a22, g0, g1, g2 = _normal_equations(Jq, r)
         if max(abs(g0), abs(g1), abs(g2)) <= grad_tol:
             return it
-        d0, d1, d2 = _cholesky_solve3(a00, a01, a02, a11, a12, a22, -g0, -g1, -g2)
+        d0, d1, d2 = cholesky_solve3(a00, a01, a02, a11, a12, a22, -g0, -g1, -g2)
         X[0] += d0
         X[1] += d1
         X[2] += d2
@@ -258,7 +258,7 @@ def encoder_measure(p, state, work, x, y):
         state[_VF + i] = state[_VF + i] + p.alpha * (d - state[_VF + i]) if started else 0.0
         state[_QP + i] = qh[i]
     a00, a01, a02, a11, a12, a22, g0, g1, g2 = _normal_equations(Jq, state[_VF : _VF + 4])
-    v0, v1, v2 = _cholesky_solve3(a00, a01, a02, a11, a12, a22, g0, g1, g2)
+    v0, v1, v2 = cholesky_solve3(a00, a01, a02, a11, a12, a22, g0, g1, g2)
     delayed = p.delay > 0.0 and started
     for i in range(3):
         state[_XH + i] = Xn[i]

@@ -46,11 +46,14 @@ __all__ = [
     "desired_forces",
     "memory_needed",
     "precompile",
+    "prepare",
+    "resolve_parts",
+    "run_prepared",
     "simulate",
     "simulate_many",
 ]
 
-# Doubles per logged row: what _prepare keeps (t, reference 9, q_d 4, tau_d 4) plus the
+# Doubles per logged row: what prepare keeps (t, reference 9, q_d 4, tau_d 4) plus the
 # trajectory's temporaries (3 x 3), and the loop's logs (LogBuffers: 26 columns).
 _PREPARED_COLUMNS = 1 + 9 + 4 + 4 + 9
 _LOG_COLUMNS = 3 + 3 + 6 + 3 + 4 + 4 + 3
@@ -192,7 +195,7 @@ def _desired(scenario: Scenario, plant: Mechanism, periods: np.ndarray):
 
 
 @dataclass(frozen=True, eq=False)
-class _Prepared:
+class Prepared:
     """What every run of one scenario shares, whatever the seed and controller: the
     desired trajectory, limb lengths and forces at the logged periods (every period, or
     every ``logging.every``-th), and for a log of every period the disturbance index."""
@@ -219,7 +222,10 @@ class _Prepared:
         return reference, q_des, _disturbance_index(k0, k1, Tc, hold)
 
 
-def _prepare(scenario: Scenario | str, duration: float | None) -> _Prepared:
+def prepare(scenario: Scenario | str, duration: float | None) -> Prepared:
+    """Everything the runs of ``scenario`` share (for runs of many seeds or controllers
+    on one scenario: :func:`run_prepared`); its memory is checked before anything is
+    allocated."""
     if isinstance(scenario, str):
         scenario = Scenario.builtin(scenario)
     if not isinstance(scenario, Scenario):
@@ -247,7 +253,7 @@ def _prepare(scenario: Scenario | str, duration: float | None) -> _Prepared:
     index = _disturbance_index(0, n, Tc, scenario.disturbance.hold) if every == 1 else None
     model = scenario.controller_mechanism()
     flc = scenario.fuzzy_system()
-    return _Prepared(scenario, plant, model, t, reference, q_des, tau_des, flc, n, every, index)
+    return Prepared(scenario, plant, model, t, reference, q_des, tau_des, flc, n, every, index)
 
 
 def _with_seed(scenario: Scenario, seed: int) -> Scenario:
@@ -258,7 +264,9 @@ def _with_seed(scenario: Scenario, seed: int) -> Scenario:
     return scenario.model_copy(update={"disturbance": dist})
 
 
-def _parts(scenario: Scenario, controller: str) -> dict[str, Part]:
+def resolve_parts(scenario: Scenario, controller: str) -> dict[str, Part]:
+    """The registered parts (sensor, controller, actuator, plant) a run of
+    ``controller`` on ``scenario`` uses."""
     if not isinstance(controller, str):
         raise PartError(f"controller = {controller!r}: must be a registered controller's name")
     return {
@@ -283,8 +291,8 @@ def simulate(
     :class:`~pkmctl.SimulationDiverged` (with the partial result) if the state becomes
     non-finite or the pose leaves the valid set.
     """
-    prep = _prepare(scenario, duration)
-    return _run(prep, _parts(prep.scenario, controller), seed)
+    prep = prepare(scenario, duration)
+    return run_prepared(prep, resolve_parts(prep.scenario, controller), seed)
 
 
 def _build(parts: dict[str, Part], ctx: PartContext, plant_state: np.ndarray) -> dict:
@@ -303,12 +311,14 @@ def _build(parts: dict[str, Part], ctx: PartContext, plant_state: np.ndarray) ->
     return bundles
 
 
-def _run(
-    prep: _Prepared,
+def run_prepared(
+    prep: Prepared,
     parts: dict[str, Part],
     seed: int | None,
     buffers: LogBuffers | None = None,
 ) -> Result:
+    """One run of ``prep``'s scenario with ``parts`` and disturbance ``seed`` (None: the
+    scenario's); ``buffers`` lets runs of one length share their log arrays."""
     scenario = prep.scenario if seed is None else _with_seed(prep.scenario, seed)
     Tc = scenario.timing.control_period
     ctx = PartContext(
@@ -460,8 +470,8 @@ def simulate_many(
     workers = (os.cpu_count() or 1) if workers is None else workers
     if workers < 1:
         raise ValueError(f"workers = {workers}: must be >= 1")
-    prep = _prepare(scenario, duration)
-    parts = _parts(prep.scenario, controller)
+    prep = prepare(scenario, duration)
+    parts = resolve_parts(prep.scenario, controller)
     for s in seeds:
         _with_seed(prep.scenario, s)  # fail fast on a bad seed, before any run
     local = threading.local()
@@ -473,10 +483,10 @@ def simulate_many(
 
     def one(seed):
         if keep == "results":
-            return _run(prep, parts, seed)
+            return run_prepared(prep, parts, seed)
         if not hasattr(local, "buffers"):
             local.buffers = LogBuffers(prep.t.size, n_log)
-        result = _run(prep, parts, seed, local.buffers)
+        result = run_prepared(prep, parts, seed, local.buffers)
         return {"seed": int(seed), **summary(result)}
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
@@ -529,7 +539,7 @@ def precompile(
 
     todo, fuzzy = [], set()
     for c in controllers:
-        parts = _parts(scenario, c)
+        parts = resolve_parts(scenario, c)
         if all(p.builtin for p in parts.values()) and not is_compiled(parts):
             todo.append(c)
             if "flc" in parts["controller"].params._fields:
