@@ -192,14 +192,21 @@ def test_baselines_track_the_paper_trajectory(controller):
     assert after["z_mm"] < 1.0 and after["beta_deg"] < 0.5, after
 
 
-def test_precompile_deals_loops_to_workers_and_skips_what_is_compiled():
+def test_precompile_plans_each_kernel_once_and_skips_what_is_compiled():
     from pkmctl.sim.loop import is_compiled
-    from pkmctl.sim.simulate import _groups, precompile, resolve_parts
+    from pkmctl.sim.simulate import _plan, precompile, resolve_parts
 
     five = ["smc", "fsmc", "afsmc", "pd", "ctc"]
-    assert _groups(five, {"fsmc", "afsmc"}, 2) == [["fsmc", "afsmc"], ["smc", "pd", "ctc"]]
-    assert _groups(five, {"fsmc", "afsmc"}, 3) == [["fsmc", "afsmc"], ["smc", "ctc"], ["pd"]]
-    assert _groups(["smc", "pd", "ctc"], set(), 2) == [["smc", "ctc"], ["pd"]]
+    # first the plant's kernels (one loop) beside the fuzzy controllers' own (no loop),
+    # then the other loops from the cache
+    assert _plan(five, {"fsmc", "afsmc"}, 2) == [
+        [("loops", ["smc"]), ("steps", ["fsmc", "afsmc"])],
+        [("loops", ["fsmc", "pd"]), ("loops", ["afsmc", "ctc"])],
+    ]
+    assert _plan(["fsmc", "afsmc"], {"fsmc", "afsmc"}, 2) == [
+        [("loops", ["fsmc"]), ("loops", ["afsmc"])]
+    ]
+    assert _plan(["smc", "pd", "ctc"], set(), 2) == [[("loops", ["smc", "ctc"]), ("loops", ["pd"])]]
     sc = pkmctl.Scenario.builtin("paper")
     pkmctl.simulate(sc, controller="smc", duration=0.001)
     assert is_compiled(resolve_parts(sc, "smc"))  # a run leaves its marker ...

@@ -650,6 +650,18 @@ def flc_eval(tables, s, sdot):
     return _general_eval2(ints, reals, s, sdot)
 
 
+@_jit_free
+def flc_grid_eval(tables, s, sdot):
+    """:func:`flc_eval` for tables on the fast kernel only, NaN for any other (the fuzzy
+    term's path: :func:`pkmctl.fuzzy.term.term_system` sends every other system to the
+    general engine). A loop then compiles without the allocating general path, which is
+    most of the fuzzy kernels' compile time."""
+    ints, reals = tables
+    if ints[_FAST] != 1:
+        return np.nan
+    return _grid_eval2(ints, reals, s, sdot)
+
+
 @_jit
 def _general_eval2(ints, reals, s, sdot):
     """The general path of flc_eval (it allocates, so it keeps reference counting)."""

@@ -6,8 +6,9 @@ runs is the scenario's choice (``[fuzzy]``: the paper's FLC by default, or a MAT
 ``.fis`` file); :func:`term_system` turns it into one of two compiled forms:
 
 1. a :class:`~pkmctl.fuzzy.MamdaniSystem` whose tables qualify for the fast kernel (the
-   paper's FLC does; docs/fuzzy.md says when) runs as ever: ``flc_eval``, closed form, no
-   allocation, ~0.1-0.2 us;
+   paper's FLC does; docs/fuzzy.md says when) runs as ever on the fast kernel
+   (``flc_grid_eval``, :func:`~pkmctl.fuzzy.flc_eval` without its general path), closed
+   form, no allocation, ~0.1-0.2 us;
 2. anything else runs on the general engine, :class:`~pkmctl.fuzzy.system.FuzzySystem`
    (Mamdani or Sugeno, every method of the toolbox), through its allocation-free kernel
    ``fis_eval2`` with work arrays made once per run by :func:`term_work`.
@@ -25,8 +26,9 @@ from numba.core import types
 from numba.extending import overload
 
 from pkmctl._jit import JIT_OPTIONS, NO_REFCOUNT
-from pkmctl.fuzzy.engine import FISTables, MamdaniSystem, flc_eval
+from pkmctl.fuzzy.engine import FISTables, MamdaniSystem
 from pkmctl.fuzzy.general import fis_eval2, new_work
+from pkmctl.fuzzy.kernels import flc_grid_eval
 from pkmctl.fuzzy.system import FuzzySystem, SystemTables, as_general
 
 __all__ = ["ENGINES", "term_eval", "term_system", "term_work"]
@@ -111,7 +113,7 @@ def _term_eval(tables, work, x1, x2):
     if cls is FISTables:
 
         def fast(tables, work, x1, x2):
-            return flc_eval(tables, x1, x2)
+            return flc_grid_eval(tables, x1, x2)
 
         return fast
     if cls is SystemTables:

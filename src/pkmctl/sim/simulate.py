@@ -493,11 +493,25 @@ def simulate_many(
         return list(pool.map(one, seeds))
 
 
-def _compile_group(scenario_toml: str, controllers: list[str]) -> str:
-    """In a worker process: run each controller for one period, which compiles its loop
-    into the disk cache. Returns "" or the first error (the caller will meet it again)."""
+def _compile_group(scenario_toml: str, job: tuple[str, list[str]]) -> str:
+    """In a worker process, one job of :func:`_plan`: ``("loops", names)`` runs each
+    controller for one period, which compiles its loop (and every kernel it calls) into
+    the disk cache; ``("steps", names)`` steps each controller once from Python, which
+    compiles the controller's own kernels (the fuzzy term, the regressor) without a loop.
+    Returns "" or the first error (the caller will meet it again)."""
+    what, controllers = job
     try:
         sc = Scenario.from_toml(scenario_toml)
+        if what == "steps":
+            from pkmctl.control.base import Controller
+
+            X, Xdot = sc.initial.X, sc.initial.Xdot
+            for c in controllers:
+                ctrl = Controller(sc.controller_mechanism(), sc.controller_gains(),
+                                  period=sc.timing.control_period, flc=sc.fuzzy_system(),
+                                  name=c)  # fmt: skip
+                ctrl.step(X, Xdot, X, np.zeros(3), np.zeros(3))
+            return ""
         sc = sc.replace(**{"timing.duration": sc.timing.control_period, "logging.every": 1})
         for c in controllers:
             simulate(sc, controller=c)
@@ -506,15 +520,25 @@ def _compile_group(scenario_toml: str, controllers: list[str]) -> str:
     return ""
 
 
-def _groups(todo: list[str], fuzzy: set[str], n: int) -> list[list[str]]:
-    """Deal ``todo`` over ``n`` >= 2 workers. Controllers that share the fuzzy kernels go
-    to one worker (those kernels are the costliest to compile, once per process); the
-    others are dealt out over the rest."""
-    others = [c for c in todo if c not in fuzzy]
-    if fuzzy and others:
-        rest = [others[i :: n - 1] for i in range(n - 1)]
-        return [[c for c in todo if c in fuzzy], *(g for g in rest if g)]
-    return [g for g in (todo[i::n] for i in range(n)) if g]
+def _plan(todo: list[str], heavy: set[str], n: int) -> list[list[tuple[str, list[str]]]]:
+    """The jobs of :func:`precompile`, in phases of at most ``n`` >= 2 jobs that run side
+    by side, one phase after the other.
+
+    Every loop compiles the plant's kernels, and a process compiles a kernel once; the
+    controllers in ``heavy`` (a fuzzy term: the costliest kernels) have large kernels of
+    their own. So the first phase compiles each kernel once, on one core each: one loop
+    without a heavy controller (the plant's, the trajectory's and the metrics' kernels)
+    beside the heavy controllers' own kernels, stepped without a loop. The second phase
+    builds the other loops, dealt over the workers, from the cached kernels. With no
+    heavy controller there is one phase, the loops dealt out."""
+    first = next((c for c in todo if c not in heavy), None)
+    if first is None or not heavy:
+        return [[("loops", g) for g in (todo[i::n] for i in range(n)) if g]]
+    rest = [c for c in todo if c != first]
+    return [
+        [("loops", [first]), ("steps", [c for c in rest if c in heavy])],
+        [("loops", g) for g in (rest[i::n] for i in range(n)) if g],
+    ]
 
 
 def precompile(
@@ -528,30 +552,31 @@ def precompile(
     in parallel worker processes, before a run that needs them all.
 
     Numba compiles one function at a time per process; with several loops to build and
-    several cores, worker processes build them side by side (each compiles the model
-    kernels it needs too, on its own core). Loops already compiled on this machine, and
-    combinations with parts registered outside pkmctl (a worker would not import them),
-    are skipped; so is everything when fewer than two workers would run. Calls
-    ``on_start(controllers, workers)`` before it starts; returns the controllers whose
-    loops were compiled.
+    several cores, worker processes build them side by side, in the phases of
+    :func:`_plan` so that no kernel is compiled twice. Loops already compiled on this
+    machine, and combinations with parts registered outside pkmctl (a worker would not
+    import them), are skipped; so is everything when fewer than two workers would run.
+    Calls ``on_start(controllers, workers)`` before it starts; returns the controllers
+    whose loops were compiled.
     """
     from .workers import spawn_pool
 
-    todo, fuzzy = [], set()
+    todo, heavy = [], set()
     for c in controllers:
         parts = resolve_parts(scenario, c)
         if all(p.builtin for p in parts.values()) and not is_compiled(parts):
             todo.append(c)
             if "flc" in parts["controller"].params._fields:
-                fuzzy.add(c)
+                heavy.add(c)
     n = min(len(todo), os.cpu_count() or 1, workers or len(todo))
     if n < 2:
         return []
-    groups = _groups(todo, fuzzy, n)
-    n = len(groups)
+    phases = _plan(todo, heavy, n)
+    n = max(len(p) for p in phases)
     if on_start is not None:
         on_start(todo, n)
     text = scenario.to_toml()
     with spawn_pool(n) as pool:
-        list(pool.map(_compile_group, [text] * n, groups))
+        for jobs in phases:
+            list(pool.map(_compile_group, [text] * len(jobs), jobs))
     return todo
