@@ -139,7 +139,8 @@ def test_campaign_paths_honour_decimation():
     sc = _scenario(**{"timing.duration": 0.2, "logging.every": 100})
     runs = sim.simulate_many(sc, "pd", seeds=[1, 2], workers=2, keep="metrics")
     assert runs[1] == {"seed": 2, **metrics.summary(pkmctl.simulate(sc, "pd", seed=2))}
-    assert sim._compile_group(sc.to_toml(), ["pd"]) == ""
+    assert sim._compile_group(sc.to_toml(), ("loops", ["pd"])) == ""
+    assert sim._compile_group(sc.to_toml(), ("steps", ["fsmc"])) == ""
 
 
 def test_windows_the_loop_did_not_accumulate_are_refused():

@@ -279,7 +279,7 @@ def _register(
             continue  # a stepped plant is advanced by its stepper, not integrated by the loop
         if role not in functions:
             raise PartError(f"{kind} {name!r}: missing its {role!r} function")
-    sources = set()
+    sources, compiled = set(), {}
     for role, fn in functions.items():
         if role not in ROLES[kind]:
             raise PartError(f"{kind} {name!r}: unknown function {role!r}")
@@ -299,6 +299,9 @@ def _register(
                 f"{len(sig.parameters)} arguments, the contract needs {want} "
                 f"({_SIGNATURES[kind][role]})"
             )
+        if builtin and py is not fn:  # pkmctl's own kernel: called, and inlined by LLVM
+            py.__pkmctl_llvm_inline__ = True
+            compiled[role] = fn
         functions[role] = py
         src = inspect.getsourcefile(py)
         if src:
@@ -326,6 +329,7 @@ def _register(
         builtin=builtin,
         stepper=stepper,
         limits=limits,
+        compiled=compiled,
     )
     reg[name] = part
     _BY_TYPE[(kind, params)] = part
@@ -414,6 +418,15 @@ def _lookup(kind: str, p) -> Part | None:
     return _BY_TYPE.get((kind, cls))
 
 
+def _caller(argnames: str, disp):
+    """An implementation that calls ``disp``: one of pkmctl's kernels, compiled once and
+    kept in the disk cache, which LLVM inlines into the loop (``llvm_inline``), so that a
+    loop does not type-infer the part's body again."""
+    local: dict[str, Any] = {"fn": disp}
+    exec(f"def impl({argnames}):\n    return fn({argnames})\n", local)
+    return local["impl"]
+
+
 def _resolver(kind: str, role: str):
     argnames = _SIGNATURES[kind][role].replace(" ", "")
 
@@ -421,6 +434,8 @@ def _resolver(kind: str, role: str):
         part = _lookup(kind, p)
         if part is None:
             return None  # not a bundle of this kind: Numba reports a typing error
+        if role in part.functions and role in part.compiled and part.builtin:
+            return _caller(argnames, part.compiled[role])
         if role in part.functions:
             return part.functions[role]  # inlined into the caller (see above)
         local: dict[str, Any] = {}  # an optional step the part does not have: nothing to do
