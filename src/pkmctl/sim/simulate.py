@@ -496,21 +496,24 @@ def simulate_many(
 def _compile_group(scenario_toml: str, job: tuple[str, list[str]]) -> str:
     """In a worker process, one job of :func:`_plan`: ``("loops", names)`` runs each
     controller for one period, which compiles its loop (and every kernel it calls) into
-    the disk cache; ``("steps", names)`` steps each controller once from Python, which
-    compiles the controller's own kernels (the fuzzy term, the regressor) without a loop.
+    the disk cache; ``("steps", names)`` calls each controller's compiled step once from Python,
+    which compiles its own kernels (the fuzzy term, the regressor) without a loop.
     Returns "" or the first error (the caller will meet it again)."""
     what, controllers = job
     try:
         sc = Scenario.from_toml(scenario_toml)
         if what == "steps":
-            from pkmctl.control.base import Controller
-
-            X, Xdot = sc.initial.X, sc.initial.Xdot
+            prep_ctx = PartContext(sc.plant(), sc.controller_mechanism(),
+                                   sc.controller_gains(), sc.timing.control_period,
+                                   sc.fuzzy_system(), sc)  # fmt: skip
+            vec, ref = np.zeros((6, 6)), np.zeros((1, 9))  # as the loop passes them
+            vec[0, :3] = sc.initial.X
             for c in controllers:
-                ctrl = Controller(sc.controller_mechanism(), sc.controller_gains(),
-                                  period=sc.timing.control_period, flc=sc.fuzzy_system(),
-                                  name=c)  # fmt: skip
-                ctrl.step(X, Xdot, X, np.zeros(3), np.zeros(3))
+                part = resolve_parts(sc, c)["controller"]
+                params, state, work = part.make(prep_ctx)
+                step = part.compiled.get("step")
+                if step is not None:  # a built-in kernel, cached as the loop will call it
+                    step(params, state, work, vec[0], ref[0], vec[1, 0:3])
             return ""
         sc = sc.replace(**{"timing.duration": sc.timing.control_period, "logging.every": 1})
         for c in controllers:
