@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from pkmctl.fuzzy.kernels import (
+    FAST_SLOT,
     HEADER,
     INT_SECTIONS,
     O_NT,
@@ -35,6 +36,7 @@ from pkmctl.fuzzy.kernels import (
     centroid_batch,
     eval_batch,
     flc_eval,
+    grid_eval_batch,
     levels_batch,
     mamdani_eval,
 )
@@ -502,7 +504,10 @@ class MamdaniSystem:
         """
         X, shape = self._stack(x)
         out = np.empty(X.shape[0])
-        _warn_zero_area(self.name, eval_batch(*self._tables, X, out, True))
+        if self._tables[0][FAST_SLOT] == 1 and X.shape[1] == 2:
+            grid_eval_batch(*self._tables, X, out)  # never a zero-area aggregate
+        else:
+            _warn_zero_area(self.name, eval_batch(*self._tables, X, out, True))
         return float(out[0]) if shape == () else out.reshape(shape)
 
     def general(self, *x: ArrayLike) -> float | np.ndarray:

@@ -39,6 +39,8 @@ REAL_SECTIONS = (
     "cells",
 )
 _N_IN, _K, _R, _T, _FAST = range(5)
+#: Where ``ints`` says whether a system qualifies for the fast (grid) kernel (1) or not.
+FAST_SLOT = _FAST
 O_NT, _O_KIN, _O_KOUT, _O_ANT, _O_CONS, _O_GCONS = range(5, 11)
 O_RIN, _O_INV, _O_PIN, _O_ROUT, _O_POUT, _O_W, _O_GW, _O_CELLS = range(11, 19)
 HEADER = 19
@@ -688,6 +690,15 @@ def mamdani_eval(tables, x):
     if ints[_FAST] == 1:
         return _grid_eval2(ints, reals, x[0], x[1])
     return _general_eval(ints, reals, x)
+
+
+@_jit_free
+def grid_eval_batch(ints, reals, X, out):
+    """out[n] = system(X[n, 0], X[n, 1]) for a system on the fast kernel (the caller
+    checks): :func:`eval_batch` without the general path, so that evaluating the paper's
+    FLC does not compile the general engine."""
+    for n in range(X.shape[0]):
+        out[n] = _grid_eval2(ints, reals, X[n, 0], X[n, 1])
 
 
 @_jit
