@@ -195,7 +195,7 @@ def test_stepped_plant_logs_the_encoder():
 # ------------------------------------------------------------------ memory
 def test_one_hour_paper_run_fits_in_a_few_hundred_mb(monkeypatch):
     hour = _scenario(**{"timing.duration": 3600.0, "logging.every": 200})
-    n, holds = hour.timing.periods, sim._disturbance_count(hour)
+    n, holds = hour.timing.periods, sim.disturbance_count(hour)
     assert n == 72_000_000
     need = sim.memory_needed(n, 36, every=200, disturbance_values=holds)  # AFSMC: Θ̂ logged
     assert 100 * 2**20 < need < 600 * 2**20, need / 2**20
@@ -212,11 +212,31 @@ def test_one_hour_paper_run_fits_in_a_few_hundred_mb(monkeypatch):
     assert r.t.size == 50 and r.info["steps"] == 10_000
 
 
+def test_the_encoders_noise_is_counted_before_it_is_drawn(monkeypatch):
+    """The encoder draws its noise for the whole run up front, (periods, 4): an hour at
+    1 kHz is 115 MB of it, whatever the log keeps."""
+    quiet = pkmctl.Scenario.builtin("prototype").replace(
+        **{"timing.duration": 3600.0, "logging.every": 1000, "sensor.noise": 0.0}
+    )
+    noisy = quiet.replace(**{"sensor.noise": 1e-6})
+    assert sim.part_memory(quiet) == 0 and sim.part_memory(noisy) == 4
+    n = noisy.timing.periods
+    base = sim.memory_needed(n, every=1000, disturbance_values=sim.disturbance_count(noisy))
+    with_noise = sim.memory_needed(n, every=1000, disturbance_values=sim.disturbance_count(noisy),
+                                   part_values=4)  # fmt: skip
+    assert with_noise - base == 8 * 4 * n
+    # room for the logs but not for the noise: refused in one line, before any draw
+    monkeypatch.setattr(sim, "_available_memory", lambda: (base + with_noise) // 2)
+    sim.prepare(quiet, None)
+    with pytest.raises(pkmctl.errors.InsufficientMemory, match="needs"):
+        sim.prepare(noisy, None)
+
+
 def test_memory_estimate_covers_what_a_decimated_run_allocates():
     sc = _scenario(**{"timing.duration": 0.5, "logging.every": 20})
     r = pkmctl.simulate(sc, "afsmc")
     arrays = [getattr(r, n) for n in ARRAYS if getattr(r, n) is not None]
     logged = sum(a.nbytes for a in arrays)
     need = sim.memory_needed(sc.timing.periods, 36, every=20,
-                             disturbance_values=sim._disturbance_count(sc))  # fmt: skip
+                             disturbance_values=sim.disturbance_count(sc))  # fmt: skip
     assert logged < need

@@ -30,9 +30,10 @@ from pkmctl.io.results import save_result
 from pkmctl.sim.result import Result
 from pkmctl.sim.scenario import Scenario
 from pkmctl.sim.simulate import (
-    _disturbance_count,
     check_memory,
+    disturbance_count,
     memory_needed,
+    part_memory,
     precompile,
     simulate,
 )
@@ -82,7 +83,8 @@ def reproduce(
 
     def need(e: int) -> int:
         return memory_needed(n, _MAX_CONTROLLER_LOG, runs=runs, every=e, sensor_log=4,
-                             disturbance_values=_disturbance_count(scenario))  # fmt: skip
+                             part_values=part_memory(scenario),
+                             disturbance_values=disturbance_count(scenario))  # fmt: skip
 
     check_memory(need(every), f"reproduce ({runs} runs of {scenario.timing.duration:g} s)",
                  decimated=need, every=every, periods=n)  # fmt: skip

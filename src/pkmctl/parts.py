@@ -152,6 +152,9 @@ class Part:
     builtin: bool = False
     stepper: Callable[[Any, PartContext, float], Any] | None = None
     limits: Callable[[Any], tuple[float, float]] | None = None
+    #: doubles per control period a run's bundle holds (a function of the scenario, e.g.
+    #: the encoder's noise drawn up front), counted before anything is allocated
+    memory: Callable[[Any], int] | None = None
     compiled: dict[str, Any] = field(default_factory=dict)
 
     def make(self, ctx: PartContext) -> tuple[Any, np.ndarray, np.ndarray]:
@@ -250,6 +253,7 @@ def _register(
     builtin: bool = False,
     stepper: Callable | None = None,
     limits: Callable | None = None,
+    memory: Callable | None = None,
 ) -> Part:
     reg = _REGISTRY[kind]
     if not isinstance(name, str) or not name or name != name.strip():
@@ -329,6 +333,7 @@ def _register(
         builtin=builtin,
         stepper=stepper,
         limits=limits,
+        memory=memory,
         compiled=compiled,
     )
     reg[name] = part
@@ -375,7 +380,9 @@ def _decorator(kind: str, main_role: str):
     one float64 array of n, or a function of the bundle giving a tuple of arrays),
     ``initial_state`` (function of the bundle), ``description``, ``label`` (its name in
     reports), ``limits`` (an actuator's (force N, speed m/s) from its bundle, inf: none),
-    and the other step functions of a {kind} ({_others(kind, main_role)}).
+    ``memory`` (doubles per control period its bundle holds, a function of the scenario,
+    counted in the memory check before a run), and the other step functions of a {kind}
+    ({_others(kind, main_role)}).
     Raises :class:`PartError` (one line) on a taken name or a wrong signature.
     """
     return register

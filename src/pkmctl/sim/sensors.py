@@ -307,5 +307,6 @@ builtin_part(
     log_size=4,
     log_name="q_measured",
     report=_encoder_report,
+    memory=lambda sc: 4 if sc.sensor.noise > 0 else 0,  # the noise, drawn up front (n, 4)
     description="quantised limb lengths, forward kinematics, J^+ rates (DESIGN.md §7)",
 )

@@ -45,6 +45,7 @@ __all__ = [
     "check_memory",
     "desired_forces",
     "memory_needed",
+    "part_memory",
     "precompile",
     "prepare",
     "resolve_parts",
@@ -74,19 +75,34 @@ def memory_needed(
     every: int = 1,
     sensor_log: int = 0,
     disturbance_values: int = 0,
+    part_values: int = 0,
 ) -> int:
     """Bytes of the arrays ``runs`` runs of ``periods`` control periods allocate, each
     logging every ``every``-th period: the prepared reference (every period, or the
     logged rows and one chunk of inputs at a time when decimated), the disturbance index,
     the logs, a controller log of ``controller_log`` and a sensor log of ``sensor_log``
-    columns, and ``disturbance_values`` held disturbance values (3 each) per run."""
+    columns, ``disturbance_values`` held disturbance values (3 each) and ``part_values``
+    doubles per period in the parts' bundles (:func:`part_memory`) per run."""
     rows = -(-periods // every)
     per_run = rows * (_LOG_COLUMNS + controller_log + sensor_log) + 3 * disturbance_values
+    per_run += periods * part_values
     if every == 1:
         shared = periods * (_PREPARED_COLUMNS + 1)  # + the disturbance index (int64)
     else:
         shared = rows * _PREPARED_COLUMNS + min(periods, CHUNK_PERIODS) * _CHUNK_COLUMNS
     return 8 * (shared + runs * per_run)
+
+
+def part_memory(scenario: Scenario) -> int:
+    """Doubles per control period the bundles of the scenario's sensor, actuator and
+    plant hold (their parts' ``memory``; the encoder's noise, say)."""
+    total = 0
+    for kind, name in (("plant", scenario.plant_spec.kind), ("sensor", scenario.sensor.kind),
+                       ("actuator", scenario.actuators.kind)):  # fmt: skip
+        part = get_part(kind, name)
+        if part.memory is not None:
+            total += int(part.memory(scenario))
+    return total
 
 
 def _available_memory() -> int | None:
@@ -167,7 +183,7 @@ def _desired_kernel(geom, theta, Xd, Xdd, Xddd, q_out, tau_out):
         q_out[k, :] = work[Q]
 
 
-def _disturbance_count(scenario: Scenario) -> int:
+def disturbance_count(scenario: Scenario) -> int:
     """How many held values the disturbance draws for the run."""
     t_end = scenario.timing.periods * scenario.timing.control_period
     return int(math.floor(t_end / scenario.disturbance.hold + 1e-9)) + 1
@@ -176,7 +192,7 @@ def _disturbance_count(scenario: Scenario) -> int:
 def _disturbance_values(scenario: Scenario) -> np.ndarray:
     d = scenario.disturbance
     rng = np.random.default_rng(d.seed)
-    return np.asarray(d.amplitude) * rng.uniform(-1.0, 1.0, size=(_disturbance_count(scenario), 3))
+    return np.asarray(d.amplitude) * rng.uniform(-1.0, 1.0, size=(disturbance_count(scenario), 3))
 
 
 def _disturbance_index(k0: int, k1: int, Tc: float, hold: float) -> np.ndarray:
@@ -240,12 +256,14 @@ def prepare(scenario: Scenario | str, duration: float | None) -> Prepared:
     if n < 1:
         raise ScenarioError("timing.duration: shorter than one control period")
     every = scenario.logging.every
-    holds = _disturbance_count(scenario)
+    holds, parts = disturbance_count(scenario), part_memory(scenario)
     # Refuse what cannot fit before allocating any of it (a 1 h run at 20 kHz: ~27 GiB).
     check_memory(
-        memory_needed(n, every=every, disturbance_values=holds),
+        memory_needed(n, every=every, disturbance_values=holds, part_values=parts),
         f"a {n * Tc:g} s run at T_c = {Tc:g} s" + (f" logged every {every}" if every > 1 else ""),
-        decimated=lambda e: memory_needed(n, every=e, disturbance_values=holds),
+        decimated=lambda e: memory_needed(
+            n, every=e, disturbance_values=holds, part_values=parts
+        ),  # fmt: skip
         every=every,
         periods=n,
     )
@@ -332,7 +350,7 @@ def run_prepared(
     x0 = np.concatenate([scenario.initial.X, scenario.initial.Xdot]).astype(float)
     bundles = _build(parts, ctx, x0)
     n, every = prep.periods, prep.every
-    holds = _disturbance_count(scenario)
+    holds = disturbance_count(scenario)
     if buffers is None:  # the prepared arrays exist already: only the logs are new
         n_log = int(parts["controller"].log_size(bundles["controller"][0]))
         n_slog = int(parts["sensor"].log_size(bundles["sensor"][0]))
