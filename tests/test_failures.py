@@ -380,6 +380,19 @@ def test_simulate_seed_and_duration(tmp_path):
 
 
 # ---------------------------------------------------------------- Ctrl-C
+def _signal_state(pid: int) -> str:
+    """The process's signal masks and its threads' (Linux), to say why it did not stop."""
+    out = []
+    for status in [Path(f"/proc/{pid}/status"), *Path(f"/proc/{pid}/task").glob("*/status")]:
+        try:
+            text = status.read_text()
+        except OSError:
+            continue
+        keep = [ln for ln in text.splitlines() if ln.startswith(("Name", "State", "Sig", "Shd"))]
+        out.append(f"{status.parent.name}: " + ", ".join(keep))
+    return "; ".join(out)
+
+
 def _read_lines(stream, q):
     for line in stream:
         q.put(line)
@@ -406,9 +419,13 @@ def test_sigint_while_compiling_stops_at_once_and_keeps_previous_results(
     cache = tempfile.mkdtemp(prefix="pkmctl-cache-", dir=tmp_path)  # empty: it must compile
     env = dict(os.environ, PKMCTL_CACHE_DIR=cache, PYTHONPATH=str(SRC))
     cmd = ["reproduce", "--duration", "0.05", "--out", str(old_results)]
+    # As from a terminal: a shell without job control starts background jobs (`cmd &`,
+    # as a CI script may run the tests) with SIGINT ignored, the pytest process and its
+    # children inherit that, and Python then rightly never installs its Ctrl-C handler.
     proc = subprocess.Popen(
         [sys.executable, "-m", "pkmctl", *cmd],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )  # fmt: skip
     lines: queue.Queue = queue.Queue()
     threading.Thread(target=_read_lines, args=(proc.stderr, lines), daemon=True).start()
@@ -422,7 +439,10 @@ def test_sigint_while_compiling_stops_at_once_and_keeps_previous_results(
         time.sleep(wait)
         t0 = time.monotonic()
         proc.send_signal(signal.SIGINT)
-        proc.wait(timeout=10)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"no exit 10 s after SIGINT; {_signal_state(proc.pid)}\n" + "".join(seen))
         waited = time.monotonic() - t0
     finally:
         proc.kill()
