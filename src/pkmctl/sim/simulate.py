@@ -96,13 +96,8 @@ def memory_needed(
 def part_memory(scenario: Scenario) -> int:
     """Doubles per control period the bundles of the scenario's sensor, actuator and
     plant hold (their parts' ``memory``; the encoder's noise, say)."""
-    total = 0
-    for kind, name in (("plant", scenario.plant_spec.kind), ("sensor", scenario.sensor.kind),
-                       ("actuator", scenario.actuators.kind)):  # fmt: skip
-        part = get_part(kind, name)
-        if part.memory is not None:
-            total += int(part.memory(scenario))
-    return total
+    parts = _machine_parts(scenario).values()
+    return sum(int(p.memory(scenario)) for p in parts if p.memory is not None)
 
 
 def _available_memory() -> int | None:
@@ -287,10 +282,20 @@ def resolve_parts(scenario: Scenario, controller: str) -> dict[str, Part]:
     ``controller`` on ``scenario`` uses."""
     if not isinstance(controller, str):
         raise PartError(f"controller = {controller!r}: must be a registered controller's name")
+    machine = _machine_parts(scenario)
+    return {
+        "plant": machine["plant"],
+        "sensor": machine["sensor"],
+        "controller": get_part("controller", controller),
+        "actuator": machine["actuator"],
+    }
+
+
+def _machine_parts(scenario: Scenario) -> dict[str, Part]:
+    """The parts the scenario itself names: its plant, sensor and actuator."""
     return {
         "plant": get_part("plant", scenario.plant_spec.kind),
         "sensor": get_part("sensor", scenario.sensor.kind),
-        "controller": get_part("controller", controller),
         "actuator": get_part("actuator", scenario.actuators.kind),
     }
 
