@@ -62,6 +62,7 @@ __all__ = [
     "cache_dir",
     "cache_root",
     "kernel",
+    "settle",
     "source_stamp",
     "specialise",
 ]
@@ -203,9 +204,21 @@ if _HAVE_CACHE:
             if getattr(self._py_func, "__pkmctl_llvm_inline__", False):
                 _mark_alwaysinline(data)
             try:
-                super().save_overload(sig, data)
+                with _SAVING:  # see settle()
+                    super().save_overload(sig, data)
             except OSError:  # an unwritable cache: keep the compiled code in memory only
                 self.disable()
+
+
+#: Held while a compiled function is written to the disk cache (a few ms).
+_SAVING = threading.Lock()
+
+
+def settle(timeout: float = 1.0) -> None:
+    """Wait (at most ``timeout`` s) until no compiled function is being written to the disk
+    cache, and keep any other from starting: for a process about to end at once (Ctrl-C,
+    ``os._exit``), which would otherwise leave a half-written temporary file there."""
+    _SAVING.acquire(timeout=timeout)
 
 
 def _mark_alwaysinline(cres) -> None:

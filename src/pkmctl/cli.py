@@ -152,7 +152,11 @@ def _handle(ctx: typer.Context, exc: BaseException, *, suffix: str = "") -> NoRe
 
 
 def _hard_exit(code: int) -> NoReturn:
-    """Exit now, abandoning worker threads (a compiling thread cannot be stopped)."""
+    """Exit now, abandoning worker threads (a compiling thread cannot be stopped), once
+    no compiled code is being written to the cache (no half-written file left there)."""
+    from pkmctl import _jit
+
+    _jit.settle()
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
