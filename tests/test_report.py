@@ -141,6 +141,38 @@ def test_make_figures_leaves_no_temporary_file_on_failure(results, tmp_path, mon
     assert os.listdir(tmp_path) == []
 
 
+needs_fork = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forks on Linux")
+
+
+@needs_fork
+def test_figures_drawn_in_processes_are_the_same_files(results, figure_dir, tmp_path) -> None:
+    """reproduce draws in forked processes: the same PNGs, byte for byte, as drawn here."""
+    outdir, paths = figure_dir
+    forked = make_figures(results, tmp_path, dpi=60, workers=3)
+    assert [p.name for p in forked] == EXPECTED_FIGURES
+    for a, b in zip(paths, forked, strict=True):
+        assert a.read_bytes() == b.read_bytes(), a.name
+    assert sorted(os.listdir(tmp_path)) == sorted(EXPECTED_FIGURES)
+
+
+@needs_fork
+def test_a_failure_in_a_drawing_process_reaches_the_caller(results, tmp_path, monkeypatch):
+    """The children are forked with this process's memory, monkeypatch included."""
+    import multiprocessing
+
+    from matplotlib.figure import Figure
+
+    def broken_savefig(self, fname, **kwargs):
+        fname.write(b"partial")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(Figure, "savefig", broken_savefig)
+    with pytest.raises(OSError, match="disk full"):
+        make_figures(results, tmp_path, workers=2)
+    assert os.listdir(tmp_path) == []
+    assert multiprocessing.active_children() == []  # the drawing processes are gone
+
+
 def test_make_figures_rejects_empty_input(tmp_path) -> None:
     with pytest.raises(ValueError, match="no known controller"):
         make_figures({}, tmp_path)

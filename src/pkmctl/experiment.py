@@ -35,7 +35,9 @@ from pkmctl.sim.simulate import (
     memory_needed,
     part_memory,
     precompile,
-    simulate,
+    prepare,
+    resolve_parts,
+    run_prepared,
 )
 
 __all__ = ["CONTROLLER_ORDER", "ReproduceOutput", "reproduce"]
@@ -95,20 +97,30 @@ def reproduce(
     if not precompile(scenario, CONTROLLER_ORDER, on_start=compiling):
         say("compiled loops found in the cache")
     with staged_folder(out) as stage:
-        results, names = _run_all(scenario, seed, say), []
-        say("writing time series")
-        for res in results.values():
-            names += save_result(res, stage / "timeseries")
-        say("writing Table 4")
-        for fname, text in (
-            ("table4.csv", tables.table4_csv(results)),
-            ("table4.md", tables.table4_markdown(results)),
-        ):
-            with atomic_write(stage / fname) as fh:
-                fh.write(text)
-            names.append(stage / fname)
+        names: list[Path] = []
+
+        def keep(res: Result) -> None:  # written while the other runs compute
+            names.extend(save_result(res, stage / "timeseries"))
+
+        results = _run_all(scenario, seed, say, keep)
         say("drawing figures 10-26")
-        figs = figures.make_figures(results, stage / "figures")
+        job = figures.start_figures(results, stage / "figures")  # in other processes
+        try:
+            say("writing Table 4")
+            for fname, text in (
+                ("table4.csv", tables.table4_csv(results)),
+                ("table4.md", tables.table4_markdown(results)),
+            ):
+                with atomic_write(stage / fname) as fh:
+                    fh.write(text)
+                names.append(stage / fname)
+            say("rendering the machine")
+            images, note = _machine_images(results, stage / "figures")
+            names += [p[0] for p in images]
+            figs = job.wait()
+        except BaseException:
+            job.cancel()
+            raise
         names += figs
         say("writing report")
         wall = time.perf_counter() - t0
@@ -118,9 +130,6 @@ def reproduce(
             scenario_name=next(iter(results.values())).scenario.name,
             wall_time_s=wall,
         )
-        say("rendering the machine")
-        images, note = _machine_images(results, stage / "figures")
-        names += [p[0] for p in images]
         report += _machine_section(images, note, stage)
         with atomic_write(stage / "report.md") as fh:
             fh.write(report)
@@ -129,19 +138,26 @@ def reproduce(
     return ReproduceOutput(results=results, files=files, wall_time_s=time.perf_counter() - t0)
 
 
-def _run_all(scenario: Scenario, seed: int | None, say: Callable[[str], None]) -> dict:
+def _run_all(
+    scenario: Scenario, seed: int | None, say: Callable[[str], None],
+    done: Callable[[Result], None],
+) -> dict:  # fmt: skip
+    """The runs, two or more at a time; ``done`` is called on each (in order) while the
+    later ones compute."""
     # The compiled loop releases the GIL: the runs share the machine's cores.
     workers = min(len(CONTROLLER_ORDER), os.cpu_count() or 1)
+    prep = prepare(scenario, None)  # the desired trajectory, once for the five runs
+    parts = {name: resolve_parts(prep.scenario, name) for name in CONTROLLER_ORDER}
     with ThreadPoolExecutor(max_workers=workers) as pool:
         futures = {
-            name: pool.submit(simulate, scenario, controller=name, seed=seed)
-            for name in CONTROLLER_ORDER
+            name: pool.submit(run_prepared, prep, parts[name], seed) for name in CONTROLLER_ORDER
         }
         try:
             results: dict[str, Result] = {}
             for name in CONTROLLER_ORDER:
                 say(f"simulating {name}")
                 results[name] = futures[name].result()
+                done(results[name])
         except BaseException:
             for f in futures.values():  # a failed run: start no more of them
                 f.cancel()

@@ -66,7 +66,6 @@ try:
 except ImportError:  # one line, the fix in it
     raise ImportError('pkmctl.plants.mujoco needs MuJoCo: pip install "pkmctl[mujoco]"') from None
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from pkmctl.errors import InvalidPoseError
 from pkmctl.model.kinematics import LIMB_ANGLES_DEG
@@ -625,6 +624,7 @@ def agreement(
 
 def _closed_form_trajectory(robot, X, Xdot, tau, duration: float) -> np.ndarray:
     """Pose after ``duration`` s of the closed-form dynamics with actuator forces ``tau``."""
+    from scipy.integrate import solve_ivp  # imported here: it takes 0.3 s
 
     def rhs(_t: float, y: np.ndarray) -> np.ndarray:
         x, xd = y[:3], y[3:]

@@ -43,7 +43,7 @@ if TYPE_CHECKING:
 
     from pkmctl.sim.result import Result
 
-__all__ = ["FIGURES", "FigureSpec", "make_figures"]
+__all__ = ["FIGURES", "FigureJob", "FigureSpec", "figure_workers", "make_figures", "start_figures"]
 
 _MAX_POINTS = 5000  # per plotted line
 _T_TRANSIENT = 0.2  # s: the part of the run that gets its own point budget
@@ -393,9 +393,134 @@ def _save_atomic(fig: Figure, path: Path, dpi: float) -> None:
         fig.savefig(fh, format="png", dpi=dpi)
 
 
+def _check(results: Mapping[str, Result], dpi: float) -> list[tuple[str, Result]]:
+    pairs = ordered(results)
+    if not pairs:
+        raise ValueError(
+            f"results: no known controller among {sorted(results)} "
+            f"(expected some of {list(CONTROLLER_ORDER)})"
+        )
+    for name, r in pairs:
+        if r.t.size < 2:
+            raise ValueError(f"results[{name!r}]: needs at least 2 samples, has {r.t.size}")
+    if not (dpi > 0):
+        raise ValueError(f"dpi = {dpi}: must be > 0")
+    return pairs
+
+
+def _draw_one(spec: FigureSpec, pairs: list[tuple[str, Result]], outdir: Path, dpi: float) -> Path:
+    fig = Figure(figsize=_FIGSIZE.get(spec.kind, (8.0, 6.0)))
+    FigureCanvasAgg(fig)
+    _DRAW[spec.kind](fig, spec, pairs)
+    fig.suptitle(spec.title)
+    path = outdir / spec.filename
+    _save_atomic(fig, path, dpi)
+    fig.clear()  # a Figure without pyplot is freed when its last reference goes
+    return path
+
+
+# The runs a forked drawing process reads: set before the processes are forked, so that
+# each child finds them in its copy of the parent's memory (nothing is pickled).
+_FORKED_PAIRS: list[tuple[str, Result]] = []
+
+
+def _child_start(parent: int) -> None:
+    import signal
+
+    from pkmctl.sim.workers import die_with_parent
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    die_with_parent(parent)
+
+
+def _child_draw(number: int, outdir: str, dpi: float) -> str:
+    spec = next(s for s in FIGURES if s.number == number)
+    return str(_draw_one(spec, _FORKED_PAIRS, Path(outdir), dpi))
+
+
+class FigureJob:
+    """Figures being drawn while the caller goes on (:func:`start_figures`).
+
+    :meth:`wait` returns the paths in figure order, or raises what a drawing raised;
+    :meth:`cancel` stops the drawing (the caller's error path)."""
+
+    def __init__(self, pool, futures: list, paths: list[Path] | None = None):
+        self._pool, self._futures, self._paths = pool, futures, paths
+
+    def wait(self) -> list[Path]:
+        """Block until every figure is written; their paths, in figure order."""
+        if self._paths is None:
+            from concurrent.futures.process import BrokenProcessPool
+
+            try:
+                self._paths = [Path(f.result()) for f in self._futures]
+            except BrokenProcessPool as exc:
+                raise RuntimeError(f"drawing figures: a drawing process died ({exc})") from None
+            finally:
+                self.cancel()
+        return self._paths
+
+    def cancel(self) -> None:
+        """Stop drawing (figures not started are not drawn) and end the processes."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+
+def figure_workers() -> int:
+    """Processes :func:`start_figures` draws in by default: one per core, at most 4; 1
+    (in this process) where processes cannot be forked (not Linux) or on one core."""
+    import os
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return 1
+    return max(1, min(4, len(os.sched_getaffinity(0))))
+
+
+def start_figures(
+    results: Mapping[str, Result], outdir: Path | str, *, dpi: float = 110,
+    workers: int | None = None,
+) -> FigureJob:  # fmt: skip
+    """Start drawing figures 10-26 into ``outdir`` in ``workers`` forked processes
+    (default :func:`figure_workers`) and return at once; the runs are shared with the
+    processes through the fork, not copied. With ``workers = 1`` the figures are drawn
+    here, before this returns. Arguments and errors as :func:`make_figures`."""
+    import multiprocessing
+    import os
+    import sys
+    from concurrent.futures import ProcessPoolExecutor
+
+    global _FORKED_PAIRS
+    pairs = _check(results, dpi)
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    workers = figure_workers() if workers is None else int(workers)
+    if workers <= 1:
+        return FigureJob(None, [], [_draw_one(spec, pairs, outdir, dpi) for spec in FIGURES])
+    for stream in (sys.stdout, sys.stderr):  # a child must not print the parent's buffer
+        stream.flush()
+    _FORKED_PAIRS = pairs
+    pool = ProcessPoolExecutor(
+        min(workers, len(FIGURES)), mp_context=multiprocessing.get_context("fork"),
+        initializer=_child_start, initargs=(os.getpid(),),
+    )  # fmt: skip
+    try:
+        # the box plots sort every sample and the force figures hold three panels: first
+        order = sorted(FIGURES, key=lambda s: s.kind not in ("box", "force"))
+        futures = {s.number: pool.submit(_child_draw, s.number, str(outdir), dpi) for s in order}
+    except BaseException:
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    finally:
+        _FORKED_PAIRS = []  # forked already: the children hold their copy
+    return FigureJob(pool, [futures[s.number] for s in FIGURES])
+
+
 def make_figures(
-    results: Mapping[str, Result], outdir: Path | str, *, dpi: float = 110
-) -> list[Path]:
+    results: Mapping[str, Result], outdir: Path | str, *, dpi: float = 110,
+    workers: int = 1,
+) -> list[Path]:  # fmt: skip
     """Draw figures 10-26 (DESIGN.md §4) as ``fig10.png`` ... ``fig26.png`` in ``outdir``.
 
     Parameters
@@ -408,6 +533,8 @@ def make_figures(
         directory and renamed into place, so a reader never sees a partial PNG.
     dpi : float, keyword-only
         Resolution of the PNGs.
+    workers : int, keyword-only
+        Processes to draw in (forked, Linux; :func:`start_figures`); 1 draws here.
 
     Returns
     -------
@@ -419,27 +546,4 @@ def make_figures(
     ValueError
         If ``results`` holds none of the known controllers, or a run is empty.
     """
-    pairs = ordered(results)
-    if not pairs:
-        raise ValueError(
-            f"results: no known controller among {sorted(results)} "
-            f"(expected some of {list(CONTROLLER_ORDER)})"
-        )
-    for name, r in pairs:
-        if r.t.size < 2:
-            raise ValueError(f"results[{name!r}]: needs at least 2 samples, has {r.t.size}")
-    if not (dpi > 0):
-        raise ValueError(f"dpi = {dpi}: must be > 0")
-    outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for spec in FIGURES:
-        fig = Figure(figsize=_FIGSIZE.get(spec.kind, (8.0, 6.0)))
-        FigureCanvasAgg(fig)
-        _DRAW[spec.kind](fig, spec, pairs)
-        fig.suptitle(spec.title)
-        path = outdir / spec.filename
-        _save_atomic(fig, path, dpi)
-        fig.clear()  # a Figure without pyplot is freed when its last reference goes
-        paths.append(path)
-    return paths
+    return start_figures(results, outdir, dpi=dpi, workers=workers).wait()

@@ -5,10 +5,14 @@ Pure functions: a result in, numbers out. Errors are desired minus actual.
 Where the numbers come from (``source``): the compiled loop accumulates every metric
 here over every control period (:class:`LoopMetrics`, ``result.loop_metrics``), and the
 log holds every period only when ``logging.every`` is 1. ``source="auto"`` (the default)
-takes the log when it holds every period, exactly as before the accumulators existed,
-and the accumulators when the log is decimated; ``"log"`` and ``"loop"`` choose one. The
-two agree to the last bit or nearly (tests/test_logging.py): the loop adds the same terms
-in the same order as NumPy's reductions along the time axis.
+takes the accumulators whenever the run carries them and they cover the window asked
+for, so that nothing is computed twice (a report asks for the same RMSE several times;
+from a 200,000-row log each costs ~10 ms), and the log otherwise (a result read from an
+older file, a window the loop did not accumulate on a full log); ``"log"`` and
+``"loop"`` choose one. The two agree to the last bit (tests/test_logging.py): the loop
+adds the same terms in the same order as NumPy's reductions along the time axis. The
+true limb speeds are the exception (einsum against a compiled dot product, last bit):
+with a full log, ``auto`` takes them and the time over the speed limit from the log.
 
 The accumulators cover the windows of :data:`WINDOWS` (t_from = 0, 0.2 s and 1 s); on a
 decimated log any other ``t_from`` raises ``ValueError``.
@@ -129,7 +133,10 @@ class LoopMetrics:
         return cls(**kw)
 
 
-def _use_loop(result, source: str) -> bool:
+def _use_loop(result, source: str, t_from: float | None = None, *, exact: bool = True) -> bool:
+    """Whether to read the loop's accumulators (see the module's docstring): ``t_from``
+    the window asked for (None: the whole run, or no window); ``exact`` False for the
+    metrics whose two sources may differ in the last bit."""
     if source not in ("auto", "log", "loop"):
         raise ValueError(f"source = {source!r}: must be 'auto', 'log' or 'loop'")
     every = _every(result)
@@ -138,11 +145,14 @@ def _use_loop(result, source: str) -> bool:
             f"source = 'log': this run logged one row every {every} periods "
             "(logging.every); its metrics over every period are source='loop'"
         )
+    lm = getattr(result, "loop_metrics", None)
     if source == "loop" or (source == "auto" and every > 1):
-        if getattr(result, "loop_metrics", None) is None:
+        if lm is None:
             raise ValueError("this result carries no loop metrics (read from an older file?)")
         return True
-    return False
+    if source == "log" or lm is None or not exact:
+        return False
+    return t_from is None or any(abs(w - t_from) <= _SAME_TIME for w in lm.windows)
 
 
 def _every(result) -> int:
@@ -174,14 +184,14 @@ def _loop_window(result, t_from: float) -> tuple[LoopMetrics, int, int]:
 def sample_count(result, *, t_from: float = 0.0, source: str = "auto") -> int:
     """How many control samples the metrics from ``t_from`` on average over (every
     period at t >= t_from, however many of them the log kept)."""
-    if _use_loop(result, source):
+    if _use_loop(result, source, t_from):
         return _loop_window(result, t_from)[2]
     return int(np.sum(result.t >= t_from - _SAME_TIME))
 
 
 def rmse(result, *, t_from: float = 0.0, source: str = "auto") -> dict[str, float]:
     """RMSE over the control samples at t >= t_from (eq. 55-57; Table 4's units)."""
-    if _use_loop(result, source):
+    if _use_loop(result, source, t_from):
         lm, i, n = _loop_window(result, t_from)
         if n == 0:
             raise ValueError(f"t_from = {t_from}: no samples after it")
@@ -194,7 +204,7 @@ def rmse(result, *, t_from: float = 0.0, source: str = "auto") -> dict[str, floa
 
 def max_error(result, *, t_from: float = 0.0, source: str = "auto") -> dict[str, float]:
     """Largest |error| at t >= t_from, same keys and units as :func:`rmse`."""
-    if _use_loop(result, source):
+    if _use_loop(result, source, t_from):
         lm, i, n = _loop_window(result, t_from)
         if n == 0:
             raise ValueError(f"t_from = {t_from}: no samples after it")
@@ -205,7 +215,7 @@ def max_error(result, *, t_from: float = 0.0, source: str = "auto") -> dict[str,
 
 def mean_error(result, *, t_from: float = 0.0, source: str = "auto") -> dict[str, float]:
     """Mean (signed) error at t >= t_from, same keys and units as :func:`rmse`."""
-    if _use_loop(result, source):
+    if _use_loop(result, source, t_from):
         lm, i, n = _loop_window(result, t_from)
         return _keyed(lm.sum_error[i] / n if n else np.full(7, np.nan))
     e = _errors(result, t_from)
@@ -258,7 +268,7 @@ def limb_speed(result, *, source: str = "auto") -> np.ndarray | None:
     actuators have no speed limit (the loop accumulates it only then)."""
     if not np.isfinite(_limits(result)[1]):
         return None
-    if _use_loop(result, source):
+    if _use_loop(result, source, exact=False):
         return result.loop_metrics.peak_limb_speed.copy()
     return _true_limb_speeds(result).max(axis=0)
 
@@ -270,7 +280,7 @@ def time_over_speed_limit(result, *, source: str = "auto") -> float | None:
     if not np.isfinite(limit):
         return None
     Tc = result.scenario.timing.control_period
-    if _use_loop(result, source):
+    if _use_loop(result, source, exact=False):
         return result.loop_metrics.periods_over_speed_limit * Tc
     return int(np.any(_true_limb_speeds(result) > limit, axis=1).sum()) * Tc
 
