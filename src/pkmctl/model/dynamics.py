@@ -228,45 +228,54 @@ def gravity_kernel(geom, theta, X, work, G):
 
 @kernel(inline="always")
 def _regressor_from_work(geom, Xd, Xr_d, Xr_dd, work, Y):
+    # Scalars, not scratch arrays: LLVM cannot tell a scratch row from Y, so every store
+    # into Y would reload them (0.38 -> 0.30 us per regressor). Same sums, same order.
     Rb, Jv, Jw, av, aw = work[RB], work[JV], work[JW], work[AV], work[AW]
     g = geom[10]
-    scratch = work[SCRATCH]
-    acc, wr, w, vec = scratch[0], scratch[1], scratch[2], scratch[3]
+    d0, d1, d2 = Xd[0], Xd[1], Xd[2]
+    r0d, r1d, r2d = Xr_d[0], Xr_d[1], Xr_d[2]
+    r0dd, r1dd, r2dd = Xr_dd[0], Xr_dd[1], Xr_dd[2]
     for b in range(N_BODIES):
         # mass column: J_v^T (J_v Xr_dd + dJ_v Xr_d) + g dz/dX
-        for k in range(3):
-            acc[k] = Jv[b, k, 0] * Xr_dd[0] + Jv[b, k, 1] * Xr_dd[1] + Jv[b, k, 2] * Xr_dd[2]
-            acc[k] += av[b, k]
-        for i in range(3):
-            Y[i, 4 * b] = (
-                Jv[b, 0, i] * acc[0] + Jv[b, 1, i] * acc[1] + Jv[b, 2, i] * acc[2] + g * Jv[b, 2, i]
-            )
+        v00, v01, v02 = Jv[b, 0, 0], Jv[b, 0, 1], Jv[b, 0, 2]
+        v10, v11, v12 = Jv[b, 1, 0], Jv[b, 1, 1], Jv[b, 1, 2]
+        v20, v21, v22 = Jv[b, 2, 0], Jv[b, 2, 1], Jv[b, 2, 2]
+        a0 = v00 * r0dd + v01 * r1dd + v02 * r2dd + av[b, 0]
+        a1 = v10 * r0dd + v11 * r1dd + v12 * r2dd + av[b, 1]
+        a2 = v20 * r0dd + v21 * r1dd + v22 * r2dd + av[b, 2]
+        m0 = v00 * a0 + v10 * a1 + v20 * a2 + g * v20
+        m1 = v01 * a0 + v11 * a1 + v21 * a2 + g * v21
+        m2 = v02 * a0 + v12 * a1 + v22 * a2 + g * v22
+        Y[0, 4 * b], Y[1, 4 * b], Y[2, 4 * b] = m0, m1, m2
         if b >= 5:  # an upper limb turns with its lower limb: same inertia columns
             for i in range(3):
                 for n in range(1, 4):
                     Y[i, 4 * b + n] = Y[i, 4 * (b - 4) + n]
             continue
         # inertia columns: J_w^T (r_k a_k + b_k omega x r_k)
-        for k in range(3):
-            acc[k] = aw[b, k]
-            wr[k] = 0.0
-            w[k] = 0.0
-            for j in range(3):
-                acc[k] += Jw[b, k, j] * Xr_dd[j]
-                wr[k] += Jw[b, k, j] * Xr_d[j]
-                w[k] += Jw[b, k, j] * Xd[j]
+        w00, w01, w02 = Jw[b, 0, 0], Jw[b, 0, 1], Jw[b, 0, 2]
+        w10, w11, w12 = Jw[b, 1, 0], Jw[b, 1, 1], Jw[b, 1, 2]
+        w20, w21, w22 = Jw[b, 2, 0], Jw[b, 2, 1], Jw[b, 2, 2]
+        c0 = aw[b, 0] + w00 * r0dd + w01 * r1dd + w02 * r2dd
+        c1 = aw[b, 1] + w10 * r0dd + w11 * r1dd + w12 * r2dd
+        c2 = aw[b, 2] + w20 * r0dd + w21 * r1dd + w22 * r2dd
+        e0 = w00 * r0d + w01 * r1d + w02 * r2d
+        e1 = w10 * r0d + w11 * r1d + w12 * r2d
+        e2 = w20 * r0d + w21 * r1d + w22 * r2d
+        o0 = w00 * d0 + w01 * d1 + w02 * d2
+        o1 = w10 * d0 + w11 * d1 + w12 * d2
+        o2 = w20 * d0 + w21 * d1 + w22 * d2
         R = Rb[b]
         for n in range(3):
-            r0, r1, r2 = R[0, n], R[1, n], R[2, n]
-            a_n = r0 * acc[0] + r1 * acc[1] + r2 * acc[2]
-            b_n = r0 * wr[0] + r1 * wr[1] + r2 * wr[2]
-            vec[0] = r0 * a_n + b_n * (w[1] * r2 - w[2] * r1)
-            vec[1] = r1 * a_n + b_n * (w[2] * r0 - w[0] * r2)
-            vec[2] = r2 * a_n + b_n * (w[0] * r1 - w[1] * r0)
-            for i in range(3):
-                Y[i, 4 * b + 1 + n] = (
-                    Jw[b, 0, i] * vec[0] + Jw[b, 1, i] * vec[1] + Jw[b, 2, i] * vec[2]
-                )
+            x0, x1, x2 = R[0, n], R[1, n], R[2, n]
+            a_n = x0 * c0 + x1 * c1 + x2 * c2
+            b_n = x0 * e0 + x1 * e1 + x2 * e2
+            u0 = x0 * a_n + b_n * (o1 * x2 - o2 * x1)
+            u1 = x1 * a_n + b_n * (o2 * x0 - o0 * x2)
+            u2 = x2 * a_n + b_n * (o0 * x1 - o1 * x0)
+            Y[0, 4 * b + 1 + n] = w00 * u0 + w10 * u1 + w20 * u2
+            Y[1, 4 * b + 1 + n] = w01 * u0 + w11 * u1 + w21 * u2
+            Y[2, 4 * b + 1 + n] = w02 * u0 + w12 * u1 + w22 * u2
 
 
 @kernel(refcount=False, llvm_inline=True)

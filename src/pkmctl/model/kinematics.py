@@ -56,13 +56,15 @@ def _cx(a0, a1, a2, b0, b1, b2):
 
 
 @kernel(inline="always", refcount=False)
-def _limb(r_a, r_b, z, ta, zs, ca, sa, R, i):
+def _limb(r_a, r_b, z, ta, zs, ca, sa, cb, sb, i):
     """Limb i at the platform pose: rho = R a_i, the length q, 1/q, the unit vector u and
-    the non-trivial entries of J_P = dP/dX (eq. 4-8)."""
+    the non-trivial entries of J_P = dP/dX (eq. 4-8). R's first two columns are written
+    from (ca, sa, cb, sb) here, as the callers store R: scalars stay in registers, where
+    values read back from R would be reloaded after every store into the outputs."""
     cth, sth = _LIMB_DIR[i, 0], _LIMB_DIR[i, 1]
-    rx = r_a * (R[0, 0] * cth + R[0, 1] * sth)  # rho = R a_i
-    ry = r_a * (R[1, 0] * cth + R[1, 1] * sth)
-    rz = r_a * (R[2, 0] * cth + R[2, 1] * sth)
+    rx = r_a * (cb * cth)  # rho = R a_i (R[0, 1] = 0)
+    ry = r_a * (sa * sb * cth + ca * sth)
+    rz = r_a * (-ca * sb * cth + sa * sth)
     Px, Py, Pz = rx, -z * ta + ry, z + rz  # P = p + rho
     d0, d1, d2 = Px - r_b * cth, Py - r_b * sth, Pz
     qi = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
@@ -94,7 +96,7 @@ def limb_jacobian(geom, X, R, Jq, q):
     R[2, 0], R[2, 1], R[2, 2] = -ca * sb, sa, ca * cb
     for i in range(4):
         _, _, _, qi, _, u0, u1, u2, p02, p10, p11, p12, p21, p22 = _limb(
-            r_a, r_b, z, ta, zs, ca, sa, R, i
+            r_a, r_b, z, ta, zs, ca, sa, cb, sb, i
         )
         q[i] = qi
         Jq[i, 0], Jq[i, 1], Jq[i, 2] = _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22)
@@ -192,6 +194,7 @@ def body_jacobians(geom, X, Xd, v, Rb, Jv, Jw, av, aw, Jq, q):
     """
     r_a, r_b = geom[0], geom[1]
     z, zd, ad, bd = X[0], Xd[0], Xd[1], Xd[2]
+    v0, v1, v2 = v[0], v[1], v[2]  # scalars: not reloaded after each store below
     ca, sa, cb, sb = math.cos(X[1]), math.sin(X[1]), math.cos(X[2]), math.sin(X[2])
     ta = sa / ca
     sec2 = 1.0 / (ca * ca)
@@ -208,15 +211,15 @@ def body_jacobians(geom, X, Xd, v, Rb, Jv, Jw, av, aw, Jq, q):
     Jw[0, 0, 1] = 1.0
     Jw[0, 1, 2], Jw[0, 2, 2] = ca, sa
     av[0, 0], av[0, 2] = 0.0, 0.0
-    av[0, 1] = -sec2 * ad * v[0] - (zd * sec2 + 2.0 * z * sec2 * ta * ad) * v[1]
-    aw[0, 0], aw[0, 1], aw[0, 2] = 0.0, -sa * ad * v[2], ca * ad * v[2]
+    av[0, 1] = -sec2 * ad * v0 - (zd * sec2 + 2.0 * z * sec2 * ta * ad) * v1
+    aw[0, 0], aw[0, 1], aw[0, 2] = 0.0, -sa * ad * v2, ca * ad * v2
     w0x, w0y, w0z = ad, ca * bd, sa * bd  # platform angular velocity
-    wv0x, wv0y, wv0z = v[1], ca * v[2], sa * v[2]  # J_w v
+    wv0x, wv0y, wv0z = v1, ca * v2, sa * v2  # J_w v
     av01, aw01, aw02 = av[0, 1], aw[0, 1], aw[0, 2]
     zs = z * sec2
     for i in range(4):
         rx, ry, rz, qi, iq, u0, u1, u2, p02, p10, p11, p12, p21, p22 = _limb(
-            r_a, r_b, z, ta, zs, ca, sa, R, i
+            r_a, r_b, z, ta, zs, ca, sa, cb, sb, i
         )
         rdx, rdy, rdz = _cx(w0x, w0y, w0z, rx, ry, rz)  # rho_dot = omega x rho
         q[i] = qi
@@ -228,9 +231,9 @@ def body_jacobians(geom, X, Xd, v, Rb, Jv, Jw, av, aw, Jq, q):
         Pd0 = p02 * bd
         Pd1 = p10 * zd + p11 * ad + p12 * bd
         Pd2 = zd + p21 * ad + p22 * bd
-        Pv0 = p02 * v[2]
-        Pv1 = p10 * v[0] + p11 * v[1] + p12 * v[2]
-        Pv2 = v[0] + p21 * v[1] + p22 * v[2]
+        Pv0 = p02 * v2
+        Pv1 = p10 * v0 + p11 * v1 + p12 * v2
+        Pv2 = v0 + p21 * v1 + p22 * v2
         qd = u0 * Pd0 + u1 * Pd1 + u2 * Pd2
         ud0, ud1, ud2 = (Pd0 - u0 * qd) * iq, (Pd1 - u1 * qd) * iq, (Pd2 - u2 * qd) * iq
         # J = u^T J_P (eq. 8); J_u = (I - u u^T) J_P / q, so u_dot = J_u Xd
@@ -278,9 +281,9 @@ def body_jacobians(geom, X, Xd, v, Rb, Jv, Jw, av, aw, Jq, q):
             w01 += u0 * u0
             w11 += u0 * u1
             w21 += u0 * u2
-            e0 += v[1] * (ud0 * u0 + u0 * ud0)
-            e1 += v[1] * (ud0 * u1 + u0 * ud1)
-            e2 += v[1] * (ud0 * u2 + u0 * ud2)
+            e0 += v1 * (ud0 * u0 + u0 * ud0)
+            e1 += v1 * (ud0 * u1 + u0 * ud1)
+            e2 += v1 * (ud0 * u2 + u0 * ud2)
         # Both bodies of the limb share its frame and rotation: they are stored once, at
         # the lower body (index 1 + i); rows 5-8 of Rb, Jw and aw are not written.
         Rb[lo, 0, 0], Rb[lo, 0, 1], Rb[lo, 0, 2] = x0, y0, u0
