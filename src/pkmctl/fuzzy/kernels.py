@@ -24,6 +24,7 @@ _jit = kernel(fastmath=False)
 # The scalar path the control loop takes (flc_eval -> _grid_eval2) never allocates: it is
 # compiled without reference counting, which saves ~4 atomic operations per call.
 _jit_free = kernel(fastmath=False, refcount=False)
+_jit_inl = kernel(fastmath=False, refcount=False, llvm_inline=True)
 
 # FISTables layout: two flat arrays. ints[:HEADER] = [n_in, K, R, T, fast] followed by
 # the offsets of the sections INT_SECTIONS in ints and REAL_SECTIONS in reals.
@@ -51,7 +52,7 @@ HEADER = 19
 # ---------------------------------------------------------------------------------------
 
 
-@_jit
+@_jit_inl
 def mf_piece(kind, a, b, c, d, y):
     """Local polynomial of μ at y: μ(y + u) = v0 + v1 u + v2 u² on the piece holding y.
 
@@ -405,7 +406,7 @@ def _centroid(kind, prm, lo, hi, levels):
 # ---------------------------------------------------------------------------------------
 
 
-@_jit
+@_jit_inl
 def _ramp_int(shape, t):
     """(∫_0^t ψ, ∫_0^t τ ψ) for the rising unit ramp ψ (0 for t < 0, 1 for t > 1).
 
@@ -424,7 +425,7 @@ def _ramp_int(shape, t):
     return t - 0.5 + 2.0 * s**3 / 3.0, t * t * (-0.5 + t * (4.0 / 3.0 - 0.5 * t)) + 1.0 / 48.0
 
 
-@_jit
+@_jit_inl
 def _ramp_inv(shape, h):
     """t in [0, 1] where the rising unit ramp equals h (h clamped to [0, 1])."""
     h = min(max(h, 0.0), 1.0)
@@ -433,7 +434,7 @@ def _ramp_inv(shape, h):
     return math.sqrt(0.5 * h) if h <= 0.5 else 1.0 - math.sqrt(0.5 * (1.0 - h))
 
 
-@_jit
+@_jit_inl
 def _ramp_moments(shape, p, w, u, v):
     """(∫ ψ, ∫ z ψ) over z in [u, v] of the ramp ψ((z - p) / w) rising from p to p + w."""
     f0, f1 = _ramp_int(shape, (u - p) / w)
@@ -441,7 +442,7 @@ def _ramp_moments(shape, p, w, u, v):
     return w * (F0 - f0), w * (p * (F0 - f0) + w * (F1 - f1))
 
 
-@_jit
+@_jit_inl
 def _cell_moments(g0, g1, sa, qa, wa, sb, pb, wb, yc, vc, ha, hb):
     """Exact (∫ μ, ∫ y μ) over the cell [g0, g1] of μ = max(min(ha, A), min(hb, B)).
 
@@ -476,14 +477,14 @@ def _cell_moments(g0, g1, sa, qa, wa, sb, pb, wb, yc, vc, ha, hb):
     return m0, m1
 
 
-@_jit
+@_jit_inl
 def _locate(lo, hi, inv_step, n, x):
     """Clip x to [lo, hi]; index j of its cell [g_j, g_j+1] on a uniform grid of n points."""
     x = min(max(x, lo), hi)
     return min(max(int((x - lo) * inv_step), 0), n - 2), x
 
 
-@_jit
+@_jit_inl
 def _level(k, k0, h0, k1, h1, k2, h2, k3, h3):
     """Clip level of output term k: the largest strength of the four rules aimed at it."""
     h = 0.0

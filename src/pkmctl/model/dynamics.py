@@ -220,10 +220,13 @@ def gravity_kernel(geom, theta, X, work, G):
     _kinematics(geom, X, z3, z3, work)
     Jv = work[JV]
     g = geom[10]
-    G[:] = 0.0
+    g0 = g1 = g2 = 0.0  # scalars: a sum in G would be stored and reloaded per body
     for b in range(N_BODIES):
-        for i in range(3):
-            G[i] += theta[4 * b] * g * Jv[b, 2, i]
+        mg = theta[4 * b] * g
+        g0 += mg * Jv[b, 2, 0]
+        g1 += mg * Jv[b, 2, 1]
+        g2 += mg * Jv[b, 2, 2]
+    G[0], G[1], G[2] = g0, g1, g2
 
 
 @kernel(inline="always")
