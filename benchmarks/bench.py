@@ -181,17 +181,19 @@ def bench_steps(duration: float, repeats: int) -> dict[str, dict[str, float]]:
     return out
 
 
-def bench_breakdown(loop_steps_per_s: float, quick: bool = False) -> dict[str, float]:
-    """Where one AFSMC control step of the loop goes, each part timed alone in a compiled loop.
+def bench_breakdown(loop_steps_per_s: float, quick: bool = False) -> dict:
+    """Where one control step of the loop goes, each part timed alone in a compiled loop.
 
     ``plant_us``: one RK4 stage (M, C Xdot, G, J^T tau and the solve for Xddot), done 4
     times a step; ``controller_us``: one AFSMC control_step (regressor, 3 FLC calls,
     adaptation); ``parts_us``: 4 stages + the controller, to compare with ``step_us``,
     the loop's time per step (which adds the force split, logging and RK4 bookkeeping,
-    but overlaps the parts in the out-of-order core, and is timed in another run: the
-    loop was 0-21 % slower than the parts in the four runs of docs/performance.md).
+    but overlaps the parts in the out-of-order core, and is timed in another run).
+    ``controllers``: every built-in controller's step alone (us), for issue 16's time
+    per flop against the plant stage's (:func:`rows`).
     """
     import pkmctl
+    from benchmarks.flops import CONTROLLER_KERNELS
     from pkmctl.fuzzy import FLC
     from pkmctl.parts import PartContext, get_part
 
@@ -200,22 +202,26 @@ def bench_breakdown(loop_steps_per_s: float, quick: bool = False) -> dict[str, f
                       sc.timing.control_period, FLC(), sc)  # fmt: skip
     n = 20_000 if quick else 200_000
     plant_p, x, pw = get_part("plant", "rigid").make(ctx)
-    ctrl_p, cs, cw = get_part("controller", "afsmc").make(ctx)
     x[:] = [0.71, 0.2, -0.1, 0.02, 0.5, -0.4]
     tau, dist, dx = np.array([40.0, 10.0, 35.0, 12.0]), np.array([1.0, 0.2, -0.2]), np.empty(6)
     ref = np.concatenate([x[:3] + 0.001, x[3:] * 0.9, x[3:] * 0.1])
     plant_args = (plant_p, x, tau, dist, pw, dx)
-    ctrl_args = (ctrl_p, cs, cw, x.copy(), ref, np.empty(3))
     _loop_plant(*plant_args, 10)
-    _loop_control(*ctrl_args, 10)
     plant = best_time(lambda: _loop_plant(*plant_args, n), 5) / n * 1e6
-    control = best_time(lambda: _loop_control(*ctrl_args, n), 5) / n * 1e6
+    controllers = {}
+    for name in CONTROLLER_KERNELS:
+        ctrl_p, cs, cw = get_part("controller", name).make(ctx)
+        args = (ctrl_p, cs, cw, x.copy(), ref, np.empty(3))
+        _loop_control(*args, 10)
+        controllers[name] = best_time(lambda a=args: _loop_control(*a, n), 5) / n * 1e6
+    control = controllers["afsmc"]
     step = 1e6 / loop_steps_per_s
     return {
         "step_us": step,
         "plant_us": plant,
         "controller_us": control,
         "parts_us": 4 * plant + control,
+        "controllers": controllers,
     }
 
 
@@ -354,7 +360,16 @@ def bench_reproduce(quick: bool) -> dict[str, float]:
         if done.returncode != 0:
             tail = (done.stderr or done.stdout).strip().splitlines()[-1:] or ["no output"]
             raise RuntimeError(f"pkmctl reproduce failed (exit {done.returncode}): {tail[0]}")
-    return {"first_s": times[0], "warm_s": min(times), "runs": len(times)}
+    # the runs' compiled-loop times, in this process (warm): what reproduce is compared with
+    import pkmctl
+    from pkmctl.experiment import CONTROLLER_ORDER
+
+    sc = pkmctl.Scenario.builtin("paper")
+    if quick:
+        sc = sc.replace(**{"timing.duration": 0.2})
+    loops = sum(pkmctl.simulate(sc, c).info["kernel_seconds"] for c in CONTROLLER_ORDER)
+    return {"first_s": times[0], "warm_s": min(times), "runs": len(times), "loops_s": loops,
+            "ratio": min(times) / loops}  # fmt: skip
 
 
 def bench_prototype(duration: float, repeats: int) -> dict[str, float]:
@@ -456,7 +471,13 @@ def run_all(quick: bool = False, progress: Callable[[str], None] | None = None) 
     say("identification of a logged run")
     res["identify"] = bench_identify(quick)
     say("floating-point operations per step")
-    res["flops"] = flop_estimate(res["steps"]["afsmc"]["loop_steps_per_s"])
+    from benchmarks.flops import CONTROLLER_KERNELS, controller_flops
+    from benchmarks.peak import scalar_fma_peak
+
+    peak = scalar_fma_peak(2_000_000 if quick else 20_000_000)
+    res["flops"] = flop_estimate(res["steps"]["afsmc"]["loop_steps_per_s"], peak)
+    flc = res["flops"]["flc_flops"]
+    res["flops"]["per_controller"] = {c: controller_flops(c, flc) for c in CONTROLLER_KERNELS}
     return res
 
 
@@ -609,6 +630,8 @@ def rows(res: dict) -> list[tuple[str, str, str, str]]:
         "reproduce",
         rp["warm_s"],
     )
+    if "loops_s" in rp:
+        row("  ÷ its 5 runs' loops, summed", f"{rp['ratio']:.2f}x ({rp['loops_s']:.2f} s)")
     fc = res.get("fis_corpus")
     if fc is not None and "skipped" in fc:
         row("FIS 4 inputs, 81 rules", f"skipped: {fc['skipped']}")
@@ -622,11 +645,29 @@ def rows(res: dict) -> list[tuple[str, str, str, str]]:
         ident = res["identify"]
         row(f"identify, a {ident['duration']:g} s log at 1 kHz", f"{ident['seconds']:.2f} s")
     fl = res["flops"]
+    peak = "measured" if fl.get("peak_measured") else "nominal"
     row(
         "flops per AFSMC step (counted)",
         f"{fl['flops_per_step']:,.0f} = {fl['gflops']:.2f} GFLOP/s, "
         f"{100 * fl['fraction_of_peak']:.0f} % of peak",
     )
+    row(f"  scalar FMA peak ({peak})", f"{fl['peak_gflops']:.1f} GFLOP/s")
+    for label, text in controller_rows(res):
+        row(label, text)
+    return out
+
+
+def controller_rows(res: dict) -> list[tuple[str, str]]:
+    """Issue 16, point 1: each controller step's time per flop over the plant stage's."""
+    bd, fl = res["breakdown"], res["flops"]
+    if "controllers" not in bd or "per_controller" not in fl:
+        return []
+    plant_ns = 1e3 * bd["plant_us"] / fl["plant_eval_flops"]
+    out = [("plant RK4 stage alone", f"{bd['plant_us']:.3f} us = {1 / plant_ns:.2f} GFLOP/s")]
+    for name, us in bd["controllers"].items():
+        flops = fl["per_controller"][name]
+        ratio = (1e3 * us / flops) / plant_ns
+        out.append((f"  {name} step, time/flop ÷ plant's", f"{ratio:.2f} ({us:.3f} us)"))
     return out
 
 

@@ -9,9 +9,14 @@ can be evaluated from loop indices and constants alone) counts 0. Where a branch
 depends on data, the larger branch is counted (an upper bound); data-dependent loops
 take the trip count given in ``hints``. A fused multiply-add counts as 2.
 
-The peak is also an estimate: scalar double precision, 2 FMA units x 2 flops x the
-nominal clock (from /proc/cpuinfo when it gives one, else 3 GHz). The compiled code is
-scalar, so scalar peak is the fair yardstick; AVX-512 peak is 8x higher.
+The FLC is the exception: how many rules fire and how many output cells it integrates
+depend on its inputs, so :func:`flc_flops` counts it as it runs, on random inputs.
+
+The peak: measured by :mod:`benchmarks.peak` (16 independent scalar FMA chains) when
+the caller passes it, else 2 FMA units x 2 flops x the nominal clock of /proc/cpuinfo
+(which ignores turbo: 10.4 against 14.7 GFLOP/s measured on the Xeon of
+docs/performance.md). The compiled code is scalar, so scalar peak is the fair
+yardstick; AVX-512 peak is 8x higher.
 """
 
 from __future__ import annotations
@@ -217,35 +222,141 @@ def _clock_ghz() -> float:
 RK4_FLOPS = 6 * (3 * 2 + 7)
 
 
-def estimate(steps_per_s: float) -> dict[str, float]:
+class _Counted(float):
+    """A float that counts the arithmetic done on it (each result is one too)."""
+
+    ops = 0
+
+    def _new(self, v: float) -> _Counted:
+        _Counted.ops += 1
+        return _Counted(v)
+
+    def __add__(self, o):
+        return self._new(float(self) + float(o))
+
+    __radd__ = __add__
+
+    def __sub__(self, o):
+        return self._new(float(self) - float(o))
+
+    def __rsub__(self, o):
+        return self._new(float(o) - float(self))
+
+    def __mul__(self, o):
+        return self._new(float(self) * float(o))
+
+    __rmul__ = __mul__
+
+    def __truediv__(self, o):
+        return self._new(float(self) / float(o))
+
+    def __rtruediv__(self, o):
+        return self._new(float(o) / float(self))
+
+    def __pow__(self, o):
+        return self._new(float(self) ** float(o))
+
+    def __neg__(self):
+        return _Counted(-float(self))  # a sign flip, free as in the static count
+
+
+def flc_flops(samples: int = 2000, seed: int = 0) -> float:
+    """Mean flops of one evaluation of the paper's FLC on the fast kernel, counted as it
+    runs (its work depends on how many rules fire and output cells it integrates, which
+    the static count cannot know) at ``samples`` uniform random points of its input square.
+
+    The kernels' Python sources run with floats that count their arithmetic (``+ - * /``
+    and powers count 1; comparisons, min, max and sign flips 0, as in :func:`count`); each
+    result is checked against the compiled kernel's.
+    """
+    import math
+
+    import numpy as np
+
+    from pkmctl.fuzzy import FLC
+    from pkmctl.fuzzy import kernels as K
+
+    ints, reals = tables = FLC().compiled()
+    points = np.random.default_rng(seed).uniform(-1.0, 1.0, (samples, 2))
+    compiled = [K.flc_grid_eval(tables, a, b) for a, b in points]
+    saved = {k: v for k, v in vars(K).items() if hasattr(v, "py_func")}
+    counts = []
+    try:  # the kernels call each other through the module: point it at the sources
+        for k, v in saved.items():
+            setattr(K, k, v.py_func)
+        wrapped = [_Counted(v) for v in reals]
+        for (a, b), want in zip(points, compiled, strict=True):
+            _Counted.ops = 0
+            got = float(K._grid_eval2(ints, wrapped, _Counted(a), _Counted(b)))
+            if not math.isclose(got, want, rel_tol=1e-12, abs_tol=1e-15):
+                raise AssertionError(f"FLC({a}, {b}): counted run {got} != compiled {want}")
+            counts.append(_Counted.ops)
+    finally:
+        for k, v in saved.items():
+            setattr(K, k, v)
+    return float(np.mean(counts))
+
+
+#: The compiled step of each built-in controller, and how many FLC evaluations it makes.
+CONTROLLER_KERNELS = {
+    "smc": ("smc_step", 0),
+    "fsmc": ("fsmc_step", 3),
+    "afsmc": ("afsmc_step", 3),
+    "pd": ("pd_step", 0),
+    "ctc": ("ctc_step", 0),
+}
+
+_HINTS = {
+    "theta_hat.shape[0]": 36,
+    "p.theta0.shape[0]": 36,
+    "Y.shape[1]": 36,
+    "Y.shape[0]": 3,
+    "n": 36,
+}
+
+
+def controller_flops(name: str, flc: float | None = None) -> float:
+    """Flops of one step of a built-in controller: its kernel counted statically, plus
+    its FLC evaluations at :func:`flc_flops` each (pass ``flc`` to reuse a count)."""
+    kernel, n_flc = CONTROLLER_KERNELS[name]
+    extra = n_flc * (flc_flops() if flc is None and n_flc else (flc or 0.0))
+    return float(count(kernel, hints=_HINTS)) + extra
+
+
+def plant_stage_flops() -> float:
+    """Flops of one evaluation of the rigid plant's derivative (one RK4 stage)."""
+    return float(count("rigid_derivative", hints=_HINTS))
+
+
+def estimate(steps_per_s: float, peak_gflops: float | None = None) -> dict[str, float]:
     """Flops per AFSMC control step (paper scenario, 1 RK4 sub-step) and share of peak.
 
     The loop calls its parts through compile-time dispatch, which this counter cannot
     follow, so a step is counted part by part: 4 plant stages (``rigid_derivative``),
-    the controller (``afsmc_step``), the actuator (``ideal_command``) and the RK4
-    bookkeeping (:data:`RK4_FLOPS`).
+    the controller (``afsmc_step`` and its 3 FLC evaluations), the actuator
+    (``ideal_command``) and the RK4 bookkeeping (:data:`RK4_FLOPS`). ``peak_gflops``:
+    the measured scalar peak (:func:`benchmarks.peak.scalar_fma_peak`); None takes the
+    nominal clock's.
     """
-    hints = {
-        "theta_hat.shape[0]": 36,
-        "p.theta0.shape[0]": 36,
-        "Y.shape[1]": 36,
-        "Y.shape[0]": 3,
-        "n": 36,
-    }
-    plant = count("rigid_derivative", hints=hints)
-    controller = count("afsmc_step", hints=hints)
-    actuator = count("ideal_command", hints=hints)
+    plant = plant_stage_flops()
+    flc = flc_flops()
+    controller = controller_flops("afsmc", flc)
+    actuator = count("ideal_command", hints=_HINTS)
     per_step = 4 * plant + controller + actuator + RK4_FLOPS
     ghz = _clock_ghz()
-    peak = 2 * 2 * ghz  # 2 FMA pipes x 2 flops, scalar double
+    nominal = 2 * 2 * ghz  # 2 FMA pipes x 2 flops, scalar double, at the nominal clock
+    peak = nominal if peak_gflops is None else peak_gflops
     gflops = per_step * steps_per_s / 1e9
     return {
         "flops_per_step": float(per_step),
         "plant_eval_flops": float(plant),
         "controller_flops": float(controller),
+        "flc_flops": flc,
         "actuator_flops": float(actuator),
         "clock_ghz": ghz,
+        "nominal_peak_gflops": nominal,
         "peak_gflops": peak,
+        "peak_measured": peak_gflops is not None,
         "gflops": gflops,
         "fraction_of_peak": gflops / peak,
     }

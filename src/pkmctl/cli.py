@@ -382,7 +382,13 @@ def reproduce(
             _handle(ctx, exc, suffix="; " + _untouched(out, existed))
         bar.update(task, completed=len(steps), description="done")
     console.print(_rmse_table(output.results, f"RMSE, scenario {sc.name!r}"))
-    console.print(Text(f"wrote {len(output.files)} files to {out}/ in {output.wall_time_s:.1f} s"))
+    ph = output.phases
+    console.print(Text(
+        f"wrote {len(output.files)} files to {out}/ in {output.wall_time_s:.1f} s: "
+        f"{ph['before']:.1f} s before the runs, {ph['runs']:.1f} s of runs (their compiled "
+        f"loops {ph['loops']:.1f} s, summed), {ph['figures']:.1f} s more for the figures, "
+        f"{ph['report']:.1f} s for the report"
+    ))  # fmt: skip
     console.print(Text(f"report: {out / 'report.md'}"))
 
 

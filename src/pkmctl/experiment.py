@@ -20,7 +20,7 @@ import os
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +55,12 @@ class ReproduceOutput:
     results: dict[str, Result]
     files: list[Path]
     wall_time_s: float
+    #: Where the wall time went (s): ``"before"`` the runs (checks, compiling or loading
+    #: the loops), ``"runs"`` (the five runs, two or more at a time, each one's time
+    #: series written as it ends), ``"loops"`` (the sum of the runs' compiled-loop
+    #: times, on however many cores), ``"figures"`` (from the end of the runs until the
+    #: figures and the machine's images are written), ``"report"`` (the rest).
+    phases: dict[str, float] = field(default_factory=dict)
 
 
 def reproduce(
@@ -102,7 +108,9 @@ def reproduce(
         def keep(res: Result) -> None:  # written while the other runs compute
             names.extend(save_result(res, stage / "timeseries"))
 
+        t_runs = time.perf_counter()
         results = _run_all(scenario, seed, say, keep)
+        t_figures = time.perf_counter()
         say("drawing figures 10-26")
         job = figures.start_figures(results, stage / "figures")  # in other processes
         try:
@@ -122,6 +130,7 @@ def reproduce(
             job.cancel()
             raise
         names += figs
+        t_report = time.perf_counter()
         say("writing report")
         wall = time.perf_counter() - t0
         report = render_report(
@@ -135,7 +144,15 @@ def reproduce(
             fh.write(report)
         names.append(stage / "report.md")
         files = [out / p.relative_to(stage) for p in names]
-    return ReproduceOutput(results=results, files=files, wall_time_s=time.perf_counter() - t0)
+    t_end = time.perf_counter()
+    phases = {
+        "before": t_runs - t0,
+        "runs": t_figures - t_runs,
+        "loops": sum(float(r.info.get("kernel_seconds", 0.0)) for r in results.values()),
+        "figures": t_report - t_figures,
+        "report": t_end - t_report,
+    }
+    return ReproduceOutput(results=results, files=files, wall_time_s=t_end - t0, phases=phases)
 
 
 def _run_all(

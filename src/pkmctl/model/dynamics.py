@@ -216,7 +216,7 @@ def dynamics_kernel(geom, theta, X, Xd, v, work, M, Cv, G):
 def gravity_kernel(geom, theta, X, work, G):
     """Fill G (3,) at X: sum of m g dz_b/dX (eq. 24), without the velocity terms."""
     z3 = work[SCRATCH][4]
-    z3[:] = 0.0
+    z3[0], z3[1], z3[2] = 0.0, 0.0, 0.0  # not z3[:] = 0: a call of memset
     _kinematics(geom, X, z3, z3, work)
     Jv = work[JV]
     g = geom[10]

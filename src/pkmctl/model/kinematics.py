@@ -204,18 +204,19 @@ def body_jacobians(geom, X, Xd, v, Rb, Jv, Jw, av, aw, Jq, q):
     R[0, 0], R[0, 1], R[0, 2] = cb, 0.0, sb
     R[1, 0], R[1, 1], R[1, 2] = sa * sb, ca, -sa * cb
     R[2, 0], R[2, 1], R[2, 2] = -ca * sb, sa, ca * cb
-    Jv[0, :, :] = 0.0
-    Jw[0, :, :] = 0.0
-    Jv[0, 1, 0], Jv[0, 2, 0] = -ta, 1.0
-    Jv[0, 1, 1] = -z * sec2
-    Jw[0, 0, 1] = 1.0
-    Jw[0, 1, 2], Jw[0, 2, 2] = ca, sa
-    av[0, 0], av[0, 2] = 0.0, 0.0
-    av[0, 1] = -sec2 * ad * v0 - (zd * sec2 + 2.0 * z * sec2 * ta * ad) * v1
-    aw[0, 0], aw[0, 1], aw[0, 2] = 0.0, -sa * ad * v2, ca * ad * v2
+    # every entry written (a slice set to 0 compiles to a call of memset)
+    Jv[0, 0, 0], Jv[0, 0, 1], Jv[0, 0, 2] = 0.0, 0.0, 0.0
+    Jv[0, 1, 0], Jv[0, 1, 1], Jv[0, 1, 2] = -ta, -z * sec2, 0.0
+    Jv[0, 2, 0], Jv[0, 2, 1], Jv[0, 2, 2] = 1.0, 0.0, 0.0
+    Jw[0, 0, 0], Jw[0, 0, 1], Jw[0, 0, 2] = 0.0, 1.0, 0.0
+    Jw[0, 1, 0], Jw[0, 1, 1], Jw[0, 1, 2] = 0.0, 0.0, ca
+    Jw[0, 2, 0], Jw[0, 2, 1], Jw[0, 2, 2] = 0.0, 0.0, sa
+    av01 = -sec2 * ad * v0 - (zd * sec2 + 2.0 * z * sec2 * ta * ad) * v1
+    aw01, aw02 = -sa * ad * v2, ca * ad * v2
+    av[0, 0], av[0, 1], av[0, 2] = 0.0, av01, 0.0
+    aw[0, 0], aw[0, 1], aw[0, 2] = 0.0, aw01, aw02
     w0x, w0y, w0z = ad, ca * bd, sa * bd  # platform angular velocity
     wv0x, wv0y, wv0z = v1, ca * v2, sa * v2  # J_w v
-    av01, aw01, aw02 = av[0, 1], aw[0, 1], aw[0, 2]
     zs = z * sec2
     for i in range(4):
         rx, ry, rz, qi, iq, u0, u1, u2, p02, p10, p11, p12, p21, p22 = _limb(

@@ -489,6 +489,7 @@ def start_figures(
     import multiprocessing
     import os
     import sys
+    import warnings
     from concurrent.futures import ProcessPoolExecutor
 
     global _FORKED_PAIRS
@@ -508,7 +509,14 @@ def start_figures(
     try:
         # the box plots sort every sample and the force figures hold three panels: first
         order = sorted(FIGURES, key=lambda s: s.kind not in ("box", "force"))
-        futures = {s.number: pool.submit(_child_draw, s.number, str(outdir), dpi) for s in order}
+        with warnings.catch_warnings():  # the processes fork at the first submit
+            # Python >= 3.12 warns of forking a multi-threaded process; the children only
+            # draw and write files (docs/architecture.md, "pkmctl reproduce")
+            warnings.filterwarnings("ignore", "This process .* is multi-threaded",
+                                    DeprecationWarning)  # fmt: skip
+            futures = {
+                s.number: pool.submit(_child_draw, s.number, str(outdir), dpi) for s in order
+            }
     except BaseException:
         pool.shutdown(wait=True, cancel_futures=True)
         raise
