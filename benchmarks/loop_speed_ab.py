@@ -50,9 +50,9 @@ def _export(commit: str, where: Path) -> Path:
     return folder / "src"
 
 
-def _time(src: Path) -> dict[str, float]:
+def _time(src: Path, cases=CASES) -> dict[str, float]:
     env = dict(os.environ, PYTHONPATH=str(src))
-    done = subprocess.run([sys.executable, "-c", _TIMER, json.dumps(CASES)], capture_output=True,
+    done = subprocess.run([sys.executable, "-c", _TIMER, json.dumps(cases)], capture_output=True,
                           text=True, env=env)  # fmt: skip
     if done.returncode != 0:
         sys.exit(f"timing {src} failed:\n{done.stderr[-2000:]}")
@@ -64,15 +64,20 @@ def main() -> None:
     ap.add_argument("--base", default="HEAD~1")
     ap.add_argument("--head", default="HEAD")
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--cases", help="scenario:controller:seconds,... (default: CASES; a commit "
+                    "older than the prototype scenario needs e.g. paper:afsmc:2)")  # fmt: skip
     args = ap.parse_args()
+    cases = CASES
+    if args.cases:
+        cases = [(n, c, float(t)) for n, c, t in (x.split(":") for x in args.cases.split(","))]
     with tempfile.TemporaryDirectory(prefix="pkmctl-ab-") as tmp:
         trees = {c: _export(c, Path(tmp)) for c in (args.base, args.head)}
         for src in trees.values():
-            _time(src)  # compile (or load the cache): not timed
+            _time(src, cases)  # compile (or load the cache): not timed
         best: dict[str, dict[str, float]] = {c: {} for c in trees}
         for _ in range(args.rounds):
             for c, src in trees.items():
-                for case, rate in _time(src).items():
+                for case, rate in _time(src, cases).items():
                     best[c][case] = max(best[c].get(case, 0.0), rate)
     print(f"{'case':<18} {args.base:>14} {args.head:>14}  ratio (steps/s, best of {args.rounds})")
     for case in best[args.base]:

@@ -2,6 +2,7 @@
 
 import csv
 import json
+import re
 import subprocess
 import sys
 
@@ -44,6 +45,22 @@ def test_reproduce_end_to_end(tmp_path):
     meta = json.loads((out / "timeseries" / "smc.json").read_text())
     assert meta["controller"] == "smc" and "rmse" in meta["metrics"]
     assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]
+    said = " ".join(res.output.split())  # where the time went (issue 16.4)
+    assert re.search(r"in [\d.]+ s: [\d.]+ s before the runs, [\d.]+ s of runs \(their "
+                     r"compiled loops [\d.]+ s, summed\)", said), said  # fmt: skip
+
+
+def test_reproduce_phases_add_up(tmp_path):
+    from pkmctl.experiment import reproduce
+
+    out = reproduce(pkmctl.Scenario.builtin("paper"), tmp_path / "o", duration=0.1)
+    ph = out.phases
+    assert set(ph) == {"before", "runs", "loops", "figures", "report"}
+    assert all(v >= 0 for v in ph.values()) and ph["loops"] > 0
+    spent = ph["before"] + ph["runs"] + ph["figures"] + ph["report"]
+    assert spent == pytest.approx(out.wall_time_s, rel=1e-6, abs=1e-3)
+    kernels = sum(r.info["kernel_seconds"] for r in out.results.values())
+    assert ph["loops"] == kernels
 
 
 def test_scenario_and_simulate_commands(tmp_path):
