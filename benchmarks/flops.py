@@ -319,8 +319,9 @@ def controller_flops(name: str, flc: float | None = None) -> float:
     """Flops of one step of a built-in controller: its kernel counted statically, plus
     its FLC evaluations at :func:`flc_flops` each (pass ``flc`` to reuse a count)."""
     kernel, n_flc = CONTROLLER_KERNELS[name]
-    extra = n_flc * (flc_flops() if flc is None and n_flc else (flc or 0.0))
-    return float(count(kernel, hints=_HINTS)) + extra
+    if n_flc and flc is None:
+        flc = flc_flops()
+    return float(count(kernel, hints=_HINTS)) + n_flc * (flc or 0.0)
 
 
 def plant_stage_flops() -> float:
