@@ -95,6 +95,55 @@ def test_registration_errors_are_one_line():
         pkmctl.simulate("paper", controller="nope", duration=0.01)
 
 
+@pytest.mark.parametrize("controller", ["smc", "fsmc", "afsmc", "afsmc-ext", "pd", "ctc"])
+def test_the_limb_jacobian_a_controller_leaves_is_the_actuators(controller):
+    """The contract behind sharing it (parts.py): after each step, the work entry the
+    controller declares holds the limb Jacobian at y[:3] with the controllers' model,
+    bit for bit what the actuator would compute; the actuator's command_at gives the
+    same command from it as its command."""
+    from pkmctl.fuzzy import FLC
+    from pkmctl.model.kinematics import limb_jacobian
+    from pkmctl.parts import PartContext
+
+    sc = pkmctl.Scenario.builtin("prototype" if controller == "afsmc-ext" else "paper")
+    ctx = PartContext(sc.plant(), sc.controller_mechanism(), sc.controller_gains(),
+                      sc.timing.control_period, FLC(), sc)  # fmt: skip
+    part = get_part("controller", controller)
+    assert part.limb_jacobian is not None
+    p, state, work = part.make(ctx)
+    ap, astate, awork = get_part("actuator", "ideal").make(ctx)
+    step = part.compiled["step"]
+    act = get_part("actuator", "ideal").compiled
+    rng = np.random.default_rng(8)
+    for X in random_poses(rng, 20):
+        y = np.concatenate([X, rng.normal(size=3)])
+        ref = np.concatenate([X + 1e-3 * rng.normal(size=3), rng.normal(size=6)])
+        F = np.empty(3)
+        step(p, state, work, y, ref, F)
+        shared = work
+        for i in part.limb_jacobian:
+            shared = shared[i]
+        R, Jq, q = np.empty((3, 3)), np.empty((4, 3)), np.empty(4)
+        limb_jacobian(ctx.model.geometry, y[:3], R, Jq, q)
+        assert np.array_equal(shared, Jq)
+        a, b = np.empty(4), np.empty(4)
+        act["command"](ap, astate, awork, y, F, a)
+        act["command_at"](ap, astate, awork, y, F, shared, b)
+        assert np.array_equal(a, b)
+
+
+def test_limb_jacobian_is_a_controllers_path_into_its_work():
+    def ok(p, state, work, y, ref, F):
+        pass
+
+    for bad in ((), (0, -1), "0,5", (0, 1.5)):
+        with pytest.raises(PartError, match=r"limb_jacobian = .*: a controller's path") as info:
+            pkmctl.register_controller("x-jac", params=_P, build=lambda c: _P(1.0),
+                                       limb_jacobian=bad)(ok)  # fmt: skip
+        assert "\n" not in str(info.value)
+    assert "x-jac" not in names("controller")
+
+
 def test_a_step_that_does_not_compile_names_the_part():
     class Bad(NamedTuple):
         gain: float

@@ -17,6 +17,7 @@ import numpy as np
 from pkmctl._jit import kernel
 from pkmctl.control.sliding import (
     FUZZY_WORK,
+    MODEL_JACOBIAN,
     SLIDING_STATE,
     filter_sdot,
     fuzzy_surface_gain,
@@ -112,6 +113,7 @@ def _initial(p: AFSMCParams) -> np.ndarray:
 builtin_part("controller", "afsmc", {"step": afsmc_step, "log": afsmc_log}, params=AFSMCParams,
          build=None, state_size=lambda p: SLIDING_STATE + p.theta0.shape[0],
          work=lambda p: fuzzy_work(p, p.theta0.shape[0]), initial_state=_initial,
+         limb_jacobian=MODEL_JACOBIAN,
          log_size=lambda p: p.theta0.shape[0], log_name="theta_hat",
          description="adaptive fuzzy sliding mode control (eq. 46, 50-51 corrected)",
              label="AFSMC", surface_gain=fuzzy_surface_gain, adaptive=True)  # fmt: skip
@@ -187,6 +189,7 @@ builtin_part("controller", "afsmc-ext", {"step": afsmc_ext_step, "log": afsmc_lo
              params=AFSMCExtParams, build=None,
              state_size=lambda p: SLIDING_STATE + p.theta0.shape[0],
              work=lambda p: fuzzy_work(p, p.theta0.shape[0]), initial_state=_initial,
+             limb_jacobian=MODEL_JACOBIAN,
              log_size=lambda p: p.theta0.shape[0], log_name="theta_hat",
              description="AFSMC adapting over Theta_ext = [Theta, m_r, F_c, F_v] (DESIGN.md §7)",
              label="AFSMC-ext", surface_gain=fuzzy_surface_gain, adaptive=True)  # fmt: skip

@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pkmctl._jit import kernel
-from pkmctl.control.sliding import controller_work, machine_force, machine_model
+from pkmctl.control.sliding import MODEL_JACOBIAN, controller_work, machine_force, machine_model
 from pkmctl.model.dynamics import dynamics_kernel, gravity_kernel, inverse_dynamics
 from pkmctl.parts import PartContext, builtin_part
 
@@ -79,8 +79,9 @@ def ctc_step(p, state, work, y, ref, F):
 
 
 builtin_part("controller", "pd", {"step": pd_step}, params=PDParams, build=None, state_size=0,
-         work=lambda p: controller_work(),
+         work=lambda p: controller_work(), limb_jacobian=MODEL_JACOBIAN,
          description="PD in task space plus the model's gravity", label="PD",
          surface_gain=lambda g, flc: g.pd_kp / g.lam)  # fmt: skip
 builtin_part("controller", "ctc", {"step": ctc_step}, params=CTCParams, build=None, state_size=0,
-         work=lambda p: controller_work(), description="computed torque", label="CTC")  # fmt: skip
+         work=lambda p: controller_work(), description="computed torque", label="CTC",
+         limb_jacobian=MODEL_JACOBIAN)  # fmt: skip

@@ -25,7 +25,13 @@ import numpy as np
 from pkmctl._jit import kernel
 from pkmctl.fuzzy import FISTables, SystemTables
 from pkmctl.fuzzy.term import term_eval, term_work
-from pkmctl.model.dynamics import dynamics_kernel, gravity_kernel, inverse_dynamics, make_work
+from pkmctl.model.dynamics import (
+    JQ,
+    dynamics_kernel,
+    gravity_kernel,
+    inverse_dynamics,
+    make_work,
+)
 from pkmctl.model.machine import N_MACHINE_MODEL, add_machine_model
 from pkmctl.parts import PartContext, builtin_part
 
@@ -47,6 +53,12 @@ __all__ = [
 
 #: Size of the sliding-surface state: s_prev (3), filtered sdot (3), started flag.
 SLIDING_STATE = 7
+
+
+#: Where the work of :func:`controller_work` holds the limb Jacobian at y[:3] after a
+#: step (the model's kinematics at the measured pose, last evaluated there by every
+#: built-in controller): the parts' ``limb_jacobian``, which the actuator then reuses.
+MODEL_JACOBIAN = (0, JQ)
 
 
 def controller_work(n_theta: int = 0) -> tuple:
@@ -217,9 +229,11 @@ def fuzzy_surface_gain(g, flc) -> np.ndarray:
 
 builtin_part("controller", "smc", {"step": smc_step}, params=SMCParams, build=None,
              state_size=SLIDING_STATE, work=lambda p: controller_work(), label="SMC",
+             limb_jacobian=MODEL_JACOBIAN,
              description="sliding mode control with a boundary layer (eq. 25)",
              surface_gain=smc_surface_gain)  # fmt: skip
 builtin_part("controller", "fsmc", {"step": fsmc_step}, params=FSMCParams, build=None,
              state_size=SLIDING_STATE, work=fuzzy_work, label="FSMC",
+             limb_jacobian=MODEL_JACOBIAN,
              description="fuzzy sliding mode control (eq. 26)",
              surface_gain=fuzzy_surface_gain)  # fmt: skip

@@ -35,14 +35,21 @@ class IdealActuator(NamedTuple):
 
 
 @kernel(refcount=False)
-def ideal_command(p, state, work, y, F, cmd):
-    """cmd = J (J^T J)^-1 F at the measured pose y[:3] (eq. 22), clipped to the limit."""
-    R, Jq, q = work
-    limb_jacobian(p.geom, y[0:3], R, Jq, q)
+def ideal_command_at(p, state, work, y, F, Jq, cmd):
+    """cmd = J (J^T J)^-1 F with J = Jq, the limb Jacobian at the measured pose y[:3]
+    (eq. 22), clipped to the limit."""
     actuator_forces_kernel(Jq, F, cmd)
     if p.force_limit > 0.0:
         for i in range(4):
             cmd[i] = min(p.force_limit, max(-p.force_limit, cmd[i]))
+
+
+@kernel(refcount=False)
+def ideal_command(p, state, work, y, F, cmd):
+    """:func:`ideal_command_at` with the limb Jacobian computed here."""
+    R, Jq, q = work
+    limb_jacobian(p.geom, y[0:3], R, Jq, q)
+    ideal_command_at(p, state, work, y, F, Jq, cmd)
 
 
 @kernel(refcount=False)
@@ -55,7 +62,7 @@ def ideal_force(p, state, cmd, tau):
 builtin_part(
     "actuator",
     "ideal",
-    {"command": ideal_command, "force": ideal_force},
+    {"command": ideal_command, "command_at": ideal_command_at, "force": ideal_force},
     params=IdealActuator,
     build=None,
     state_size=0,
@@ -133,11 +140,18 @@ def drive_actuator(
 
 @kernel(refcount=False)
 def drive_command(p, state, work, y, F, cmd):
-    """Torque commands cmd (4,) N m: the split J (J^T J)^-1 F at the measured pose (eq. 22),
-    T = f / gain clipped at the peak torque, held one period if delayed; counts the
-    periods whose measured limb speed |J Xdot^| exceeds the limit."""
+    """:func:`drive_command_at` with the limb Jacobian computed here."""
     R, Jq, q, f = work
     limb_jacobian(p.geom, y[0:3], R, Jq, q)
+    drive_command_at(p, state, work, y, F, Jq, cmd)
+
+
+@kernel(refcount=False)
+def drive_command_at(p, state, work, y, F, Jq, cmd):
+    """Torque commands cmd (4,) N m: the split J (J^T J)^-1 F at the measured pose (eq. 22)
+    with J = Jq, T = f / gain clipped at the peak torque, held one period if delayed;
+    counts the periods whose measured limb speed |J Xdot^| exceeds the limit."""
+    f = work[3]
     actuator_forces_kernel(Jq, F, f)
     over = 0.0
     for i in range(4):
@@ -180,7 +194,12 @@ def _drive_report(p: DriveActuator, state: np.ndarray) -> dict:
 builtin_part(
     "actuator",
     "drive",
-    {"command": drive_command, "force": drive_force, "derivative": drive_derivative},
+    {
+        "command": drive_command,
+        "command_at": drive_command_at,
+        "force": drive_force,
+        "derivative": drive_derivative,
+    },
     params=DriveActuator,
     build=None,
     state_size=DRIVE_STATE,

@@ -36,7 +36,7 @@ from pkmctl.model.kinematics import limb_jacobian
 from pkmctl.parts import (
     Part,
     PartError,
-    actuator_command,
+    actuator_command_after,
     actuator_derivative,
     actuator_force,
     controller_log,
@@ -221,7 +221,7 @@ def _run_loop(
             controller_log(ctrl, cs, log_c[row])  # the state used for F_k
         r = ref[j]
         controller_step(ctrl, cs, cw, y, r, F)
-        actuator_command(act, ast, aw, y, F, cmd)
+        actuator_command_after(act, ast, aw, y, F, ctrl, cw, cmd)
         dist = dist_values[dist_index[j]]
         if logged:
             for i in range(3):

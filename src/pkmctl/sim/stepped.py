@@ -28,7 +28,7 @@ from pkmctl._jit import specialise
 from pkmctl.parts import (
     Part,
     PartContext,
-    actuator_command,
+    actuator_command_after,
     actuator_derivative,
     actuator_force,
     controller_log,
@@ -79,7 +79,7 @@ def _period(
     if logged and log_c.shape[0] > 0:
         controller_log(ctrl, cs, log_c[row])
     controller_step(ctrl, cs, cw, y, ref, F)
-    actuator_command(act, ast, aw, y, F, cmd)
+    actuator_command_after(act, ast, aw, y, F, ctrl, cw, cmd)
     if logged:
         for i in range(3):
             log_X[row, i] = x[i]
