@@ -141,7 +141,7 @@ def drive_actuator(
 @kernel(refcount=False)
 def drive_command(p, state, work, y, F, cmd):
     """:func:`drive_command_at` with the limb Jacobian computed here."""
-    R, Jq, q, f = work
+    R, Jq, q, _ = work
     limb_jacobian(p.geom, y[0:3], R, Jq, q)
     drive_command_at(p, state, work, y, F, Jq, cmd)
 
