@@ -37,8 +37,9 @@ Every control period the loop runs sensor → controller → actuator → plant 
    the controllers' model, ``ctx.model``, bit for bit what
    :func:`pkmctl.model.kinematics.limb_jacobian` gives), and an actuator that can use it
    has ``command_at(p, state, work, y, F, Jq, cmd)``, ``command`` given that Jacobian.
-   The loop calls ``command_at`` when both sides have it, else ``command``. All five
-   built-in controllers and both built-in actuators do (it saves ~0.1 µs a period).
+   The loop calls ``command_at`` when both sides have it, else ``command``. Every
+   built-in controller (afsmc-ext included) and both built-in actuators do (it saves
+   ~0.1 µs a period).
 
    A plant may instead be *stepped* outside compiled code (another engine, e.g. MuJoCo):
    it registers a ``stepper(p, ctx, h)`` that returns an object with ``reset(x)``,
