@@ -168,6 +168,17 @@ class Part:
     #: a controller's: where its work holds the limb Jacobian at y[:3] after each step
     limb_jacobian: tuple[int, ...] | None = None
     compiled: dict[str, Any] = field(default_factory=dict)
+    #: step functions in lane form (:mod:`pkmctl.sim.lanes`): every array with a trailing
+    #: lane dimension; a role without one runs its scalar function lane by lane
+    lanes: dict[str, Callable] = field(default_factory=dict)
+    #: the lane work from the lane bundle and the lane count, for the functions of ``lanes``
+    lane_work: Callable[[Any, int], tuple] | None = None
+    #: whether one run's bundle can go into the lane form (default: always)
+    lane_ok: Callable[[Any], bool] | None = None
+    #: a controller's: where its lane work holds the limb Jacobian (4, 3, L)
+    lane_limb_jacobian: tuple[int, ...] | None = None
+    #: the NamedTuple class of the stacked bundle (default: made from ``params``)
+    lane_params: type | None = None
 
     def make(self, ctx: PartContext) -> tuple[Any, np.ndarray, np.ndarray]:
         """(parameter bundle, initial state, work) for one run."""
@@ -267,6 +278,9 @@ def _register(
     limits: Callable | None = None,
     memory: Callable | None = None,
     limb_jacobian: tuple[int, ...] | None = None,
+    lanes: dict[str, Callable] | None = None,
+    lane_work: Callable | None = None,
+    lane_ok: Callable | None = None,
 ) -> Part:
     reg = _REGISTRY[kind]
     if not isinstance(name, str) or not name or name != name.strip():
@@ -362,7 +376,123 @@ def _register(
     )
     reg[name] = part
     _BY_TYPE[(kind, params)] = part
+    if lanes:
+        part = attach_lanes(kind, name, lanes, lane_work=lane_work, lane_ok=lane_ok)
     return part
+
+
+def attach_lanes(
+    kind: str,
+    name: str,
+    lanes: dict[str, Callable],
+    *,
+    lane_work: Callable | None,
+    lane_ok: Callable | None = None,
+    lane_limb_jacobian: tuple[int, ...] | None = None,
+    lane_params: type | None = None,
+) -> Part:
+    """Give a registered part lane forms of its step functions (:mod:`pkmctl.sim.lanes`):
+    ``lanes`` role → function with the role's signature, every array with a trailing lane
+    dimension; ``lane_work(lane_bundle, L)`` their work; ``lane_ok(bundle)`` whether a
+    run's bundle may be stacked (else the part runs lane by lane); a controller's
+    ``lane_limb_jacobian``, as ``limb_jacobian`` in its lane work."""
+    part = get_part(kind, name)
+    fns, compiled, sources = {}, dict(part.compiled), set(part.sources)
+    for role, fn in lanes.items():
+        if role not in part.functions:
+            raise PartError(f"{kind} {name!r}: a lane form of {role!r}, which it does not have")
+        py = getattr(fn, "py_func", fn)
+        if not inspect.isfunction(py):
+            raise PartError(f"{kind} {name!r}: lane {role} = {fn!r}: must be a function")
+        if part.builtin and py is not fn:
+            py.__pkmctl_llvm_inline__ = True
+            compiled["lane_" + role] = fn
+        fns[role] = py
+        src = inspect.getsourcefile(py)
+        if src and not part.builtin:
+            sources.add(src)
+    if not callable(lane_work):
+        raise PartError(f"{kind} {name!r}: lane functions need lane_work(lane_bundle, lanes)")
+    from dataclasses import replace
+
+    new = replace(part, lanes=fns, lane_work=lane_work, lane_ok=lane_ok, compiled=compiled,
+                  lane_limb_jacobian=lane_limb_jacobian, lane_params=lane_params,
+                  sources=tuple(sorted(sources)))  # fmt: skip
+    _REGISTRY[kind][name] = new
+    _BY_TYPE[(kind, part.params)] = new
+    cls = lane_params or lane_class(part.params)
+    _LANE_CLASSES[part.params] = cls
+    _BY_LANE_TYPE[(kind, cls)] = new
+    return new
+
+
+# ---------------------------------------------------------------- lanes
+# L runs at once (pkmctl.sim.lanes): every state and array of the contract gets a
+# trailing lane dimension. A part with lane functions gets its L bundles stacked into
+# one bundle of its lane class (same fields, each with a trailing lane dimension: a
+# float becomes (L,)); any other part gets EachLane(the L bundles), and its scalar
+# functions run lane by lane on views (slower, same arithmetic).
+_LANE_CLASSES: dict[type, type] = {}
+_BY_LANE_TYPE: dict[tuple[str, type], Part] = {}
+
+
+class EachLane(NamedTuple):
+    """The L bundles of a part without lane functions, run one lane at a time."""
+
+    each: tuple
+
+
+def lane_class(params: type) -> type:
+    """The lane-form NamedTuple class of a bundle class (the same fields)."""
+    cls = _LANE_CLASSES.get(params)
+    if cls is None:
+        cls = NamedTuple("Lane" + params.__name__, [(f, Any) for f in params._fields])
+        cls.__module__ = params.__module__
+        cls.__doc__ = f"{params.__name__} in lane form: every field with a trailing lane axis."
+        _LANE_CLASSES[params] = cls
+    return cls
+
+
+class LaneMismatch(PartError):
+    """Runs that cannot share a lane loop (their bundles differ in more than numbers)."""
+
+
+def _stack_field(name: str, values: list) -> Any:
+    v0 = values[0]
+    if isinstance(v0, np.ndarray):
+        if any(v.shape != v0.shape or v.dtype != v0.dtype for v in values):
+            raise LaneMismatch(f"field {name!r}: the runs' arrays differ in shape")
+        return np.ascontiguousarray(np.stack(values, axis=-1))
+    if isinstance(v0, tuple):  # a nested bundle (e.g. fuzzy tables): shared, not stacked
+        same = all(
+            len(v) == len(v0)
+            and all(
+                np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b
+                for a, b in zip(v, v0, strict=True)
+            )
+            for v in values
+        )
+        if not same:
+            raise LaneMismatch(f"field {name!r}: the runs' {type(v0).__name__} differ")
+        return v0
+    if isinstance(v0, bool | int | np.integer):
+        return np.array(values, dtype=np.int64)
+    return np.array(values, dtype=np.float64)
+
+
+def stack_lanes(part: Part, bundles: list[tuple]) -> tuple[Any, np.ndarray, tuple]:
+    """(lane bundle, lane state (n, L), lane work) of the runs' (params, state, work)."""
+    ps = [b[0] for b in bundles]
+    state = np.ascontiguousarray(np.stack([b[1] for b in bundles], axis=-1))
+    if part.lanes and (part.lane_ok is None or all(part.lane_ok(p) for p in ps)):
+        cls = lane_class(part.params)
+        lp = cls(*(_stack_field(f, [getattr(p, f) for p in ps]) for f in part.params._fields))
+        return lp, state, part.lane_work(lp, len(ps))
+    from numba import typeof
+
+    if len({typeof(p) for p in ps}) > 1 or len({typeof(b[2]) for b in bundles}) > 1:
+        raise LaneMismatch(f"{part.kind} {part.name!r}: the runs' bundles differ in types")
+    return EachLane(tuple(ps)), state, tuple(b[2] for b in bundles)
 
 
 _SIGNATURES = {
@@ -450,6 +580,38 @@ def _lookup(kind: str, p) -> Part | None:
     return _BY_TYPE.get((kind, cls))
 
 
+def _lane_of(argnames: str) -> str:
+    """The call of a step function on lane l of its lane-form arguments."""
+
+    def one(a: str) -> str:
+        return {"p": "p.each[l]", "work": "work[l]", "Jq": "Jq[:, :, l]"}.get(a, f"{a}[:, l]")
+
+    return ", ".join(one(a) for a in argnames.split(","))
+
+
+def _lane_resolve(kind: str, role: str, p):
+    """The implementation for a lane-form bundle ``p`` (None: not one)."""
+    if not isinstance(p, types.BaseNamedTuple):
+        return None
+    argnames = _SIGNATURES[kind][role].replace(" ", "")
+    cls = getattr(p, "instance_class", None)
+    if cls is EachLane:  # the scalar function, lane by lane
+        inner = p.types[0]
+        if _lookup(kind, getattr(inner, "dtype", None)) is None:
+            return None
+        local: dict[str, Any] = {"stub": _STUBS[(kind, role)]}
+        exec(f"def impl({argnames}):\n    for l in range(len(p.each)):\n"
+             f"        stub({_lane_of(argnames)})\n", local)  # fmt: skip
+        return local["impl"]
+    part = _BY_LANE_TYPE.get((kind, cls))
+    if part is None:
+        return None
+    if role not in part.lanes:
+        return None  # no lane form: Numba reports a typing error
+    disp = part.compiled.get("lane_" + role)
+    return _caller(argnames, disp) if disp is not None else part.lanes[role]
+
+
 def _caller(argnames: str, disp):
     """An implementation that calls ``disp``: one of pkmctl's kernels, compiled once and
     kept in the disk cache, which LLVM inlines into the loop (``llvm_inline``), so that a
@@ -464,8 +626,8 @@ def _resolver(kind: str, role: str):
 
     def resolve(p):
         part = _lookup(kind, p)
-        if part is None:
-            return None  # not a bundle of this kind: Numba reports a typing error
+        if part is None:  # a lane-form bundle, or not a bundle of this kind (typing error)
+            return _lane_resolve(kind, role, p)
         if role in part.functions and role in part.compiled and part.builtin:
             return _caller(argnames, part.compiled[role])
         if role in part.functions:
@@ -494,7 +656,11 @@ def _stub(kind: str, role: str):
     typer = ns["typer"]
     assert len(argnames.split(",")) == n
     overload(stub, jit_options=_OPTIONS, strict=False, inline="always")(typer)
+    _STUBS[(kind, role)] = stub
     return stub
+
+
+_STUBS: dict[tuple[str, str], Callable] = {}
 
 
 sensor_measure = _stub("sensor", "measure")
@@ -518,10 +684,19 @@ def actuator_command_after(act, ast, aw, y, F, ctrl, cw, cmd):
 @overload(actuator_command_after, jit_options=_OPTIONS, strict=False, inline="always")
 def _command_after(act, ast, aw, y, F, ctrl, cw, cmd):
     a, c = _lookup("actuator", act), _lookup("controller", ctrl)
+    lanes = a is None and c is None
+    if lanes:  # lane forms: the Jacobian is shared only where both are stacked
+        a = _BY_LANE_TYPE.get(("actuator", getattr(act, "instance_class", None)))
+        c = _BY_LANE_TYPE.get(("controller", getattr(ctrl, "instance_class", None)))
     if a is None or c is None:
+        if lanes:
+            return _lane_command(act, ctrl)
         return None
-    if c.limb_jacobian is not None and "command_at" in a.functions:
-        at = "cw" + "".join(f"[{i}]" for i in c.limb_jacobian)
+    if lanes and ("command_at" not in a.lanes or c.lane_limb_jacobian is None):
+        return _lane_command(act, ctrl)
+    path = c.lane_limb_jacobian if lanes else c.limb_jacobian
+    if path is not None and "command_at" in a.functions:
+        at = "cw" + "".join(f"[{i}]" for i in path)
         body = f"actuator_command_at(act, ast, aw, y, F, {at}, cmd)"
     else:
         body = "actuator_command(act, ast, aw, y, F, cmd)"
@@ -529,6 +704,16 @@ def _command_after(act, ast, aw, y, F, ctrl, cw, cmd):
                              "actuator_command_at": actuator_command_at}  # fmt: skip
     exec(f"def impl(act, ast, aw, y, F, ctrl, cw, cmd):\n    return {body}\n", local)
     return local["impl"]
+
+
+def _lane_command(act, ctrl):
+    if not isinstance(act, types.BaseNamedTuple) or not isinstance(ctrl, types.BaseNamedTuple):
+        return None
+
+    def impl(act, ast, aw, y, F, ctrl, cw, cmd):
+        return actuator_command(act, ast, aw, y, F, cmd)
+
+    return impl
 
 
 class NoParams(NamedTuple):

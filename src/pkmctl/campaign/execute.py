@@ -76,16 +76,38 @@ def _log_buffers(prep, parts):
     return LogBuffers(prep.t.size, int(ctrl.log_size(ctrl.build(ctx))))
 
 
-def run_task(spec: CampaignSpec, task: Task) -> pa.Table:
+def _outcomes(prep, parts, seeds: list, buffers: list) -> tuple[list, float]:
+    """(per seed a Result or the exception its run raised, wall seconds per run): the
+    seeds in one lane loop (:mod:`pkmctl.sim.lanes`) when there are several."""
+    from pkmctl.sim.simulate import run_prepared, run_prepared_lanes
+
+    t0 = time.perf_counter()
+    if len(seeds) > 1:
+        try:
+            out = run_prepared_lanes(prep, parts, seeds, buffers)
+        except Exception as exc:  # noqa: BLE001 - every run of the batch records it
+            out = [exc] * len(seeds)
+    else:
+        try:
+            out = [run_prepared(prep, parts, seeds[0], buffers[0])]
+        except Exception as exc:  # noqa: BLE001 - recorded; the campaign goes on
+            out = [exc]
+    return out, (time.perf_counter() - t0) / len(seeds)
+
+
+def run_task(spec: CampaignSpec, task: Task, lanes: int | None = None) -> pa.Table:
     """Run one task's runs; their records (:func:`pkmctl.campaign.store.schema`).
 
-    A run that diverges is a record with status ``"diverged"``, ``diverged_at`` its
-    time and no metrics; any other error of a run is status ``"error"`` with its
-    message. Pure: same spec and task, same records (but the timing columns).
+    The runs of a task (one cell, one controller) go ``lanes`` at a time through one lane
+    loop (default: the machine's SIMD width when the parts have lane forms, else 1). A
+    run that diverges is a record with status ``"diverged"``, ``diverged_at`` its time
+    and no metrics; any other error of a run is status ``"error"`` with its message.
+    Pure: same spec and task, same records (but the timing columns).
     """
     from pkmctl.errors import SimulationDiverged
+    from pkmctl.sim.lanes import lane_count, lanes_supported
     from pkmctl.sim.metrics import summary
-    from pkmctl.sim.simulate import prepare, resolve_parts, run_prepared
+    from pkmctl.sim.simulate import prepare, resolve_parts
 
     rows = []
     host = f"{socket.gethostname()}:{os.getpid()}"
@@ -94,37 +116,54 @@ def run_task(spec: CampaignSpec, task: Task) -> pa.Table:
     # The trajectory is prepared once a task; records hold the metrics the loop computes
     # over every period (not recomputed from the log).
     prep = prepare(spec.scenario(cell), None)
-    buffers, parts_of = None, {}
-    for run in task.runs:
-        t0 = time.perf_counter()
-        status, at, msg, metrics, kernel = "ok", None, "", None, math.nan
+    batches: list[tuple[list, list]] = []  # (runs, their outcomes)
+    for controller in dict.fromkeys(r.controller for r in task.runs):
+        runs = [r for r in task.runs if r.controller == controller]
+        buffers: list = []
         try:
-            if run.controller not in parts_of:
-                parts_of[run.controller] = resolve_parts(prep.scenario, run.controller)
-            parts = parts_of[run.controller]
-            if buffers is None:
-                buffers = _log_buffers(prep, parts)
-            result = run_prepared(prep, parts, run.seed, buffers)
-            metrics = summary(result, spec.metrics, source="loop")  # the kept groups
-            kernel = result.info["kernel_seconds"]
-        except SimulationDiverged as exc:
-            status, at, msg = "diverged", float(exc.time), str(exc)
-            if exc.partial is not None:
-                kernel = exc.partial.info.get("kernel_seconds", math.nan)
+            parts = resolve_parts(prep.scenario, controller)
         except Exception as exc:  # noqa: BLE001 - recorded; the campaign goes on
-            status, msg = "error", f"{type(exc).__name__}: {exc}"
-        row = {
-            "spec_hash": spec.digest,
-            "cell": run.cell,
-            "controller": run.controller,
-            "seed": run.seed,
-            "task": task.index,
-        }
-        row.update(factors)
-        row.update(status=status, diverged_at=at, message=msg)
-        row.update(_metric_values(spec, metrics))
-        row.update(wall_s=time.perf_counter() - t0, kernel_s=float(kernel), worker=host)
-        rows.append(row)
+            batches.append((runs, [(exc, math.nan)] * len(runs)))
+            continue
+        n = lanes if lanes is not None else lane_count() if lanes_supported(parts) else 1
+        for i in range(0, len(runs), n):
+            chunk = runs[i : i + n]
+            while len(buffers) < len(chunk):
+                buffers.append(_log_buffers(prep, parts))
+            out, wall = _outcomes(prep, parts, [r.seed for r in chunk], buffers)
+            done = []
+            for r in out:  # the metrics now: the next batch overwrites the logs
+                if isinstance(r, Exception):
+                    done.append((r, wall))
+                else:
+                    m = summary(r, spec.metrics, source="loop")  # the kept groups
+                    done.append(((m, r.info["kernel_seconds"]), wall))
+            batches.append((chunk, done))
+    for chunk, done in batches:
+        for run, (outcome, wall) in zip(chunk, done, strict=True):
+            status, at, msg, metrics, kernel = "ok", None, "", None, math.nan
+            if isinstance(outcome, SimulationDiverged):
+                status, at, msg = "diverged", float(outcome.time), str(outcome)
+                if outcome.partial is not None:
+                    kernel = outcome.partial.info.get("kernel_seconds", math.nan)
+            elif isinstance(outcome, Exception):
+                status, msg = "error", f"{type(outcome).__name__}: {outcome}"
+            else:
+                metrics, kernel = outcome
+            row = {
+                "spec_hash": spec.digest,
+                "cell": run.cell,
+                "controller": run.controller,
+                "seed": run.seed,
+                "task": task.index,
+            }
+            row.update(factors)
+            row.update(status=status, diverged_at=at, message=msg)
+            row.update(_metric_values(spec, metrics))
+            row.update(wall_s=wall, kernel_s=float(kernel), worker=host)
+            rows.append(row)
+    order = {(r.controller, r.seed): i for i, r in enumerate(task.runs)}
+    rows.sort(key=lambda row: order[(row["controller"], row["seed"])])
     return pa.Table.from_pylist(rows, schema=schema(spec))
 
 

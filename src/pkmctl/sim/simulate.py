@@ -334,14 +334,20 @@ def _build(parts: dict[str, Part], ctx: PartContext, plant_state: np.ndarray) ->
     return bundles
 
 
-def run_prepared(
-    prep: Prepared,
-    parts: dict[str, Part],
-    seed: int | None,
-    buffers: LogBuffers | None = None,
-) -> Result:
-    """One run of ``prep``'s scenario with ``parts`` and disturbance ``seed`` (None: the
-    scenario's); ``buffers`` lets runs of one length share their log arrays."""
+@dataclass(eq=False)
+class _Run:
+    """One run, set up: its scenario, context, bundles, the loop's inputs and limits."""
+
+    scenario: Scenario
+    ctx: PartContext
+    bundles: dict
+    inputs: Inputs
+    starts: tuple
+    force_limit: float
+    speed_limit: float
+
+
+def _set_up(prep: Prepared, parts: dict[str, Part], seed: int | None, check_logs: bool) -> _Run:
     scenario = prep.scenario if seed is None else _with_seed(prep.scenario, seed)
     Tc = scenario.timing.control_period
     ctx = PartContext(
@@ -356,7 +362,7 @@ def run_prepared(
     bundles = _build(parts, ctx, x0)
     n, every = prep.periods, prep.every
     holds = disturbance_count(scenario)
-    if buffers is None:  # the prepared arrays exist already: only the logs are new
+    if check_logs:  # the prepared arrays exist already: only the logs are new
         n_log = int(parts["controller"].log_size(bundles["controller"][0]))
         n_slog = int(parts["sensor"].log_size(bundles["sensor"][0]))
 
@@ -381,19 +387,69 @@ def run_prepared(
         dist_values=_disturbance_values(scenario),
         metrics=mp,
     )
+    return _Run(scenario, ctx, bundles, inputs, starts, force_limit, speed_limit)
+
+
+def run_prepared(
+    prep: Prepared,
+    parts: dict[str, Part],
+    seed: int | None,
+    buffers: LogBuffers | None = None,
+) -> Result:
+    """One run of ``prep``'s scenario with ``parts`` and disturbance ``seed`` (None: the
+    scenario's); ``buffers`` lets runs of one length share their log arrays."""
+    run = _set_up(prep, parts, seed, buffers is None)
     stepped = parts["plant"].stepper is not None
     out = (run_stepped if stepped else run_parts)(
         parts,
-        bundles,
-        *((ctx,) if stepped else ()),
-        period=Tc,
-        substeps=scenario.timing.substeps,
-        inputs=inputs,
+        run.bundles,
+        *((run.ctx,) if stepped else ()),
+        period=run.scenario.timing.control_period,
+        substeps=run.scenario.timing.substeps,
+        inputs=run.inputs,
         buffers=buffers,
     )
+    return _result(prep, parts, run, out)
+
+
+def run_prepared_lanes(
+    prep: Prepared,
+    parts: dict[str, Part],
+    seeds: list[int | None],
+    buffers: list[LogBuffers] | None = None,
+) -> list[Result | Exception]:
+    """The runs of ``seeds`` at once in SIMD lanes (:mod:`pkmctl.sim.lanes`), one lane
+    each: per seed the Result :func:`run_prepared` gives, or the exception it raises
+    (:class:`~pkmctl.SimulationDiverged` for a lane that stopped)."""
+    from pkmctl.sim.lanes import run_lanes
+
+    runs = [_set_up(prep, parts, s, buffers is None) for s in seeds]
+    sc = runs[0].scenario
+    outs = run_lanes(
+        parts,
+        [r.bundles for r in runs],
+        period=sc.timing.control_period,
+        substeps=sc.timing.substeps,
+        inputs=[r.inputs for r in runs],
+        buffers=buffers,
+    )
+    results: list[Result | Exception] = []
+    for run, out in zip(runs, outs, strict=True):
+        try:
+            results.append(_result(prep, parts, run, out))
+        except SimulationDiverged as exc:
+            results.append(exc)
+    return results
+
+
+def _result(prep: Prepared, parts: dict[str, Part], run: _Run, out) -> Result:
+    """The Result of one run's LoopOutput; raises SimulationDiverged if it stopped."""
+    scenario, bundles = run.scenario, run.bundles
+    Tc, every = scenario.timing.control_period, prep.every
+    force_limit, speed_limit, starts = run.force_limit, run.speed_limit, run.starts
     m, lg = out.steps, out.logs
     rows = -(-m // every)
-    values = metric_values(out.metrics, mp)
+    values = metric_values(out.metrics, run.inputs.metrics)
     if not math.isfinite(speed_limit):
         values["peak_limb_speed"] = np.full(4, np.nan)
     loop_metrics = metrics.LoopMetrics(
@@ -468,13 +524,17 @@ def simulate_many(
     duration: float | None = None,
     workers: int | None = None,
     keep: str = "results",
+    lanes: int | None = None,
 ) -> list:
-    """Run one scenario for several disturbance seeds in parallel threads.
+    """Run one scenario for several disturbance seeds, in SIMD lanes and parallel threads.
 
-    The scenario, its desired trajectory and desired forces are prepared once; the
-    compiled loop releases the GIL, so ``workers`` threads (default: the number of
-    cores) run side by side in one process. Results come back in the order of
-    ``seeds``; the first failing run's error is raised.
+    The scenario, its desired trajectory and desired forces are prepared once. The seeds
+    go in batches of ``lanes`` runs that one compiled loop advances at once
+    (:mod:`pkmctl.sim.lanes`; default: the machine's SIMD width when the parts have lane
+    forms, else 1, one run at a time); the compiled loop releases the GIL, so
+    ``workers`` threads (default: the number of cores) run batches side by side. Results
+    come back in the order of ``seeds``, each what :func:`simulate` gives for its seed;
+    the first failing run's error is raised.
 
     ``keep="results"`` returns the :class:`Result` of every run. ``keep="metrics"``
     returns ``{"seed": s, **metrics.summary(result)}`` per run instead, and each
@@ -485,6 +545,7 @@ def simulate_many(
     import threading
     from concurrent.futures import ThreadPoolExecutor
 
+    from pkmctl.sim.lanes import lane_count, lanes_supported
     from pkmctl.sim.metrics import summary
 
     if keep not in ("results", "metrics"):
@@ -493,10 +554,14 @@ def simulate_many(
     workers = (os.cpu_count() or 1) if workers is None else workers
     if workers < 1:
         raise ValueError(f"workers = {workers}: must be >= 1")
+    if lanes is not None and not (isinstance(lanes, int) and 1 <= lanes <= 64):
+        raise ValueError(f"lanes = {lanes!r}: must be an integer in [1, 64]")
     prep = prepare(scenario, duration)
     parts = resolve_parts(prep.scenario, controller)
     for s in seeds:
         _with_seed(prep.scenario, s)  # fail fast on a bad seed, before any run
+    if lanes is None:
+        lanes = lane_count() if lanes_supported(parts) else 1
     local = threading.local()
     n_log = 0
     if keep == "metrics":
@@ -504,16 +569,29 @@ def simulate_many(
                           prep.scenario.timing.control_period, prep.flc, prep.scenario)  # fmt: skip
         n_log = int(parts["controller"].log_size(parts["controller"].build(ctx)))
 
-    def one(seed):
-        if keep == "results":
-            return run_prepared(prep, parts, seed)
-        if not hasattr(local, "buffers"):
-            local.buffers = LogBuffers(prep.t.size, n_log)
-        result = run_prepared(prep, parts, seed, local.buffers)
-        return {"seed": int(seed), **summary(result)}
+    def buffers(n: int) -> list[LogBuffers]:
+        have = getattr(local, "buffers", [])
+        while len(have) < n:
+            have.append(LogBuffers(prep.t.size, n_log))
+        local.buffers = have
+        return have[:n]
 
+    def batch(chunk: list) -> list:
+        bufs = buffers(len(chunk)) if keep == "metrics" else None
+        if len(chunk) == 1:
+            out = [run_prepared(prep, parts, chunk[0], None if bufs is None else bufs[0])]
+        else:
+            out = run_prepared_lanes(prep, parts, chunk, bufs)
+            for r in out:
+                if isinstance(r, Exception):
+                    raise r
+        if keep == "results":
+            return out
+        return [{"seed": int(s), **summary(r)} for s, r in zip(chunk, out, strict=True)]
+
+    chunks = [seeds[i : i + lanes] for i in range(0, len(seeds), lanes)]
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(one, seeds))
+        return [r for rs in pool.map(batch, chunks) for r in rs]
 
 
 def _compile_group(scenario_toml: str, job: tuple[str, list[str]]) -> str:

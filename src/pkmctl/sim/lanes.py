@@ -1,0 +1,348 @@
+"""L runs at once in SIMD lanes (DESIGN.md §6, §8): the loop of :mod:`pkmctl.sim.loop`
+with a lane dimension innermost in every state and per-period array.
+
+The runs of one lane loop share their part *types*, timing and reference trajectory;
+they may differ in every number (seeds and so the disturbance, gains, Theta^, payload,
+...). Each part runs in lane form: a part with lane functions (``lanes=`` at
+registration) gets its L bundles stacked into one (:func:`pkmctl.parts.stack_lanes`)
+and runs all lanes in one call, which LLVM vectorises across the lanes; any other part
+runs its scalar functions lane by lane, with the same arithmetic.
+
+Every lane is checked as the single loop checks its run: a lane whose pose leaves the
+valid set, whose state becomes non-finite or whose sensor fails stops there (its status,
+period and final states are kept, its logs and metrics end), and the other lanes go on;
+the stopped lane's states are reset to their initial values so that it computes benign
+numbers until the loop ends. Within a period, a lane whose pose becomes invalid after a
+sub-step keeps that sub-step's state, as the single loop does when it stops integrating.
+
+:func:`run_lanes` gives one :class:`~pkmctl.sim.loop.LoopOutput` per lane, equal to what
+:func:`~pkmctl.sim.loop.run_parts` gives for that run alone (tests/test_lanes.py).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from numba.core.errors import NumbaError
+
+from pkmctl._jit import kernel, specialise
+from pkmctl.parts import (
+    LaneMismatch,
+    Part,
+    actuator_command_after,
+    actuator_derivative,
+    actuator_force,
+    controller_log,
+    controller_step,
+    plant_derivative,
+    plant_observe,
+    sensor_log,
+    sensor_measure,
+    stack_lanes,
+)
+from pkmctl.sim.loop import (
+    Inputs,
+    LoopOutput,
+    accumulate_metrics,
+    compile_error,
+    pose_status,
+)
+
+__all__ = ["LaneMismatch", "lane_count", "lanes_supported", "run_lanes"]
+
+
+def lane_count() -> int:
+    """Lanes a batch holds by default: the machine's double-precision SIMD width (8 with
+    AVX-512, 4 with AVX2, else 2), read from /proc/cpuinfo (Linux), 4 elsewhere."""
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
+            for line in fh:
+                if line.startswith("flags"):
+                    flags = set(line.split(":", 1)[1].split())
+                    return 8 if "avx512f" in flags else 4 if "avx2" in flags else 2
+    except OSError:
+        pass
+    return 4
+
+
+def lanes_supported(parts: dict[str, Part]) -> bool:
+    """Whether a lane loop speeds these parts up: the plant and the controller have lane
+    functions (the costly part of every period), and no part is stepped outside compiled
+    code. Any combination of compiled parts *runs* in lanes; this says when it pays."""
+    if parts["plant"].stepper is not None:
+        return False
+    return bool(parts["plant"].lanes) and bool(parts["controller"].lanes)
+
+
+@kernel(inline="always", refcount=False)
+def _save(src, dst, l):
+    for i in range(src.shape[0]):
+        dst[i, l] = src[i, l]
+
+
+@kernel(inline="always", refcount=False)
+def _stop(l, st, k, status, kstop, alive, x, ss, cs, ast, fin, init):
+    """Lane l stops at period k with status st: keep its states, reset them to the initial
+    ones (benign numbers until the loop ends)."""
+    status[l] = st
+    kstop[l] = k
+    alive[l] = 0
+    states = (x, ss, cs, ast)
+    for n in range(4):
+        _save(states[n], fin[n], l)
+        for i in range(states[n].shape[0]):
+            states[n][i, l] = init[n][i, l]
+
+
+def _run_lanes(
+    plant, x, pw, sensor, ss, sw, ctrl, cs, cw, act, ast, aw, n_z, Tc, substeps,
+    k0, every, ref, qdes, dist_values, dist_index, kx, kz, xs, zs, vec, logs, log_c, log_s,
+    row_c, row_s, acc, mp, mw, lane1, alive, status, kstop, fin, init, frz,
+):  # fmt: skip
+    """Periods k0 .. k0 + len(ref) - 1 of L lanes on preallocated arrays.
+
+    States x (nx, L), ss, cs, ast (n, L); ``kx`` and ``kz`` the four RK4 stages (n, L) of
+    the plant and of the actuator's continuous state, ``xs``, ``zs`` the stage states;
+    ``vec`` = (y (6, L), F (3, L), cmd, tau, q (4, L), Fa (3, L), r (9, L), dist (3, L));
+    ``ref`` (c, 9), ``qdes`` (c, 4), ``dist_index`` (c,) shared by the lanes,
+    ``dist_values`` (L, m, 3) each lane's; ``logs`` each lane's log arrays (as the single
+    loop's), ``log_c``, ``log_s`` each lane's (rows or 0, m) and their lane-form rows
+    ``row_c``, ``row_s`` (m, L);
+    ``acc`` (L, .) and ``mp`` (L, .) the metrics' accumulators and parameters, ``mw``
+    their scratch, ``lane1`` = (x, q, tau) of one lane (contiguous, for the metrics).
+    ``alive``, ``status``, ``kstop`` (L,) per lane; ``fin`` the states of stopped lanes,
+    ``init`` the initial states, ``frz`` = (x, ast, flags) of lanes whose pose became
+    invalid within the period. Returns the number of lanes still running.
+    """
+    n = ref.shape[0]
+    L = x.shape[1]
+    nx = x.shape[0]
+    y, F, cmd, tau, q, Fa, r, dist = vec
+    R, Jm, qm, ev = mw
+    x1, q1, tau1 = lane1
+    fx, fz, frozen = frz
+    h = Tc / substeps
+    log_c_on = log_c[0].shape[0] > 0
+    log_s_on = log_s[0].shape[0] > 0
+    row = (k0 + every - 1) // every
+    nxt = row * every
+    running = 0
+    for l in range(L):
+        running += alive[l]
+    for j in range(n):
+        if running == 0:
+            return 0
+        k = k0 + j
+        for l in range(L):
+            if alive[l]:
+                st = pose_status(x[:, l])
+                if st != 0:
+                    _stop(l, st, k, status, kstop, alive, x, ss, cs, ast, fin, init)
+                    running -= 1
+        if running == 0:
+            return 0
+        sensor_measure(sensor, ss, sw, x, y)
+        for l in range(L):
+            if alive[l]:
+                for i in range(6):
+                    if not math.isfinite(y[i, l]):
+                        _stop(l, 3, k, status, kstop, alive, x, ss, cs, ast, fin, init)
+                        running -= 1
+                        break
+        logged = k == nxt
+        if logged and log_s_on:
+            sensor_log(sensor, ss, row_s)
+            for l in range(L):
+                for i in range(row_s.shape[0]):
+                    log_s[l][row, i] = row_s[i, l]
+        if logged and log_c_on:
+            controller_log(ctrl, cs, row_c)
+            for l in range(L):
+                for i in range(row_c.shape[0]):
+                    log_c[l][row, i] = row_c[i, l]
+        for i in range(9):
+            v = ref[j, i]
+            for l in range(L):
+                r[i, l] = v
+        d = dist_index[j]
+        for l in range(L):
+            for i in range(3):
+                dist[i, l] = dist_values[l, d, i]
+        controller_step(ctrl, cs, cw, y, r, F)
+        actuator_command_after(act, ast, aw, y, F, ctrl, cw, cmd)
+        if logged:
+            for l in range(L):
+                log_X, log_Xd, log_y, log_dist = logs[l][0], logs[l][1], logs[l][2], logs[l][6]
+                for i in range(3):
+                    log_X[row, i] = x[i, l]
+                    log_Xd[row, i] = x[3 + i, l]
+                    log_dist[row, i] = dist[i, l]
+                for i in range(6):
+                    log_y[row, i] = y[i, l]
+        for l in range(L):
+            frozen[l] = 0
+        for sub in range(substeps):
+            for st in range(4):  # one call site per part function, as in the single loop
+                k_x, k_z = kx[st], kz[st]
+                if st == 0:
+                    for i in range(nx):
+                        for l in range(L):
+                            xs[i, l] = x[i, l]
+                    for i in range(n_z):
+                        for l in range(L):
+                            zs[i, l] = ast[i, l]
+                else:
+                    a = h if st == 3 else 0.5 * h
+                    p_x, p_z = kx[st - 1], kz[st - 1]
+                    for i in range(nx):
+                        for l in range(L):
+                            xs[i, l] = x[i, l] + a * p_x[i, l]
+                    for i in range(n_z):
+                        for l in range(L):
+                            zs[i, l] = ast[i, l] + a * p_z[i, l]
+                actuator_force(act, zs, cmd, tau)
+                plant_derivative(plant, xs, tau, dist, pw, k_x)
+                actuator_derivative(act, zs, cmd, k_z)
+                if sub == 0 and st == 0:
+                    plant_observe(plant, xs, tau, pw, q, Fa)
+                    for l in range(L):
+                        if not alive[l]:
+                            continue
+                        if logged:
+                            log_F, log_tau, log_q = logs[l][3], logs[l][4], logs[l][5]
+                            for i in range(4):
+                                log_tau[row, i] = tau[i, l]
+                                log_q[row, i] = q[i, l]
+                            for i in range(3):
+                                log_F[row, i] = Fa[i, l]
+                        for i in range(nx):
+                            x1[i] = x[i, l]
+                        for i in range(4):
+                            q1[i] = q[i, l]
+                            tau1[i] = tau[i, l]
+                        accumulate_metrics(acc[l], mp[l], k, ref[j], x1, qdes[j], q1, tau1,
+                                           R, Jm, qm, ev)  # fmt: skip
+            k1, k2, k3, k4 = kx[0], kx[1], kx[2], kx[3]
+            for i in range(nx):
+                for l in range(L):
+                    x[i, l] += h / 6.0 * (k1[i, l] + 2.0 * k2[i, l] + 2.0 * k3[i, l] + k4[i, l])
+            z1, z2, z3, z4 = kz[0], kz[1], kz[2], kz[3]
+            for i in range(n_z):
+                for l in range(L):
+                    ast[i, l] += h / 6.0 * (z1[i, l] + 2.0 * z2[i, l] + 2.0 * z3[i, l] + z4[i, l])
+            for l in range(L):  # the single loop stops integrating here: keep this state
+                if alive[l] and not frozen[l] and pose_status(x[:, l]) != 0:
+                    frozen[l] = 1
+                    _save(x, fx, l)
+                    _save(ast, fz, l)
+        for l in range(L):
+            if frozen[l]:
+                _save(fx, x, l)
+                _save(fz, ast, l)
+        if logged:
+            row += 1
+            nxt += every
+    return running
+
+
+def lane_loop_for(parts: dict[str, Part], bundles: dict[str, tuple]):
+    """The compiled lane loop for these parts (one per combination of lane-form types)."""
+    key = tuple(type(bundles[k][0]) for k in ("plant", "sensor", "controller", "actuator"))
+    key = key + tuple(parts[k].params for k in ("plant", "sensor", "controller", "actuator"))
+    sources = [s for p in parts.values() if not p.builtin for s in p.sources]
+    return specialise(_run_lanes, ("lanes", *key), sources, refcount=False)
+
+
+def _shared_inputs(inputs: list[Inputs]) -> Inputs:
+    first = inputs[0]
+    for other in inputs[1:]:
+        if (other.periods, other.every, other.chunk_size) != (
+            first.periods,
+            first.every,
+            first.chunk_size,
+        ) or other.chunk != first.chunk:
+            raise LaneMismatch("the runs differ in their timing or reference trajectory")
+        if other.dist_values.shape != first.dist_values.shape:
+            raise LaneMismatch("the runs differ in their number of disturbance values")
+        if other.metrics.shape != first.metrics.shape:
+            raise LaneMismatch("the runs differ in their metric windows")
+    return first
+
+
+def run_lanes(
+    parts: dict[str, Part],
+    bundles: list[dict[str, tuple]],
+    *,
+    period: float,
+    substeps: int,
+    inputs: list[Inputs],
+    buffers: list | None = None,
+) -> list[LoopOutput]:
+    """Run L = len(bundles) runs of ``parts`` at once; one LoopOutput per run, as
+    :func:`pkmctl.sim.loop.run_parts` gives it for that run alone. The runs must share
+    their timing and reference (one :class:`~pkmctl.sim.loop.Inputs` chunking each, but
+    their own disturbance values and metric parameters); else :class:`LaneMismatch`."""
+    from pkmctl.sim.loop import setup
+
+    if not bundles or len(bundles) != len(inputs):
+        raise ValueError(f"bundles: {len(bundles)} runs, inputs: {len(inputs)}")
+    shared = _shared_inputs(inputs)
+    L = len(bundles)
+    runs = [
+        setup(parts, b, inp, None if buffers is None else buffers[i])
+        for i, (b, inp) in enumerate(zip(bundles, inputs, strict=True))
+    ]
+    lane = {
+        kind: stack_lanes(parts[kind], [run.bundle(kind) for run in runs])
+        for kind in ("plant", "sensor", "controller", "actuator")
+    }
+    (plant_p, x, pw), (sensor_p, ss, sw) = lane["plant"], lane["sensor"]
+    (ctrl_p, cs, cw), (act_p, ast, aw) = lane["controller"], lane["actuator"]
+    nx, n_z = x.shape[0], runs[0].n_z
+    e = np.zeros
+    kx = tuple(e((nx, L)) for _ in range(4))
+    kz = tuple(e((max(n_z, 0), L)) for _ in range(4))
+    xs, zs = e((nx, L)), e(ast.shape)
+    vec = tuple(e((m, L)) for m in (6, 3, 4, 4, 4, 3, 9, 3))
+    logs = tuple(run.logs.arrays for run in runs)  # the loop writes each run's own logs
+    log_c = tuple(run.logs.controller for run in runs)
+    log_s = tuple(run.logs.sensor for run in runs)
+    n_log, n_slog = runs[0].n_log, runs[0].n_slog
+    row_c, row_s = e((max(1, n_log), L)), e((max(1, n_slog), L))
+    acc = np.stack([run.metrics for run in runs])
+    mp = np.ascontiguousarray(np.stack([inp.metrics for inp in inputs]))
+    dist_values = np.ascontiguousarray(np.stack([inp.dist_values for inp in inputs]))
+    lane1 = (e(nx), e(4), e(4))
+    alive = np.ones(L, dtype=np.int64)
+    status = np.zeros(L, dtype=np.int64)
+    kstop = np.full(L, shared.periods, dtype=np.int64)
+    states = (x, ss, cs, ast)
+    init = tuple(s.copy() for s in states)
+    fin = tuple(s.copy() for s in states)
+    frz = (e(x.shape), e(ast.shape), np.zeros(L, dtype=np.int64))
+    loop = lane_loop_for(parts, lane)
+    head = (plant_p, x, pw, sensor_p, ss, sw, ctrl_p, cs, cw, act_p, ast, aw, n_z,
+            float(period), int(substeps))  # fmt: skip
+    tail = (kx, kz, xs, zs, vec, logs, log_c, log_s, row_c, row_s, acc, mp,
+            runs[0].metric_work, lane1, alive, status, kstop, fin, init, frz)  # fmt: skip
+    dt = 0.0
+    try:
+        for k0, ref, qdes, dist_index in shared.chunks():
+            t0 = time.perf_counter()
+            left = loop(*head, k0, shared.every, ref, qdes, dist_values, dist_index, *tail)
+            dt += time.perf_counter() - t0
+            if left == 0:
+                break
+    except NumbaError as exc:
+        raise compile_error(parts, exc) from exc
+    for kind, s, f in zip(("plant", "sensor", "controller", "actuator"), states, fin, strict=True):
+        for i, run in enumerate(runs):
+            run.bundles[kind][1][:] = f[:, i] if status[i] else s[:, i]
+    out = []
+    for i, run in enumerate(runs):
+        m = int(kstop[i]) if status[i] else shared.periods
+        run.metrics[:] = acc[i]
+        out.append(run.output(int(status[i]), m, dt / L))
+    return out
