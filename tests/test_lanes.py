@@ -7,6 +7,8 @@ in numbers of their bundles (gains), and a lane that diverges stops alone.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -65,22 +67,25 @@ def test_lane_count_is_a_simd_width():
 
 
 def test_each_lane_is_its_single_run_and_lanes_may_differ_in_numbers():
-    prep, parts, runs = _runs("pd", [1, 2, 3])
+    prep, parts, runs = _runs("afsmc", [1, 2, 3])
     p, s, w = runs[2].bundles["controller"]
-    p = p._replace(kd=_like(p.kd, 1.5 * p.kd), kp=_like(p.kp, 0.7 * p.kp))
+    p = p._replace(K=_like(p.K, 1.5 * p.K), Ku=_like(p.Ku, 0.7 * p.Ku))
     runs[2].bundles["controller"] = (p, s, w)
+    p, s, w = runs[1].bundles["plant"]
+    runs[1].bundles["plant"] = (p._replace(payload=4.0, machine=1.0), s, w)  # a payload
     refs = [_single(parts, r, prep.scenario) for r in runs]
     outs = _lanes(parts, runs, prep.scenario)
     for out, ref in zip(outs, refs, strict=True):
         assert out.status == 0
         _same(out, ref)
     assert not np.array_equal(outs[0].logs["X"], outs[2].logs["X"])  # gains differ
+    assert not np.array_equal(outs[0].logs["X"], outs[1].logs["X"])  # the payload
 
 
 def test_a_diverging_lane_stops_alone():
-    prep, parts, runs = _runs("pd", [1, 2, 3], duration=0.3)
+    prep, parts, runs = _runs("afsmc", [1, 2, 3], duration=0.3)
     p, s, w = runs[1].bundles["controller"]
-    runs[1].bundles["controller"] = (p._replace(kp=_like(p.kp, -4.0 * p.kp)), s, w)  # unstable
+    runs[1].bundles["controller"] = (p._replace(K=_like(p.K, -40.0 * p.K)), s, w)  # unstable
     refs = [_single(parts, r, prep.scenario) for r in runs]
     assert refs[1].status != 0 and refs[0].status == refs[2].status == 0
     outs = _lanes(parts, runs, prep.scenario)
@@ -88,9 +93,23 @@ def test_a_diverging_lane_stops_alone():
         _same(out, ref)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "controller", ["fsmc", "smc", "ctc", "pd"] if os.environ.get("PKMCTL_FULL") else ["fsmc"]
+)
+def test_every_controllers_lane_form_is_its_scalar_step(controller):
+    """CI: fsmc (a lane loop compiles for about a minute); PKMCTL_FULL=1: all four others."""
+    prep, parts, runs = _runs(controller, [1, 2])
+    assert parts["controller"].lanes
+    refs = [_single(parts, r, prep.scenario) for r in runs]
+    for out, ref in zip(_lanes(parts, runs, prep.scenario), refs, strict=True):
+        _same(out, ref)
+
+
 def test_simulate_many_in_lanes_equals_one_at_a_time():
-    one = S.simulate_many("paper", "pd", seeds=[4, 5, 6], duration=DURATION, lanes=1, workers=1)
-    many = S.simulate_many("paper", "pd", seeds=[4, 5, 6], duration=DURATION, lanes=2)
+    seeds = [4, 5, 6]
+    one = S.simulate_many("paper", "afsmc", seeds=seeds, duration=DURATION, lanes=1, workers=1)
+    many = S.simulate_many("paper", "afsmc", seeds=seeds, duration=DURATION, lanes=2)
     for a, b in zip(many, one, strict=True):
         _close(a.X, b.X)
         _close(a.tau, b.tau)
@@ -101,3 +120,46 @@ def test_simulate_many_in_lanes_equals_one_at_a_time():
 def test_simulate_many_refuses_bad_lane_counts(lanes):
     with pytest.raises(ValueError, match="lanes"):
         S.simulate_many("paper", "pd", seeds=[1], duration=DURATION, lanes=lanes)
+
+
+CAMPAIGN = """
+name = "lanes"
+scenario = "paper"
+controllers = ["afsmc"]
+seeds = [3, 8, 11]
+duration = 0.05
+metrics = ["rmse", "max_error"]
+
+[factors."payload.mass"]
+values = [0.0, 8.0]
+"""
+
+
+def test_campaign_tasks_in_lanes_give_the_records_of_single_runs():
+    from pkmctl.campaign import CampaignSpec
+    from pkmctl.campaign.execute import run_task
+
+    spec = CampaignSpec.from_toml(CAMPAIGN)
+    task = spec.tasks()[-1]  # the payload cell, the three seeds
+    assert len(task.runs) == 3
+    one = run_task(spec, task, lanes=1).to_pylist()
+    many = run_task(spec, task, lanes=3).to_pylist()
+    for a, b in zip(many, one, strict=True):
+        assert a["status"] == b["status"] == "ok"
+        assert (a["seed"], a["cell"]) == (b["seed"], b["cell"])
+        for k, v in b.items():
+            if k.startswith(("rmse_", "max_error_")):
+                assert abs(a[k] - v) <= 1e-12 * abs(v)
+
+
+def test_the_prototype_mixes_lane_forms_and_parts_run_lane_by_lane():
+    # the encoder sensor and the drive have no lane form; the controller's machine model
+    # is on (lane_ok): they run lane by lane, the rigid plant with its options in lanes
+    prep, parts, runs = _runs("pd", [1, 2, 3], duration=0.05, scenario="prototype")
+    assert not parts["sensor"].lanes and not parts["actuator"].lanes and parts["plant"].lanes
+    refs = [_single(parts, r, prep.scenario) for r in runs]
+    outs = _lanes(parts, runs, prep.scenario)
+    for out, ref in zip(outs, refs, strict=True):
+        assert out.status == 0
+        _same(out, ref)
+        _close(out.sensor_log, ref.sensor_log)

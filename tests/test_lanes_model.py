@@ -8,6 +8,7 @@ C v + G, J^T tau = F, the equation of motion), and the compiled code is read to 
 that it is vectorised. Speed is measured in benchmarks/lanes_model.py, never here.
 """
 
+import os
 import re
 from pathlib import Path
 
@@ -269,16 +270,32 @@ def fma_counts(fn, args) -> tuple[int, int]:
     return packed, scalar
 
 
-@pytest.mark.skipif(not _has_avx2(), reason="no AVX2 on this CPU")
-def test_lane_kernels_are_vectorised(robot):
-    """The heavy loops run on vector registers: every FMA of them is there in packed form
-    (the scalar FMAs that remain are the copy of each loop for a last, partial block)."""
-    L = 8
+def _derivative_args(robot, L):
     ps, x, tau, dist = derivative_case(robot, L, 80)
-    args = (lane_rigid_plant(ps), x, tau, dist, make_lane_work(L), np.empty((6, L)))
-    packed, scalar = fma_counts(lane_rigid_derivative, args)
-    assert packed >= 600 and packed >= scalar, (packed, scalar)
+    return (lane_rigid_plant(ps), x, tau, dist, make_lane_work(L), np.empty((6, L)))
+
+
+def _regressor_args(robot, L):
     _, geom, _, X, Xd, v, a = draw(robot, L, 81)
-    args = (geom, X, Xd, v, a, make_lane_work(L), np.empty((3, 36, L)))
-    packed, scalar = fma_counts(lane_regressor, args)
+    return (geom, X, Xd, v, a, make_lane_work(L), np.empty((3, 36, L)))
+
+
+_KERNELS = {
+    "rigid_derivative": (lane_rigid_derivative, _derivative_args),
+    "regressor": (lane_regressor, _regressor_args),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not _has_avx2(), reason="no AVX2 on this CPU")
+@pytest.mark.parametrize(
+    "name", list(_KERNELS) if os.environ.get("PKMCTL_FULL") else ["rigid_derivative"]
+)
+def test_lane_kernels_are_vectorised(robot, name):
+    """The heavy loops run on vector registers: every FMA of them is there in packed form
+    (the scalar FMAs that remain are the copy of each loop for a last, partial block).
+    CI: the plant's derivative (a fresh compile takes most of a minute); PKMCTL_FULL=1:
+    the regressor too."""
+    fn, make_args = _KERNELS[name]
+    packed, scalar = fma_counts(fn, make_args(robot, 8))
     assert packed >= 600 and packed >= scalar, (packed, scalar)

@@ -23,6 +23,7 @@ from pkmctl.control import (
     Gains,
     make_controller,
 )
+from pkmctl.control import lanes as _control_lanes  # noqa: F401, I001
 from pkmctl.errors import ConvergenceError, InvalidPoseError, PkmctlError, SimulationDiverged
 from pkmctl.model.mechanism import Body, Mechanism
 from pkmctl.parts import (
@@ -33,7 +34,13 @@ from pkmctl.parts import (
     register_plant,
     register_sensor,
 )
-from pkmctl.sim import actuators, metrics, plants, sensors  # noqa: F401  (registers parts)
+from pkmctl.sim import (  # noqa: F401  (registers parts)
+    actuators,
+    lane_parts,  # their lane forms (pkmctl.sim.lanes)
+    metrics,
+    plants,
+    sensors,
+)
 from pkmctl.sim.result import Result
 from pkmctl.sim.scenario import Scenario, ScenarioError
 from pkmctl.sim.simulate import simulate, simulate_many

@@ -606,6 +606,8 @@ def _lane_resolve(kind: str, role: str, p):
     part = _BY_LANE_TYPE.get((kind, cls))
     if part is None:
         return None
+    if role not in part.functions:  # an optional step the part does not have
+        return _noop(argnames)
     if role not in part.lanes:
         return None  # no lane form: Numba reports a typing error
     disp = part.compiled.get("lane_" + role)
@@ -632,11 +634,15 @@ def _resolver(kind: str, role: str):
             return _caller(argnames, part.compiled[role])
         if role in part.functions:
             return part.functions[role]  # inlined into the caller (see above)
-        local: dict[str, Any] = {}  # an optional step the part does not have: nothing to do
-        exec(f"def impl({argnames}):\n    return None\n", local)
-        return local["impl"]
+        return _noop(argnames)  # an optional step the part does not have: nothing to do
 
     return resolve
+
+
+def _noop(argnames: str):
+    local: dict[str, Any] = {}
+    exec(f"def impl({argnames}):\n    return None\n", local)
+    return local["impl"]
 
 
 def _stub(kind: str, role: str):

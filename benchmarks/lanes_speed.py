@@ -1,0 +1,88 @@
+"""Throughput per core of the lane loop against the single-run loop, side by side.
+
+    PYTHONPATH=. python benchmarks/lanes_speed.py [--seconds S] [--lanes L] [--rounds N]
+        [--controllers smc,fsmc,afsmc,pd,ctc] [--json FILE]
+
+Per controller on the ``paper`` scenario: L runs (seeds 1..L) one after another in the
+single loop (``simulate_many(lanes=1, workers=1)``), then the same L runs in one lane
+loop (``lanes=L, workers=1``), alternating, ``rounds`` times; each side's time is the sum
+of its runs' compiled-loop times (``kernel_seconds``), best over the rounds. One thread:
+the ratio is throughput per core. Also checks that the two sides agree (max relative
+difference of X and tau over the runs). Never a pass/fail test: prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+
+import numpy as np
+
+
+def _cpu() -> str:
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def _rel(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), 1e-300))
+
+
+def measure(controller: str, seconds: float, lanes: int, rounds: int) -> dict:
+    """Best kernel seconds of L single runs and of one lane loop of L, and their gap."""
+    from pkmctl.sim.simulate import simulate_many
+
+    seeds = list(range(1, lanes + 1))
+
+    def side(n: int):
+        res = simulate_many("paper", controller, seeds=seeds, duration=seconds, lanes=n, workers=1)
+        return sum(r.info["kernel_seconds"] for r in res), res
+
+    side(1), side(lanes)  # compile or load both loops
+    best1 = bestL = float("inf")
+    gap = 0.0
+    for _ in range(rounds):
+        t1, r1 = side(1)
+        tL, rL = side(lanes)
+        best1, bestL = min(best1, t1), min(bestL, tL)
+        for a, b in zip(rL, r1, strict=True):
+            gap = max(gap, _rel(a.X, b.X), _rel(a.tau, b.tau))
+    return {"single_s": best1, "lanes_s": bestL, "ratio": best1 / bestL, "max_rel_diff": gap}
+
+
+def main(argv: list[str] | None = None) -> int:
+    from pkmctl.sim.lanes import lane_count
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=1.0)
+    ap.add_argument("--lanes", type=int, default=lane_count())
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--controllers", default="smc,fsmc,afsmc,pd,ctc")
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args(argv)
+    out = {"machine": _cpu(), "lanes": a.lanes, "seconds": a.seconds, "cases": {}}
+    print(f"machine: {out['machine']}; {a.lanes} lanes; paper scenario, {a.seconds:g} s runs")
+    print(f"{'controller':<10} {'L single runs s':>16} {'one lane loop s':>16} {'ratio':>7} "
+          f"{'max rel diff':>13}")  # fmt: skip
+    for c in a.controllers.split(","):
+        m = measure(c, a.seconds, a.lanes, a.rounds)
+        out["cases"][c] = m
+        print(f"{c:<10} {m['single_s']:>16.3f} {m['lanes_s']:>16.3f} {m['ratio']:>7.2f} "
+              f"{m['max_rel_diff']:>13.2e}")  # fmt: skip
+        sys.stdout.flush()
+    if a.json:
+        with open(a.json, "w", encoding="utf-8") as fh:
+            json.dump(out, fh, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,216 @@
+"""The built-in controllers in lane form (:mod:`pkmctl.sim.lanes`): smc, fsmc, afsmc, pd,
+ctc for L runs at once, every array with a trailing lane dimension.
+
+Lane l computes what the scalar step computes on lane l's numbers, in the same order:
+the model terms come from the lane kernels of :mod:`pkmctl.model.lanes`, the rest is
+written here as loops over the lanes, innermost, which LLVM vectorises. The fuzzy term
+runs lane by lane through the scalar engine (its table lookups branch; it is ~6 % of an
+AFSMC step). A run whose controller has the machine model of DESIGN.md §7 switched on
+(``mach_on``) runs its controller lane by lane instead (``lane_ok``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pkmctl._jit import kernel
+from pkmctl.control import adaptive, baselines  # noqa: F401  (the parts extended here)
+from pkmctl.control.sliding import SLIDING_STATE
+from pkmctl.fuzzy.term import term_eval, term_work
+from pkmctl.model.lanes import (
+    LANE_JQ,
+    lane_dynamics,
+    lane_gravity,
+    lane_regressor,
+    make_lane_work,
+)
+from pkmctl.parts import attach_lanes
+
+__all__ = ["lane_controller_work"]
+
+#: Where the lane work holds the limb Jacobian at y[:3] after a step (as MODEL_JACOBIAN).
+LANE_JACOBIAN = (0, LANE_JQ)
+_FLC = 9  # the fuzzy system's (scalar) work in the lane work tuple
+
+
+def lane_controller_work(p, L: int, n_theta: int = 0) -> tuple:
+    """Lane work: (model work, M (3, 3, L), C v, G, G(X_d) (3, L), Y (3, n_theta, L),
+    s, Xr_dot, Xr_ddot (3, L), the fuzzy system's work, if any)."""
+    e = np.empty
+    work = (make_lane_work(L), e((3, 3, L)), e((3, L)), e((3, L)), e((3, L)),
+            e((3, n_theta, L)), e((3, L)), e((3, L)), e((3, L)))  # fmt: skip
+    flc = getattr(p, "flc", None)
+    return work + ((term_work(flc),) if flc is not None else ())
+
+
+def _no_machine(p) -> bool:
+    return not float(p.mach_on) > 0.0
+
+
+@kernel(inline="always", refcount=False)
+def _surface(lam, y, ref, s, xr_d, xr_dd):
+    """s, Xr_dot, Xr_ddot (3, L) as :func:`pkmctl.control.sliding.sliding_surface`."""
+    L = s.shape[1]
+    for i in range(3):
+        for l in range(L):
+            e = ref[i, l] - y[i, l]
+            ed = ref[3 + i, l] - y[3 + i, l]
+            s[i, l] = ed + lam[i, l] * e
+            xr_d[i, l] = ref[3 + i, l] + lam[i, l] * e
+            xr_dd[i, l] = ref[6 + i, l] + lam[i, l] * ed
+
+
+@kernel(inline="always", refcount=False)
+def _filter(state, s, Tc, alpha_f):
+    """The sdot filter of :func:`pkmctl.control.sliding.filter_sdot`, per lane."""
+    L = s.shape[1]
+    for i in range(3):
+        for l in range(L):
+            raw = (s[i, l] - state[i, l]) / Tc[l] if state[6, l] > 0.0 else 0.0
+            state[3 + i, l] += alpha_f[l] * (raw - state[3 + i, l])
+            state[i, l] = s[i, l]
+    for l in range(L):
+        state[6, l] = 1.0
+
+
+@kernel(inline="always", refcount=False)
+def _inverse(M, Cv, G, a, F):
+    """F = M a + C v + G per lane (:func:`pkmctl.model.dynamics.inverse_dynamics`)."""
+    L = F.shape[1]
+    for i in range(3):
+        for l in range(L):
+            F[i, l] = G[i, l] + (
+                M[i, 0, l] * a[0, l] + M[i, 1, l] * a[1, l] + M[i, 2, l] * a[2, l] + Cv[i, l]
+            )
+
+
+@kernel(inline="always", refcount=False)
+def _model_force(p, y, ref, work, F):
+    w, M, Cv, G, Gd, xr_d, xr_dd = work[0], work[1], work[2], work[3], work[4], work[7], work[8]
+    lane_gravity(p.geom, p.theta, ref[0:3], w, Gd)
+    lane_dynamics(p.geom, p.theta, y[0:3], y[3:6], xr_d, w, M, Cv, G)  # Cv: C^ Xr_dot
+    _inverse(M, Cv, Gd, xr_dd, F)
+
+
+@kernel(inline="always", refcount=False)
+def _add_ks(K, s, F):
+    L = F.shape[1]
+    for i in range(3):
+        for l in range(L):
+            F[i, l] += K[i, l] * s[i, l]
+
+
+@kernel(inline="always", refcount=False)
+def _fuzzy(p, fwork, s, state, F):
+    """F -= K_u FLC(K_s s, K_sdot sdot), lane by lane through the scalar engine."""
+    L = F.shape[1]
+    for l in range(L):
+        for i in range(3):
+            u = term_eval(p.flc, fwork, p.Ks[i, l] * s[i, l], p.Ksd[i, l] * state[3 + i, l])
+            F[i, l] -= p.Ku[i, l] * u
+
+
+@kernel(refcount=False)
+def lane_smc_step(p, state, work, y, ref, F):
+    """:func:`pkmctl.control.sliding.smc_step` per lane."""
+    s = work[6]
+    _surface(p.lam, y, ref, s, work[7], work[8])
+    _filter(state, s, p.Tc, p.alpha_f)
+    _model_force(p, y, ref, work, F)
+    L = F.shape[1]
+    for i in range(3):
+        for l in range(L):
+            F[i, l] += p.K[i, l] * s[i, l]
+            F[i, l] += p.Lam[i, l] * min(1.0, max(-1.0, s[i, l] / p.eps[l]))
+
+
+@kernel(refcount=False)
+def lane_fsmc_step(p, state, work, y, ref, F):
+    """:func:`pkmctl.control.sliding.fsmc_step` per lane."""
+    s = work[6]
+    _surface(p.lam, y, ref, s, work[7], work[8])
+    _filter(state, s, p.Tc, p.alpha_f)
+    _model_force(p, y, ref, work, F)
+    _add_ks(p.K, s, F)
+    _fuzzy(p, work[_FLC], s, state, F)
+
+
+@kernel(refcount=False)
+def lane_afsmc_step(p, state, work, y, ref, F):
+    """:func:`pkmctl.control.adaptive.afsmc_step` per lane."""
+    n = p.theta0.shape[0]
+    L = F.shape[1]
+    w, Y, s, xr_d, xr_dd = work[0], work[5], work[6], work[7], work[8]
+    th = state[SLIDING_STATE : SLIDING_STATE + n]
+    _surface(p.lam, y, ref, s, xr_d, xr_dd)
+    _filter(state, s, p.Tc, p.alpha_f)
+    lane_regressor(p.geom, y[0:3], y[3:6], xr_d, xr_dd, w, Y)
+    for i in range(3):
+        for l in range(L):
+            F[i, l] = 0.0
+        for k in range(n):
+            for l in range(L):
+                F[i, l] += Y[i, k, l] * th[k, l]
+    _add_ks(p.K, s, F)
+    _fuzzy(p, work[_FLC], s, state, F)
+    for k in range(n):  # the projected adaptive law (pkmctl.control.adaptive.adapt)
+        for l in range(L):
+            upd = 0.0
+            upd += Y[0, k, l] * s[0, l]
+            upd += Y[1, k, l] * s[1, l]
+            upd += Y[2, k, l] * s[2, l]
+            v = th[k, l] + p.Tc[l] * p.gamma_vec[k, l] * upd
+            th[k, l] = min(p.theta_max[k, l], max(p.theta_min[k, l], v))
+
+
+@kernel(refcount=False)
+def lane_afsmc_log(p, state, row):
+    """Theta^ per lane (:func:`pkmctl.control.adaptive.afsmc_log`)."""
+    for k in range(row.shape[0]):
+        for l in range(row.shape[1]):
+            row[k, l] = state[SLIDING_STATE + k, l]
+
+
+@kernel(refcount=False)
+def lane_pd_step(p, state, work, y, ref, F):
+    """:func:`pkmctl.control.baselines.pd_step` per lane."""
+    G = work[3]
+    lane_gravity(p.geom, p.theta, y[0:3], work[0], G)
+    L = F.shape[1]
+    for i in range(3):
+        for l in range(L):
+            F[i, l] = (
+                p.kp[i, l] * (ref[i, l] - y[i, l])
+                + p.kd[i, l] * (ref[3 + i, l] - y[3 + i, l])
+                + G[i, l]
+            )
+
+
+@kernel(refcount=False)
+def lane_ctc_step(p, state, work, y, ref, F):
+    """:func:`pkmctl.control.baselines.ctc_step` per lane."""
+    M, Cv, G, a = work[1], work[2], work[3], work[8]
+    lane_dynamics(p.geom, p.theta, y[0:3], y[3:6], y[3:6], work[0], M, Cv, G)
+    L = F.shape[1]
+    for i in range(3):
+        for l in range(L):
+            a[i, l] = (
+                ref[6 + i, l]
+                + p.kd[i, l] * (ref[3 + i, l] - y[3 + i, l])
+                + p.kp[i, l] * (ref[i, l] - y[i, l])
+            )
+    _inverse(M, Cv, G, a, F)
+
+
+def _attach() -> None:
+    common = {"lane_ok": _no_machine, "lane_limb_jacobian": LANE_JACOBIAN}
+    for name, step in (("smc", lane_smc_step), ("fsmc", lane_fsmc_step),
+                       ("pd", lane_pd_step), ("ctc", lane_ctc_step)):  # fmt: skip
+        attach_lanes("controller", name, {"step": step}, lane_work=lane_controller_work, **common)
+    attach_lanes(
+        "controller", "afsmc", {"step": lane_afsmc_step, "log": lane_afsmc_log},
+        lane_work=lambda p, L: lane_controller_work(p, L, p.theta0.shape[0]), **common,
+    )  # fmt: skip
+
+
+_attach()
