@@ -1,9 +1,9 @@
 """Throughput per core of the lane loop against the single-run loop, side by side.
 
     PYTHONPATH=. python benchmarks/lanes_speed.py [--seconds S] [--lanes L] [--rounds N]
-        [--controllers smc,fsmc,afsmc,pd,ctc] [--json FILE]
+        [--controllers smc,fsmc,afsmc,pd,ctc] [--scenario paper] [--json FILE]
 
-Per controller on the ``paper`` scenario: L runs (seeds 1..L) one after another in the
+Per controller on the scenario (default ``paper``): L runs (seeds 1..L) one after another in the
 single loop (``simulate_many(lanes=1, workers=1)``), then the same L runs in one lane
 loop (``lanes=L, workers=1``), alternating, ``rounds`` times; each side's time is the sum
 of its runs' compiled-loop times (``kernel_seconds``), best over the rounds. One thread:
@@ -36,14 +36,15 @@ def _rel(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), 1e-300))
 
 
-def measure(controller: str, seconds: float, lanes: int, rounds: int) -> dict:
+def measure(controller: str, seconds: float, lanes: int, rounds: int, scenario: str) -> dict:
     """Best kernel seconds of L single runs and of one lane loop of L, and their gap."""
     from pkmctl.sim.simulate import simulate_many
 
     seeds = list(range(1, lanes + 1))
 
     def side(n: int):
-        res = simulate_many("paper", controller, seeds=seeds, duration=seconds, lanes=n, workers=1)
+        res = simulate_many(scenario, controller, seeds=seeds, duration=seconds, lanes=n,
+                            workers=1)  # fmt: skip
         return sum(r.info["kernel_seconds"] for r in res), res
 
     side(1), side(lanes)  # compile or load both loops
@@ -66,14 +67,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lanes", type=int, default=lane_count())
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--controllers", default="smc,fsmc,afsmc,pd,ctc")
+    ap.add_argument("--scenario", default="paper")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
-    out = {"machine": _cpu(), "lanes": a.lanes, "seconds": a.seconds, "cases": {}}
-    print(f"machine: {out['machine']}; {a.lanes} lanes; paper scenario, {a.seconds:g} s runs")
+    out = {"machine": _cpu(), "lanes": a.lanes, "seconds": a.seconds, "scenario": a.scenario,
+           "cases": {}}  # fmt: skip
+    print(f"machine: {out['machine']}; {a.lanes} lanes; {a.scenario}, {a.seconds:g} s runs")
     print(f"{'controller':<10} {'L single runs s':>16} {'one lane loop s':>16} {'ratio':>7} "
           f"{'max rel diff':>13}")  # fmt: skip
     for c in a.controllers.split(","):
-        m = measure(c, a.seconds, a.lanes, a.rounds)
+        m = measure(c, a.seconds, a.lanes, a.rounds, a.scenario)
         out["cases"][c] = m
         print(f"{c:<10} {m['single_s']:>16.3f} {m['lanes_s']:>16.3f} {m['ratio']:>7.2f} "
               f"{m['max_rel_diff']:>13.2e}")  # fmt: skip

@@ -163,3 +163,36 @@ def test_the_prototype_mixes_lane_forms_and_parts_run_lane_by_lane():
         assert out.status == 0
         _same(out, ref)
         _close(out.sensor_log, ref.sensor_log)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not os.environ.get("PKMCTL_FULL"), reason="PKMCTL_FULL=1: compiles a loop")
+def test_a_users_controller_with_a_lane_form(tmp_path, monkeypatch):
+    """docs/parts.md, "Lanes": lanes= at registration; each lane equals its single run."""
+    mod = tmp_path / "lane_law.py"
+    mod.write_text(
+        "from typing import NamedTuple\\n"
+        "import numpy as np\\n"
+        "import pkmctl\\n"
+        "class LaneLaw(NamedTuple):\\n"
+        "    kp: float\\n"
+        "    @classmethod\\n"
+        "    def from_context(cls, ctx):\\n"
+        "        return cls(2.0e4)\\n"
+        "def law_lanes(p, state, work, y, ref, F):\\n"
+        "    for i in range(3):\\n"
+        "        for l in range(F.shape[1]):\\n"
+        "            F[i, l] = p.kp[l] * (ref[i, l] - y[i, l]) + 300.0 * (i == 0)\\n"
+        "@pkmctl.register_controller('lane-law', params=LaneLaw, lanes={'step': law_lanes},\\n"
+        "                            lane_work=lambda p, L: (np.empty((3, L)),))\\n"
+        "def law(p, state, work, y, ref, F):\\n"
+        "    for i in range(3):\\n"
+        "        F[i] = p.kp * (ref[i] - y[i]) + 300.0 * (i == 0)\\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    __import__("lane_law")
+    prep, parts, runs = _runs("lane-law", [1, 2], duration=0.02)
+    assert parts["controller"].lanes
+    refs = [_single(parts, r, prep.scenario) for r in runs]
+    for out, ref in zip(_lanes(parts, runs, prep.scenario), refs, strict=True):
+        _same(out, ref)

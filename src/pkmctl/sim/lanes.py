@@ -190,7 +190,7 @@ def _run_lanes(
                     for i in range(nx):
                         for l in range(L):
                             xs[i, l] = x[i, l]
-                    for i in range(n_z):
+                    for i in range(ast.shape[0]):  # all of it, as the single loop
                         for l in range(L):
                             zs[i, l] = ast[i, l]
                 else:
