@@ -70,3 +70,12 @@ def test_a_blown_up_mujoco_state_is_status_4(robot, tmp_path, monkeypatch):
     machine.data.qvel[0] = np.nan  # MuJoCo warns and resets its state to qpos0
     machine.step(np.zeros(4), np.zeros(3))
     assert machine.read(x, q) == 4
+
+
+def test_simulate_many_with_lanes_runs_a_stepped_plant_one_at_a_time():
+    sc = _on_mujoco(pkmctl.Scenario.builtin("paper"))
+    many = pkmctl.simulate_many(sc, "pd", seeds=[1, 2], duration=0.01, lanes=2)
+    one = [pkmctl.simulate(sc, "pd", duration=0.01, seed=s) for s in (1, 2)]
+    for a, b in zip(many, one, strict=True):
+        assert a.parts["plant"] == "mujoco"
+        np.testing.assert_array_equal(a.X, b.X)

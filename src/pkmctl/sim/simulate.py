@@ -420,9 +420,18 @@ def run_prepared_lanes(
 ) -> list[Result | Exception]:
     """The runs of ``seeds`` at once in SIMD lanes (:mod:`pkmctl.sim.lanes`), one lane
     each: per seed the Result :func:`run_prepared` gives, or the exception it raises
-    (:class:`~pkmctl.SimulationDiverged` for a lane that stopped)."""
+    (:class:`~pkmctl.SimulationDiverged` for a lane that stopped). A plant stepped
+    outside compiled code (MuJoCo) has no lanes: its runs go one at a time."""
     from pkmctl.sim.lanes import run_lanes
 
+    if parts["plant"].stepper is not None:  # stepped outside compiled code: one at a time
+        out: list[Result | Exception] = []
+        for i, s in enumerate(seeds):
+            try:
+                out.append(run_prepared(prep, parts, s, None if buffers is None else buffers[i]))
+            except SimulationDiverged as exc:
+                out.append(exc)
+        return out
     runs = [_set_up(prep, parts, s, buffers is None) for s in seeds]
     sc = runs[0].scenario
     outs = run_lanes(
