@@ -196,3 +196,28 @@ def test_a_users_controller_with_a_lane_form(tmp_path, monkeypatch):
     refs = [_single(parts, r, prep.scenario) for r in runs]
     for out, ref in zip(_lanes(parts, runs, prep.scenario), refs, strict=True):
         _same(out, ref)
+
+
+def test_lane_classes_come_back_from_another_process_as_the_same_classes():
+    """Numba's disk cache keeps a compiled loop under the pickled types of its arguments;
+    a lane bundle's class pickled in one process must load as the live class in the next,
+    or every process compiles the lane loops again (a minute or more each)."""
+    import pickle
+    import subprocess
+    import sys
+
+    from pkmctl.parts import _LANE_CLASSES
+
+    code = (
+        "import sys, pkmctl; from numba.core import serialize; "
+        "from pkmctl.parts import _LANE_CLASSES; "
+        "sys.stdout.buffer.write(serialize.dumps(sorted(_LANE_CLASSES.values(), "
+        "key=lambda c: c.__module__ + c.__name__)))"
+    )
+    blob = subprocess.run([sys.executable, "-c", code], capture_output=True, check=True).stdout
+    theirs = pickle.loads(blob)
+    ours = sorted(_LANE_CLASSES.values(), key=lambda c: c.__module__ + c.__name__)
+    assert len(ours) >= 8
+    assert [c.__name__ for c in theirs] == [c.__name__ for c in ours]
+    for a, b in zip(theirs, ours, strict=True):
+        assert a is b, a

@@ -68,6 +68,7 @@ name. A user adds one from their own module with a decorator
 from __future__ import annotations
 
 import inspect
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -449,6 +450,13 @@ def lane_class(params: type) -> type:
         cls = NamedTuple("Lane" + params.__name__, [(f, Any) for f in params._fields])
         cls.__module__ = params.__module__
         cls.__doc__ = f"{params.__name__} in lane form: every field with a trailing lane axis."
+        # Importable where its bundle class is: Numba's disk cache pickles the types of a
+        # compiled function's signature, and a class found by its name comes back as the
+        # same class in the next process (else the cached lane loops never match and
+        # every process compiles them again, ~20 s each).
+        module = sys.modules.get(params.__module__)
+        if module is not None and not hasattr(module, cls.__name__):
+            setattr(module, cls.__name__, cls)
         _LANE_CLASSES[params] = cls
     return cls
 
