@@ -106,14 +106,25 @@ def test_every_controllers_lane_form_is_its_scalar_step(controller):
         _same(out, ref)
 
 
+def _lane_loop_signatures() -> dict[tuple, int]:
+    """Per compiled lane loop of this process (one per combination of parts), how many
+    times it was compiled (its signatures)."""
+    from pkmctl._jit import _SPECIALISED
+    from pkmctl.sim.lanes import _run_lanes
+
+    return {key: len(d.signatures) for (fn, key), d in _SPECIALISED.items() if fn is _run_lanes}
+
+
 def test_simulate_many_in_lanes_equals_one_at_a_time():
-    seeds = [4, 5, 6]
+    seeds = [4, 5, 6, 7, 8]
     one = S.simulate_many("paper", "afsmc", seeds=seeds, duration=DURATION, lanes=1, workers=1)
-    many = S.simulate_many("paper", "afsmc", seeds=seeds, duration=DURATION, lanes=2)
+    many = S.simulate_many("paper", "afsmc", seeds=seeds, duration=DURATION, lanes=3, workers=1)
     for a, b in zip(many, one, strict=True):
         _close(a.X, b.X)
         _close(a.tau, b.tau)
         assert a.scenario.disturbance.seed == b.scenario.disturbance.seed
+    # batches of 3 and 2 lanes ran in one compiled loop: no argument's type depends on L
+    assert set(_lane_loop_signatures().values()) == {1}
 
 
 @pytest.mark.parametrize("lanes", [0, 65, 2.5])
@@ -158,11 +169,13 @@ def test_the_prototype_mixes_lane_forms_and_parts_run_lane_by_lane():
     prep, parts, runs = _runs("pd", [1, 2, 3], duration=0.05, scenario="prototype")
     assert not parts["sensor"].lanes and not parts["actuator"].lanes and parts["plant"].lanes
     refs = [_single(parts, r, prep.scenario) for r in runs]
-    outs = _lanes(parts, runs, prep.scenario)
-    for out, ref in zip(outs, refs, strict=True):
+    outs = _lanes(parts, runs, prep.scenario) + _lanes(parts, runs[:2], prep.scenario)
+    for out, ref in zip(outs, refs + refs[:2], strict=True):
         assert out.status == 0
         _same(out, ref)
         _close(out.sensor_log, ref.sensor_log)
+    # 3 lanes, then 2, in one compiled loop: the parts run lane by lane are padded
+    assert set(_lane_loop_signatures().values()) == {1}
 
 
 @pytest.mark.slow

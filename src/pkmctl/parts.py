@@ -432,13 +432,18 @@ def attach_lanes(
 # trailing lane dimension. A part with lane functions gets its L bundles stacked into
 # one bundle of its lane class (same fields, each with a trailing lane dimension: a
 # float becomes (L,)); any other part gets EachLane(the L bundles), and its scalar
-# functions run lane by lane on views (slower, same arithmetic).
+# functions run lane by lane on views (slower, same arithmetic). No lane-form type
+# depends on L (a tuple's length is part of its type): EachLane's tuples are padded to
+# at least EACH_LANE_MIN entries, so one compiled lane loop serves every L up to it.
+EACH_LANE_MIN = 8
 _LANE_CLASSES: dict[type, type] = {}
 _BY_LANE_TYPE: dict[tuple[str, type], Part] = {}
 
 
 class EachLane(NamedTuple):
-    """The L bundles of a part without lane functions, run one lane at a time."""
+    """The L bundles of a part without lane functions, run one lane at a time (padded
+    with the first lane's bundle to EACH_LANE_MIN entries; the lanes past L are never
+    run)."""
 
     each: tuple
 
@@ -500,7 +505,9 @@ def stack_lanes(part: Part, bundles: list[tuple]) -> tuple[Any, np.ndarray, tupl
 
     if len({typeof(p) for p in ps}) > 1 or len({typeof(b[2]) for b in bundles}) > 1:
         raise LaneMismatch(f"{part.kind} {part.name!r}: the runs' bundles differ in types")
-    return EachLane(tuple(ps)), state, tuple(b[2] for b in bundles)
+    pad = max(EACH_LANE_MIN - len(ps), 0)
+    works = tuple(b[2] for b in bundles)
+    return EachLane(tuple(ps) + (ps[0],) * pad), state, works + works[:1] * pad
 
 
 _SIGNATURES = {
@@ -608,7 +615,8 @@ def _lane_resolve(kind: str, role: str, p):
         if _lookup(kind, getattr(inner, "dtype", None)) is None:
             return None
         local: dict[str, Any] = {"stub": _STUBS[(kind, role)]}
-        exec(f"def impl({argnames}):\n    for l in range(len(p.each)):\n"
+        lanes = argnames.split(",")[1]  # the state (plant: x), (n, L)
+        exec(f"def impl({argnames}):\n    for l in range({lanes}.shape[1]):\n"
              f"        stub({_lane_of(argnames)})\n", local)  # fmt: skip
         return local["impl"]
     part = _BY_LANE_TYPE.get((kind, cls))

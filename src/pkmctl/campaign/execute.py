@@ -62,10 +62,10 @@ def _metric_values(spec: CampaignSpec, summary: dict | None) -> dict:
     return out
 
 
-def _log_buffers(prep, parts):
-    """Log arrays the runs of a task share (one cell, one controller): each run
-    overwrites the last one's logs, already measured, so only the first run touches
-    fresh memory (as ``simulate_many(keep="metrics")``)."""
+def _log_buffers(prep, parts, lanes: int):
+    """Log arrays the runs of a task share (one cell, one controller), as the lanes of one
+    stack: each batch overwrites the last one's logs, already measured, so only the first
+    batch touches fresh memory (as ``simulate_many(keep="metrics")``)."""
     from pkmctl.parts import PartContext
     from pkmctl.sim.loop import LogBuffers
 
@@ -73,7 +73,7 @@ def _log_buffers(prep, parts):
     ctx = PartContext(prep.plant, prep.model, sc.controller_gains(), sc.timing.control_period,
                       prep.flc, sc)  # fmt: skip
     ctrl = parts["controller"]
-    return LogBuffers(prep.t.size, int(ctrl.log_size(ctrl.build(ctx))))
+    return LogBuffers.stacked(lanes, prep.t.size, int(ctrl.log_size(ctrl.build(ctx))))
 
 
 def _outcomes(prep, parts, seeds: list, buffers: list) -> tuple[list, float]:
@@ -119,17 +119,15 @@ def run_task(spec: CampaignSpec, task: Task, lanes: int | None = None) -> pa.Tab
     batches: list[tuple[list, list]] = []  # (runs, their outcomes)
     for controller in dict.fromkeys(r.controller for r in task.runs):
         runs = [r for r in task.runs if r.controller == controller]
-        buffers: list = []
         try:
             parts = resolve_parts(prep.scenario, controller)
         except Exception as exc:  # noqa: BLE001 - recorded; the campaign goes on
             batches.append((runs, [(exc, math.nan)] * len(runs)))
             continue
         n = lanes if lanes is not None else lane_count() if lanes_supported(parts) else 1
+        buffers = _log_buffers(prep, parts, min(n, len(runs)))
         for i in range(0, len(runs), n):
             chunk = runs[i : i + n]
-            while len(buffers) < len(chunk):
-                buffers.append(_log_buffers(prep, parts))
             out, wall = _outcomes(prep, parts, [r.seed for r in chunk], buffers)
             done = []
             for r in out:  # the metrics now: the next batch overwrites the logs

@@ -44,6 +44,7 @@ from pkmctl.parts import (
 )
 from pkmctl.sim.loop import (
     Inputs,
+    LogBuffers,
     LoopOutput,
     accumulate_metrics,
     compile_error,
@@ -107,9 +108,10 @@ def _run_lanes(
     the plant and of the actuator's continuous state, ``xs``, ``zs`` the stage states;
     ``vec`` = (y (6, L), F (3, L), cmd, tau, q (4, L), Fa (3, L), r (9, L), dist (3, L));
     ``ref`` (c, 9), ``qdes`` (c, 4), ``dist_index`` (c,) shared by the lanes,
-    ``dist_values`` (L, m, 3) each lane's; ``logs`` each lane's log arrays (as the single
-    loop's), ``log_c``, ``log_s`` each lane's (rows or 0, m) and their lane-form rows
-    ``row_c``, ``row_s`` (m, L);
+    ``dist_values`` (L, m, 3) each lane's; ``logs`` the single loop's log arrays with a
+    leading lane axis (L, rows, .), ``log_c``, ``log_s`` likewise (L, rows or 0, m) and
+    their lane-form rows ``row_c``, ``row_s`` (m, L) (no argument's type depends on L:
+    one compiled loop serves every lane count);
     ``acc`` (L, .) and ``mp`` (L, .) the metrics' accumulators and parameters, ``mw``
     their scratch, ``lane1`` = (x, q, tau) of one lane (contiguous, for the metrics).
     ``alive``, ``status``, ``kstop`` (L,) per lane; ``fin`` the states of stopped lanes,
@@ -124,8 +126,9 @@ def _run_lanes(
     x1, q1, tau1 = lane1
     fx, fz, frozen = frz
     h = Tc / substeps
-    log_c_on = log_c[0].shape[0] > 0
-    log_s_on = log_s[0].shape[0] > 0
+    log_c_on = log_c.shape[1] > 0
+    log_s_on = log_s.shape[1] > 0
+    log_X, log_Xd, log_y, log_F, log_tau, log_q, log_dist = logs
     row = (k0 + every - 1) // every
     nxt = row * every
     running = 0
@@ -156,12 +159,12 @@ def _run_lanes(
             sensor_log(sensor, ss, row_s)
             for l in range(L):
                 for i in range(row_s.shape[0]):
-                    log_s[l][row, i] = row_s[i, l]
+                    log_s[l, row, i] = row_s[i, l]
         if logged and log_c_on:
             controller_log(ctrl, cs, row_c)
             for l in range(L):
                 for i in range(row_c.shape[0]):
-                    log_c[l][row, i] = row_c[i, l]
+                    log_c[l, row, i] = row_c[i, l]
         for i in range(9):
             v = ref[j, i]
             for l in range(L):
@@ -174,13 +177,12 @@ def _run_lanes(
         actuator_command_after(act, ast, aw, y, F, ctrl, cw, cmd)
         if logged:
             for l in range(L):
-                log_X, log_Xd, log_y, log_dist = logs[l][0], logs[l][1], logs[l][2], logs[l][6]
                 for i in range(3):
-                    log_X[row, i] = x[i, l]
-                    log_Xd[row, i] = x[3 + i, l]
-                    log_dist[row, i] = dist[i, l]
+                    log_X[l, row, i] = x[i, l]
+                    log_Xd[l, row, i] = x[3 + i, l]
+                    log_dist[l, row, i] = dist[i, l]
                 for i in range(6):
-                    log_y[row, i] = y[i, l]
+                    log_y[l, row, i] = y[i, l]
         for l in range(L):
             frozen[l] = 0
         for sub in range(substeps):
@@ -211,12 +213,11 @@ def _run_lanes(
                         if not alive[l]:
                             continue
                         if logged:
-                            log_F, log_tau, log_q = logs[l][3], logs[l][4], logs[l][5]
                             for i in range(4):
-                                log_tau[row, i] = tau[i, l]
-                                log_q[row, i] = q[i, l]
+                                log_tau[l, row, i] = tau[i, l]
+                                log_q[l, row, i] = q[i, l]
                             for i in range(3):
-                                log_F[row, i] = Fa[i, l]
+                                log_F[l, row, i] = Fa[i, l]
                         for i in range(nx):
                             x1[i] = x[i, l]
                         for i in range(4):
@@ -255,6 +256,19 @@ def lane_loop_for(parts: dict[str, Part], bundles: dict[str, tuple]):
     return specialise(_run_lanes, ("lanes", *key), sources, refcount=False)
 
 
+def _is_stack(buffers: list | None, L: int, rows: int, n_log: int, n_slog: int) -> bool:
+    """Whether ``buffers`` are lanes 0 .. L - 1 of one LogStack sized for these runs."""
+    if buffers is None or len(buffers) < L or buffers[0].stack is None:
+        return False
+    stack = buffers[0].stack
+    return (
+        all(b.stack is stack and b.lane == i for i, b in enumerate(buffers[:L]))
+        and stack.arrays[0].shape[1] == rows
+        and stack.controller.shape[1:] == ((rows, n_log) if n_log else (0, 1))
+        and stack.sensor.shape[1:] == ((rows, n_slog) if n_slog else (0, 1))
+    )
+
+
 def _shared_inputs(inputs: list[Inputs]) -> Inputs:
     first = inputs[0]
     for other in inputs[1:]:
@@ -283,15 +297,21 @@ def run_lanes(
     """Run L = len(bundles) runs of ``parts`` at once; one LoopOutput per run, as
     :func:`pkmctl.sim.loop.run_parts` gives it for that run alone. The runs must share
     their timing and reference (one :class:`~pkmctl.sim.loop.Inputs` chunking each, but
-    their own disturbance values and metric parameters); else :class:`LaneMismatch`."""
+    their own disturbance values and metric parameters); else :class:`LaneMismatch`.
+    ``buffers``: the runs log into them when they are lanes 0 .. L - 1 of one stack
+    (:meth:`~pkmctl.sim.loop.LogBuffers.stacked`), else into new ones."""
     from pkmctl.sim.loop import setup
 
     if not bundles or len(bundles) != len(inputs):
         raise ValueError(f"bundles: {len(bundles)} runs, inputs: {len(inputs)}")
     shared = _shared_inputs(inputs)
     L = len(bundles)
+    n_log = int(parts["controller"].log_size(bundles[0]["controller"][0]))
+    n_slog = int(parts["sensor"].log_size(bundles[0]["sensor"][0]))
+    if not _is_stack(buffers, L, shared.rows, n_log, n_slog):  # none, or not lanes of a stack
+        buffers = LogBuffers.stacked(L, shared.rows, n_log, n_slog)
     runs = [
-        setup(parts, b, inp, None if buffers is None else buffers[i])
+        setup(parts, b, inp, buffers[i])
         for i, (b, inp) in enumerate(zip(bundles, inputs, strict=True))
     ]
     lane = {
@@ -306,9 +326,7 @@ def run_lanes(
     kz = tuple(e((max(n_z, 0), L)) for _ in range(4))
     xs, zs = e((nx, L)), e(ast.shape)
     vec = tuple(e((m, L)) for m in (6, 3, 4, 4, 4, 3, 9, 3))
-    logs = tuple(run.logs.arrays for run in runs)  # the loop writes each run's own logs
-    log_c = tuple(run.logs.controller for run in runs)
-    log_s = tuple(run.logs.sensor for run in runs)
+    logs, log_c, log_s = buffers[0].stack.lanes(L)  # each run's own logs, as lanes
     n_log, n_slog = runs[0].n_log, runs[0].n_slog
     row_c, row_s = e((max(1, n_log), L)), e((max(1, n_slog), L))
     acc = np.stack([run.metrics for run in runs])

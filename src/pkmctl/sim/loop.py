@@ -312,22 +312,53 @@ class LoopOutput:
     metrics: np.ndarray
 
 
+_LOG_WIDTHS = (3, 3, 6, 3, 4, 4, 3)  # X, Xdot, y (what the sensor gave), F = J^T tau, tau, q, dist
+
+
+class LogStack:
+    """The logs of L runs in one block per log, (L, rows, ...) each: what a lane loop
+    writes (pkmctl.sim.lanes), so that its compiled type does not depend on L."""
+
+    def __init__(self, lanes: int, n: int, controller_log: int = 0, sensor_log: int = 0) -> None:
+        self.arrays = tuple(np.empty((lanes, n, m)) for m in _LOG_WIDTHS)
+        self.controller = np.empty((lanes, n if controller_log else 0, max(1, controller_log)))
+        self.sensor = np.empty((lanes, n if sensor_log else 0, max(1, sensor_log)))
+
+    def lanes(self, L: int) -> tuple[tuple, np.ndarray, np.ndarray]:
+        """(logs, controller log, sensor log) of lanes 0 .. L - 1, as the lane loop takes them."""
+        return tuple(a[:L] for a in self.arrays), self.controller[:L], self.sensor[:L]
+
+
 class LogBuffers:
-    """The arrays one run logs into, (rows, ...) each; reusable from run to run."""
+    """The arrays one run logs into, (rows, ...) each; reusable from run to run.
+
+    :meth:`stacked` makes the buffers of L runs as the lanes of one :class:`LogStack`
+    (``stack`` and ``lane`` say which); a lane loop given such buffers logs into them
+    directly."""
+
+    stack: LogStack | None = None
+    lane: int = 0
 
     def __init__(self, n: int, controller_log: int = 0, sensor_log: int = 0) -> None:
         self.n = n
-        self.arrays = (
-            np.empty((n, 3)),  # X
-            np.empty((n, 3)),  # Xdot
-            np.empty((n, 6)),  # y: what the sensor gave
-            np.empty((n, 3)),  # F = J^T tau
-            np.empty((n, 4)),  # tau
-            np.empty((n, 4)),  # q
-            np.empty((n, 3)),  # disturbance
-        )
+        self.arrays = tuple(np.empty((n, m)) for m in _LOG_WIDTHS)
         self.controller = np.empty((n if controller_log else 0, max(1, controller_log)))
         self.sensor = np.empty((n if sensor_log else 0, max(1, sensor_log)))
+
+    @classmethod
+    def stacked(
+        cls, lanes: int, n: int, controller_log: int = 0, sensor_log: int = 0
+    ) -> list[LogBuffers]:
+        """The buffers of ``lanes`` runs, each a lane of one :class:`LogStack`."""
+        stack = LogStack(lanes, n, controller_log, sensor_log)
+        out = []
+        for lane in range(lanes):
+            b = cls.__new__(cls)
+            b.n, b.stack, b.lane = n, stack, lane
+            b.arrays = tuple(a[lane] for a in stack.arrays)
+            b.controller, b.sensor = stack.controller[lane], stack.sensor[lane]
+            out.append(b)
+        return out
 
 
 LOG_NAMES = ("X", "Xdot", "y", "F", "tau", "q", "disturbance")

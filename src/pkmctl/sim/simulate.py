@@ -578,12 +578,10 @@ def simulate_many(
                           prep.scenario.timing.control_period, prep.flc, prep.scenario)  # fmt: skip
         n_log = int(parts["controller"].log_size(parts["controller"].build(ctx)))
 
-    def buffers(n: int) -> list[LogBuffers]:
-        have = getattr(local, "buffers", [])
-        while len(have) < n:
-            have.append(LogBuffers(prep.t.size, n_log))
-        local.buffers = have
-        return have[:n]
+    def buffers(n: int) -> list[LogBuffers]:  # a thread's batches: lanes of one stack
+        if not hasattr(local, "buffers"):
+            local.buffers = LogBuffers.stacked(lanes, prep.t.size, n_log)
+        return local.buffers[:n]
 
     def batch(chunk: list) -> list:
         bufs = buffers(len(chunk)) if keep == "metrics" else None
