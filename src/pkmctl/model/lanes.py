@@ -163,12 +163,23 @@ def _stack_block(typingctx, size):
     return arr(size), codegen
 
 
-@kernel(inline="always", refcount=False)
-def _ix(row, l):
-    """The index of lane l of a block row, unsigned: Numba then emits no wraparound test
-    for negative indices, which LLVM failed to remove in the larger loops and which made
-    their loads and stores non-consecutive (not vectorised)."""
-    return np.uint64(row * _B + l)
+@intrinsic
+def _ix(typingctx, row, l):
+    """The index of lane l of a block row, ``np.uint64(row * _B + l)``, unsigned: Numba
+    then emits no wraparound test for negative indices, which LLVM failed to remove in
+    the larger loops and which made their loads and stores non-consecutive (not
+    vectorised). An intrinsic, not a function Numba inlines: it is called at hundreds of
+    places, and each inlining of a function copies and re-types its IR (most of these
+    kernels' compile time when it was one)."""
+    if not (isinstance(row, types.Integer) and isinstance(l, types.Integer)):
+        return None
+
+    def codegen(context, builder, sig, args):
+        r = context.cast(builder, args[0], sig.args[0], types.int64)
+        k = context.cast(builder, args[1], sig.args[1], types.int64)
+        return builder.add(builder.mul(r, ir.Constant(ir.IntType(64), _B)), k)
+
+    return types.uint64(row, l), codegen
 
 
 @kernel(inline="always", refcount=False)
