@@ -155,14 +155,14 @@ def test_campaign_paths_honour_decimation():
     """simulate_many (a campaign's workers reuse their buffers) and the precompiling
     workers (which shorten the run to one period) take a decimated scenario."""
     sc = _scenario(**{"timing.duration": 0.2, "logging.every": 100})
-    alone = {"seed": 2, **metrics.summary(pkmctl.simulate(sc, "pd", seed=2))}
-    runs = sim.simulate_many(sc, "pd", seeds=[1, 2], workers=2, keep="metrics", lanes=1)
+    alone = {"seed": 2, **metrics.summary(pkmctl.simulate(sc, "fsmc", seed=2))}
+    runs = sim.simulate_many(sc, "fsmc", seeds=[1, 2], workers=2, keep="metrics", lanes=1)
     assert runs[1] == alone
     # in SIMD lanes (the default): within 1e-12 (LLVM fuses a few multiply-adds otherwise)
-    lanes = sim.simulate_many(sc, "pd", seeds=[1, 2], workers=2, keep="metrics")
+    lanes = sim.simulate_many(sc, "fsmc", seeds=[1, 2], workers=2, keep="metrics")
     a, b = _numbers(lanes[1]), _numbers(alone)
     assert len(a) == len(b) and np.allclose(a, b, rtol=1e-12, atol=0.0, equal_nan=True)
-    assert sim._compile_group(sc.to_toml(), ("loops", ["pd"])) == ""
+    assert sim._compile_group(sc.to_toml(), ("loops", ["fsmc"])) == ""
     assert sim._compile_group(sc.to_toml(), ("steps", ["fsmc"])) == ""
 
 
