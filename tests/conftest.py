@@ -8,6 +8,14 @@ import pytest
 import pkmctl
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _validation_kernels_compiled() -> None:
+    """Loading a scenario checks its poses with compiled kinematics; on an empty cache that
+    compiles first, and the CLI says so on stderr. The one-line error tests of every file
+    are about the error, on a machine that has compiled them (as after any first run)."""
+    pkmctl.Scenario.builtin("paper")
+
+
 @pytest.fixture(scope="session")
 def robot() -> pkmctl.Mechanism:
     return pkmctl.Mechanism.paper()

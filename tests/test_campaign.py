@@ -42,14 +42,6 @@ seed = 5
 """
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _validation_kernels_compiled():
-    """Loading a scenario checks its poses with compiled kinematics; on an empty cache
-    that compiles first, and the CLI says so on stderr. The one-line error tests below
-    are about the error, on a machine that has compiled them (as after any first run)."""
-    pkmctl.Scenario.builtin("paper")
-
-
 @pytest.fixture(scope="module")
 def spec_file(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("spec") / "small.toml"
