@@ -4,9 +4,10 @@ ctc for L runs at once, every array with a trailing lane dimension.
 Lane l computes what the scalar step computes on lane l's numbers, in the same order:
 the model terms come from the lane kernels of :mod:`pkmctl.model.lanes`, the rest is
 written here as loops over the lanes, innermost, which LLVM vectorises. The fuzzy term
-runs lane by lane through the scalar engine (its table lookups branch; it is ~6 % of an
-AFSMC step). A run whose controller has the machine model of DESIGN.md §7 switched on
-(``mach_on``) runs its controller lane by lane instead (``lane_ok``).
+evaluates the lanes of each axis at once (:func:`pkmctl.fuzzy.term.term_eval_lanes`: on
+the fast kernel, branch-free and bit for bit the scalar result). A run whose controller
+has the machine model of DESIGN.md §7 switched on (``mach_on``) runs its controller lane
+by lane instead (``lane_ok``).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import numpy as np
 from pkmctl._jit import kernel
 from pkmctl.control import adaptive, baselines  # noqa: F401  (the parts extended here)
 from pkmctl.control.sliding import SLIDING_STATE
-from pkmctl.fuzzy.term import term_eval, term_work
+from pkmctl.fuzzy.term import term_eval_lanes, term_work
 from pkmctl.model.lanes import (
     LANE_JQ,
     lane_dynamics,
@@ -31,16 +32,18 @@ __all__ = ["lane_controller_work"]
 #: Where the lane work holds the limb Jacobian at y[:3] after a step (as MODEL_JACOBIAN).
 LANE_JACOBIAN = (0, LANE_JQ)
 _FLC = 9  # the fuzzy system's (scalar) work in the lane work tuple
+_FLC_IO = 10  # the fuzzy term's inputs and output (3, L)
 
 
 def lane_controller_work(p, L: int, n_theta: int = 0) -> tuple:
     """Lane work: (model work, M (3, 3, L), C v, G, G(X_d) (3, L), Y (3, n_theta, L),
-    s, Xr_dot, Xr_ddot (3, L), the fuzzy system's work, if any)."""
+    s, Xr_dot, Xr_ddot (3, L), and with a fuzzy system its work and its inputs and
+    output (3, L))."""
     e = np.empty
     work = (make_lane_work(L), e((3, 3, L)), e((3, L)), e((3, L)), e((3, L)),
             e((3, n_theta, L)), e((3, L)), e((3, L)), e((3, L)))  # fmt: skip
     flc = getattr(p, "flc", None)
-    return work + ((term_work(flc),) if flc is not None else ())
+    return work + ((term_work(flc), e((3, L))) if flc is not None else ())
 
 
 def _no_machine(p) -> bool:
@@ -101,13 +104,17 @@ def _add_ks(K, s, F):
 
 
 @kernel(inline="always", refcount=False)
-def _fuzzy(p, fwork, s, state, F):
-    """F -= K_u FLC(K_s s, K_sdot sdot), lane by lane through the scalar engine."""
+def _fuzzy(p, fwork, io, s, state, F):
+    """F -= K_u FLC(K_s s, K_sdot sdot), the lanes of each axis in one evaluation."""
     L = F.shape[1]
-    for l in range(L):
-        for i in range(3):
-            u = term_eval(p.flc, fwork, p.Ks[i, l] * s[i, l], p.Ksd[i, l] * state[3 + i, l])
-            F[i, l] -= p.Ku[i, l] * u
+    x1, x2, u = io[0], io[1], io[2]
+    for i in range(3):
+        for l in range(L):
+            x1[l] = p.Ks[i, l] * s[i, l]
+            x2[l] = p.Ksd[i, l] * state[3 + i, l]
+        term_eval_lanes(p.flc, fwork, x1, x2, u)
+        for l in range(L):
+            F[i, l] -= p.Ku[i, l] * u[l]
 
 
 @kernel(refcount=False)
@@ -132,7 +139,7 @@ def lane_fsmc_step(p, state, work, y, ref, F):
     _filter(state, s, p.Tc, p.alpha_f)
     _model_force(p, y, ref, work, F)
     _add_ks(p.K, s, F)
-    _fuzzy(p, work[_FLC], s, state, F)
+    _fuzzy(p, work[_FLC], work[_FLC_IO], s, state, F)
 
 
 @kernel(refcount=False)
@@ -152,7 +159,7 @@ def lane_afsmc_step(p, state, work, y, ref, F):
             for l in range(L):
                 F[i, l] += Y[i, k, l] * th[k, l]
     _add_ks(p.K, s, F)
-    _fuzzy(p, work[_FLC], s, state, F)
+    _fuzzy(p, work[_FLC], work[_FLC_IO], s, state, F)
     for k in range(n):  # the projected adaptive law (pkmctl.control.adaptive.adapt)
         for l in range(L):
             upd = 0.0

@@ -28,10 +28,11 @@ from numba.extending import overload
 from pkmctl._jit import JIT_OPTIONS, NO_REFCOUNT
 from pkmctl.fuzzy.engine import FISTables, MamdaniSystem
 from pkmctl.fuzzy.general import fis_eval2, new_work
-from pkmctl.fuzzy.kernels import flc_grid_eval
+from pkmctl.fuzzy.kernels import FAST_SLOT, flc_grid_eval
+from pkmctl.fuzzy.lanes import grid_eval_lanes
 from pkmctl.fuzzy.system import FuzzySystem, SystemTables, as_general
 
-__all__ = ["ENGINES", "term_eval", "term_system", "term_work"]
+__all__ = ["ENGINES", "term_eval", "term_eval_lanes", "term_system", "term_work"]
 
 #: How the fuzzy term's system is compiled: "auto" (the fast kernel when it applies, the
 #: general engine otherwise) or "general" (always the general engine).
@@ -120,6 +121,36 @@ def _term_eval(tables, work, x1, x2):
 
         def general(tables, work, x1, x2):
             return fis_eval2(tables, work, x1, x2)
+
+        return general
+    return None
+
+
+def term_eval_lanes(tables, work, x1, x2, out):
+    """out[l] = :func:`term_eval` (tables, work, x1[l], x2[l]) for every lane l, in
+    compiled code only: on the fast kernel, all lanes at once and bit for bit the same
+    (:func:`pkmctl.fuzzy.lanes.grid_eval_lanes`); on the general engine, lane by lane."""
+    raise TypeError("term_eval_lanes runs in compiled code only")
+
+
+@overload(term_eval_lanes, jit_options=JIT_OPTIONS | NO_REFCOUNT, strict=False, inline="always")
+def _term_eval_lanes(tables, work, x1, x2, out):
+    cls = _tables_class(tables)
+    if cls is FISTables:
+
+        def fast(tables, work, x1, x2, out):
+            ints, reals = tables
+            if ints[FAST_SLOT] != 1:
+                out[:] = np.nan
+                return
+            grid_eval_lanes(ints, reals, x1, x2, out)
+
+        return fast
+    if cls is SystemTables:
+
+        def general(tables, work, x1, x2, out):
+            for l in range(out.shape[0]):
+                out[l] = fis_eval2(tables, work, x1[l], x2[l])
 
         return general
     return None
