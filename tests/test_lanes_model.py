@@ -299,3 +299,33 @@ def test_lane_kernels_are_vectorised(robot, name):
     fn, make_args = _KERNELS[name]
     packed, scalar = fma_counts(fn, make_args(robot, 8))
     assert packed >= 600 and packed >= scalar, (packed, scalar)
+
+
+def _has_avx512() -> bool:
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return False
+    return bool(re.search(r"^flags\s*:.*\bavx512f\b", text, flags=re.M))
+
+
+def test_wide_vectors_asks_llvm_for_512_bit_vectors():
+    """wide_vectors() marks its function for 512-bit vectors: the attribute is in the IR,
+    and on an AVX-512 CPU the loop runs on zmm registers (LLVM's tuning for some of them
+    would choose ymm)."""
+    from pkmctl.model.lanes import wide_vectors
+
+    def axpy(a, x, y, n):
+        wide_vectors()
+        for i in range(n):
+            y[i] += a * x[i]
+
+    fn = numba.njit(**(JIT_OPTIONS | NO_REFCOUNT))(axpy)
+    x = np.arange(8.0)
+    y = np.ones(8)
+    fn(2.0, x, y, 8)
+    np.testing.assert_array_equal(y, 1.0 + 2.0 * np.arange(8.0))
+    sig = fn.signatures[0]
+    assert '"prefer-vector-width"="512"' in fn.inspect_llvm(sig)
+    if _has_avx512():
+        assert re.search(r"\bv\w+pd\b[^\n]*%zmm", fn.inspect_asm(sig))

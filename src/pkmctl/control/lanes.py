@@ -24,6 +24,7 @@ from pkmctl.model.lanes import (
     lane_gravity,
     lane_regressor,
     make_lane_work,
+    wide_vectors,
 )
 from pkmctl.parts import attach_lanes
 
@@ -120,6 +121,7 @@ def _fuzzy(p, fwork, io, s, state, F):
 @kernel(refcount=False)
 def lane_smc_step(p, state, work, y, ref, F):
     """:func:`pkmctl.control.sliding.smc_step` per lane."""
+    wide_vectors()
     s = work[6]
     _surface(p.lam, y, ref, s, work[7], work[8])
     _filter(state, s, p.Tc, p.alpha_f)
@@ -134,6 +136,7 @@ def lane_smc_step(p, state, work, y, ref, F):
 @kernel(refcount=False)
 def lane_fsmc_step(p, state, work, y, ref, F):
     """:func:`pkmctl.control.sliding.fsmc_step` per lane."""
+    wide_vectors()
     s = work[6]
     _surface(p.lam, y, ref, s, work[7], work[8])
     _filter(state, s, p.Tc, p.alpha_f)
@@ -145,6 +148,7 @@ def lane_fsmc_step(p, state, work, y, ref, F):
 @kernel(refcount=False)
 def lane_afsmc_step(p, state, work, y, ref, F):
     """:func:`pkmctl.control.adaptive.afsmc_step` per lane."""
+    wide_vectors()
     n = p.theta0.shape[0]
     L = F.shape[1]
     w, Y, s, xr_d, xr_dd = work[0], work[5], work[6], work[7], work[8]
@@ -181,6 +185,7 @@ def lane_afsmc_log(p, state, row):
 @kernel(refcount=False)
 def lane_pd_step(p, state, work, y, ref, F):
     """:func:`pkmctl.control.baselines.pd_step` per lane."""
+    wide_vectors()
     G = work[3]
     lane_gravity(p.geom, p.theta, y[0:3], work[0], G)
     L = F.shape[1]
@@ -196,6 +201,7 @@ def lane_pd_step(p, state, work, y, ref, F):
 @kernel(refcount=False)
 def lane_ctc_step(p, state, work, y, ref, F):
     """:func:`pkmctl.control.baselines.ctc_step` per lane."""
+    wide_vectors()
     M, Cv, G, a = work[1], work[2], work[3], work[8]
     lane_dynamics(p.geom, p.theta, y[0:3], y[3:6], y[3:6], work[0], M, Cv, G)
     L = F.shape[1]

@@ -53,7 +53,7 @@ from pkmctl.fuzzy.kernels import (
     mf_piece,
 )
 from pkmctl.model.lanes import LANE_BLOCK as _B
-from pkmctl.model.lanes import _ix, _stack_block
+from pkmctl.model.lanes import _ix, _stack_block, wide_vectors
 
 __all__ = ["MAX_TERMS", "grid_eval_lanes"]
 
@@ -304,6 +304,7 @@ def grid_eval_lanes(ints, reals, x1, x2, out):
         A compiled system on the fast kernel (``FISTables``; the caller checks).
     x1, x2, out : ndarray, shape (L,)
     """
+    wide_vectors()
     L = out.shape[0]
     if ints[_T] > MAX_TERMS or ints[_K] > MAX_TERMS:
         for l in range(L):

@@ -164,6 +164,22 @@ def _stack_block(typingctx, size):
 
 
 @intrinsic
+def wide_vectors(typingctx):
+    """Let LLVM vectorise the calling function with 512-bit vectors on a CPU that has
+    them: LLVM's tuning for some AVX-512 CPUs (this machine's Xeon, which it takes for a
+    Rocket Lake) prefers 256-bit ones, so a block of 8 lanes would be two vectors. Sets
+    the function attribute ``"prefer-vector-width"="512"``, which overrides that tuning
+    for this function only (no effect where the CPU has no 512-bit vectors)."""
+
+    def codegen(context, builder, sig, args):
+        # llvmlite's FunctionAttributes accepts only attributes without a value
+        set.add(builder.function.attributes, '"prefer-vector-width"="512"')
+        return context.get_dummy_value()
+
+    return types.none(), codegen
+
+
+@intrinsic
 def _ix(typingctx, row, l):
     """The index of lane l of a block row, ``np.uint64(row * _B + l)``, unsigned: Numba
     then emits no wraparound test for negative indices, which LLVM failed to remove in
@@ -484,6 +500,7 @@ def lane_dynamics(geom, theta, X, Xd, v, work, M, Cv, G):
     """Per lane, M (3, 3, L), C(X, Xd) v (3, L) and G (3, L) of
     :func:`~pkmctl.model.dynamics.dynamics_kernel`; geom (11, L), theta (36, L), X, Xd,
     v (3, L); the limb Jacobian and lengths at X go to ``work`` (:func:`make_lane_work`)."""
+    wide_vectors()
     W = _stack_block(_SIZE)
     L = X.shape[-1]
     for l0 in range(0, L, _B):
@@ -527,6 +544,7 @@ def _add_mg(theta, j, b, g, row, s):
 def lane_gravity(geom, theta, X, work, G):
     """Per lane, G (3, L) of :func:`~pkmctl.model.dynamics.gravity_kernel` at X (3, L);
     the limb Jacobian and lengths at X go to ``work``."""
+    wide_vectors()
     W = _stack_block(_SIZE)
     L = X.shape[-1]
     for l0 in range(0, L, _B):
@@ -630,6 +648,7 @@ def lane_regressor(geom, X, Xd, Xr_d, Xr_dd, work, Y):
     """Per lane, Y (3, 36, L) of :func:`~pkmctl.model.dynamics.regressor_kernel`:
     Y Theta = M Xr_dd + C(X, Xd) Xr_d + G; geom (11, L), X, Xd, Xr_d, Xr_dd (3, L); the
     limb Jacobian and lengths at X go to ``work``."""
+    wide_vectors()
     W = _stack_block(_SIZE)
     L = X.shape[-1]
     for l0 in range(0, L, _B):
@@ -671,6 +690,7 @@ def lane_limb_jacobian(geom, X, work, Jq, q):
     :func:`~pkmctl.model.kinematics.limb_jacobian` at X (3, L). ``work`` is not written
     (the scalar kernel's R scratch lives in the stack block); it keeps the signature of
     the other lane kernels."""
+    wide_vectors()
     W = _stack_block(_SIZE)
     L = X.shape[-1]
     for l0 in range(0, L, _B):
@@ -707,6 +727,7 @@ def lane_actuator_forces(Jq, F, tau):
     """Per lane, the minimum-norm actuator forces tau (4, L) with J^T tau = F (3, L),
     J = Jq (4, 3, L): tau = J (J^T J)^-1 F, as
     :func:`~pkmctl.model.dynamics.actuator_forces_kernel`."""
+    wide_vectors()
     W = _stack_block(_SIZE)
     L = F.shape[-1]
     for l0 in range(0, L, _B):
@@ -887,6 +908,7 @@ def lane_rigid_derivative(p, x, tau, dist, work, dx):
     [Xdot, M^-1 (J^T tau + tau_d' - C Xdot - G)] with the §7 terms of the lanes whose
     ``machine`` is on. p a :class:`LaneRigidPlant`, x (6, L), tau (4, L), dist (3, L);
     the limb Jacobian and lengths at X go to ``work`` (:func:`make_lane_work`)."""
+    wide_vectors()
     W = _stack_block(_SIZE)
     X, Xd = x[0:3], x[3:6]
     L = x.shape[-1]

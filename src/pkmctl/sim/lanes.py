@@ -28,6 +28,7 @@ import numpy as np
 from numba.core.errors import NumbaError
 
 from pkmctl._jit import kernel, specialise
+from pkmctl.model.lanes import wide_vectors
 from pkmctl.parts import (
     LaneMismatch,
     Part,
@@ -118,6 +119,7 @@ def _run_lanes(
     ``init`` the initial states, ``frz`` = (x, ast, flags) of lanes whose pose became
     invalid within the period. Returns the number of lanes still running.
     """
+    wide_vectors()
     n = ref.shape[0]
     L = x.shape[1]
     nx = x.shape[0]
