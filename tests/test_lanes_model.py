@@ -251,12 +251,13 @@ def test_lane_rigid_plant_stacks_the_bundles(robot):
 
 
 # ---------------------------------------------------------------- it vectorises
-def _has_avx2() -> bool:
+def _has_cpu_flag(flag: str) -> bool:
+    """Whether /proc/cpuinfo lists ``flag`` (e.g. avx2, avx512f); False elsewhere."""
     try:
         text = Path("/proc/cpuinfo").read_text()
     except OSError:
         return False
-    return bool(re.search(r"^flags\s*:.*\bavx2\b", text, flags=re.M))
+    return bool(re.search(rf"^flags\s*:.*\b{flag}\b", text, flags=re.M))
 
 
 def fma_counts(fn, args) -> tuple[int, int]:
@@ -287,7 +288,7 @@ _KERNELS = {
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not _has_avx2(), reason="no AVX2 on this CPU")
+@pytest.mark.skipif(not _has_cpu_flag("avx2"), reason="no AVX2 on this CPU")
 @pytest.mark.parametrize(
     "name", list(_KERNELS) if os.environ.get("PKMCTL_FULL") else ["rigid_derivative"]
 )
@@ -299,14 +300,6 @@ def test_lane_kernels_are_vectorised(robot, name):
     fn, make_args = _KERNELS[name]
     packed, scalar = fma_counts(fn, make_args(robot, 8))
     assert packed >= 600 and packed >= scalar, (packed, scalar)
-
-
-def _has_avx512() -> bool:
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return False
-    return bool(re.search(r"^flags\s*:.*\bavx512f\b", text, flags=re.M))
 
 
 def test_wide_vectors_asks_llvm_for_512_bit_vectors():
@@ -327,5 +320,5 @@ def test_wide_vectors_asks_llvm_for_512_bit_vectors():
     np.testing.assert_array_equal(y, 1.0 + 2.0 * np.arange(8.0))
     sig = fn.signatures[0]
     assert '"prefer-vector-width"="512"' in fn.inspect_llvm(sig)
-    if _has_avx512():
+    if _has_cpu_flag("avx512f"):
         assert re.search(r"\bv\w+pd\b[^\n]*%zmm", fn.inspect_asm(sig))
