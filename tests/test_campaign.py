@@ -112,7 +112,9 @@ def test_records_match_a_plain_simulate(spec_file, reference):
     assert r["f.payload.mass"] == 8.0
     assert r["f.controller_model.theta_scale"] == spec.cells[3]["controller_model.theta_scale"]
     ref = pkmctl.simulate(sc, controller="afsmc", seed=8).rmse()
-    assert r["rmse_z_mm"] == ref["z_mm"] and r["rmse_beta_deg"] == ref["beta_deg"]
+    # the campaign ran it in SIMD lanes: equal to the single run within 1e-12 relative
+    assert r["rmse_z_mm"] == pytest.approx(ref["z_mm"], rel=1e-12, abs=0)
+    assert r["rmse_beta_deg"] == pytest.approx(ref["beta_deg"], rel=1e-12, abs=0)
     assert r["max_error_q4_m"] > 0
     counts = query(out, "SELECT controller, count(*) AS n FROM runs GROUP BY 1 ORDER BY 1")
     assert counts.to_pylist() == [{"controller": "afsmc", "n": 8}, {"controller": "fsmc", "n": 8}]

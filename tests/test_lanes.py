@@ -234,3 +234,46 @@ def test_lane_classes_come_back_from_another_process_as_the_same_classes():
     assert [c.__name__ for c in theirs] == [c.__name__ for c in ours]
     for a, b in zip(theirs, ours, strict=True):
         assert a is b, a
+
+
+@pytest.mark.parametrize("L", [3, 8, 11])
+def test_lane_metrics_are_the_scalar_metrics_of_each_lane(L):
+    """accumulate_metrics_lanes adds to each lane what accumulate_metrics adds to its run,
+    over periods that cross the window starts; lanes differ in scale, force threshold,
+    speed limit (some none) and geometry, and some limbs sit at the force limit."""
+    from pkmctl.model.lanes import make_lane_work
+    from pkmctl.sim.loop import accumulate_metrics, accumulate_metrics_lanes, metric_params
+    from pkmctl.sim.loop import metric_values as values
+    from tests.conftest import random_poses
+
+    rng = np.random.default_rng(L)
+    geom = S.prepare("paper", 0.01).plant.geometry
+    mps = []
+    for l in range(L):
+        g = geom * rng.uniform(0.95, 1.05, geom.shape)
+        vlim = np.inf if l % 3 == 0 else rng.uniform(0.05, 0.3)
+        mps.append(metric_params([0, 4], rng.uniform(0.5, 2.0, 7), 60.0 + l, vlim, g))
+    mp = np.stack(mps)
+    acc = np.zeros((L, 2 * 21 + 18))  # two windows of 21 accumulators, then 18
+    accL, mpL = np.ascontiguousarray(acc.T), np.ascontiguousarray(mp.T)
+    work = (np.empty((3, 3)), np.empty((4, 3)), np.empty(4), np.empty(7))
+    workL = (make_lane_work(L), np.empty((4, 3, L)), np.empty((4, L)), np.empty((7, L)))
+    for k in range(9):
+        X = random_poses(rng, L).T
+        x = np.ascontiguousarray(np.vstack([X, rng.normal(scale=0.5, size=(3, L))]))
+        q, tau = rng.uniform(0.5, 0.9, (4, L)), rng.normal(scale=60.0, size=(4, L))
+        Xd, qd = rng.normal(size=9), rng.uniform(0.5, 0.9, 4)
+        for l in range(L):
+            accumulate_metrics(acc[l], mp[l], k, Xd, col(x, l), qd, col(q, l), col(tau, l),
+                               *work)  # fmt: skip
+        accumulate_metrics_lanes(accL, mpL, k, Xd, x, qd, q, tau, workL)
+    for l in range(L):
+        _close(accL[:, l], acc[l])
+    v = [values(acc[l], mp[l]) for l in range(L)]
+    assert all(v[l]["periods_at_force_limit"] > 0 for l in range(L))
+    assert all((v[l]["periods_over_speed_limit"] > 0) == (l % 3 != 0) for l in range(L))
+    assert all((v[l]["peak_limb_speed"].max() > 0) == (l % 3 != 0) for l in range(L))
+
+
+def col(a: np.ndarray, l: int) -> np.ndarray:
+    return np.ascontiguousarray(a[..., l])

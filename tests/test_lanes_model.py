@@ -322,3 +322,28 @@ def test_wide_vectors_asks_llvm_for_512_bit_vectors():
     assert '"prefer-vector-width"="512"' in fn.inspect_llvm(sig)
     if _has_cpu_flag("avx512f"):
         assert re.search(r"\bv\w+pd\b[^\n]*%zmm", fn.inspect_asm(sig))
+
+
+def test_disjoint_arrays_spares_llvm_its_overlap_checks():
+    """disjoint_arrays() marks its function's array arguments noalias: the loop below is
+    vectorised without the run-time overlap check LLVM otherwise puts before it (the check
+    that sent the AFSMC lane step's adaptive update down its scalar path)."""
+    from pkmctl.model.lanes import disjoint_arrays
+
+    def plain(a, x, y):
+        for i in range(x.shape[0]):
+            y[i] += a * x[i]
+
+    def promised(a, x, y):
+        disjoint_arrays()
+        for i in range(x.shape[0]):
+            y[i] += a * x[i]
+
+    for f, checked in ((plain, True), (promised, False)):
+        fn = numba.njit(**(JIT_OPTIONS | NO_REFCOUNT))(f)
+        y = np.ones(11)
+        fn(2.0, np.arange(11.0), y)
+        np.testing.assert_array_equal(y, 1.0 + 2.0 * np.arange(11.0))
+        ir = fn.inspect_llvm(fn.signatures[0])
+        assert "vector.body" in ir
+        assert ("vector.memcheck" in ir) == checked

@@ -130,7 +130,9 @@ def test_simulate_many_equals_simulate_per_seed(paper):
 
     runs = simulate_many(paper, "fsmc", seeds=[1, 2, 1], duration=0.05, workers=2)
     single = pkmctl.simulate(paper, controller="fsmc", duration=0.05, seed=2)
-    np.testing.assert_array_equal(runs[1].X, single.X)
+    # in SIMD lanes: equal to the single run within 1e-12 of its size (DESIGN.md §6; the
+    # vectorised controller rounds a few sums differently, ~1e-16 relative)
+    assert np.max(np.abs(runs[1].X - single.X)) <= 1e-12 * np.max(np.abs(single.X))
     np.testing.assert_array_equal(runs[0].tau, runs[2].tau)
     assert runs[0].scenario.disturbance.seed == 1 and runs[1].scenario.disturbance.seed == 2
     with pytest.raises(pkmctl.ScenarioError, match="disturbance.seed = -1"):

@@ -20,6 +20,7 @@ from pkmctl.control.sliding import SLIDING_STATE
 from pkmctl.fuzzy.term import term_eval_lanes, term_work
 from pkmctl.model.lanes import (
     LANE_JQ,
+    disjoint_arrays,
     lane_dynamics,
     lane_gravity,
     lane_regressor,
@@ -122,6 +123,7 @@ def _fuzzy(p, fwork, io, s, state, F):
 def lane_smc_step(p, state, work, y, ref, F):
     """:func:`pkmctl.control.sliding.smc_step` per lane."""
     wide_vectors()
+    disjoint_arrays()
     s = work[6]
     _surface(p.lam, y, ref, s, work[7], work[8])
     _filter(state, s, p.Tc, p.alpha_f)
@@ -137,6 +139,7 @@ def lane_smc_step(p, state, work, y, ref, F):
 def lane_fsmc_step(p, state, work, y, ref, F):
     """:func:`pkmctl.control.sliding.fsmc_step` per lane."""
     wide_vectors()
+    disjoint_arrays()
     s = work[6]
     _surface(p.lam, y, ref, s, work[7], work[8])
     _filter(state, s, p.Tc, p.alpha_f)
@@ -149,6 +152,7 @@ def lane_fsmc_step(p, state, work, y, ref, F):
 def lane_afsmc_step(p, state, work, y, ref, F):
     """:func:`pkmctl.control.adaptive.afsmc_step` per lane."""
     wide_vectors()
+    disjoint_arrays()
     n = p.theta0.shape[0]
     L = F.shape[1]
     w, Y, s, xr_d, xr_dd = work[0], work[5], work[6], work[7], work[8]
@@ -186,6 +190,7 @@ def lane_afsmc_log(p, state, row):
 def lane_pd_step(p, state, work, y, ref, F):
     """:func:`pkmctl.control.baselines.pd_step` per lane."""
     wide_vectors()
+    disjoint_arrays()
     G = work[3]
     lane_gravity(p.geom, p.theta, y[0:3], work[0], G)
     L = F.shape[1]
@@ -202,6 +207,7 @@ def lane_pd_step(p, state, work, y, ref, F):
 def lane_ctc_step(p, state, work, y, ref, F):
     """:func:`pkmctl.control.baselines.ctc_step` per lane."""
     wide_vectors()
+    disjoint_arrays()
     M, Cv, G, a = work[1], work[2], work[3], work[8]
     lane_dynamics(p.geom, p.theta, y[0:3], y[3:6], y[3:6], work[0], M, Cv, G)
     L = F.shape[1]

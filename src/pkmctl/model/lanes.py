@@ -180,6 +180,22 @@ def wide_vectors(typingctx):
 
 
 @intrinsic
+def disjoint_arrays(typingctx):
+    """Promise LLVM that the calling function's array arguments do not overlap (each
+    pointer argument ``noalias``), so that it vectorises the function's lane loops over
+    several arrays without run-time overlap checks. Call it only where that holds: the
+    lane controller steps, whose arrays are separate allocations of the lane loop."""
+
+    def codegen(context, builder, sig, args):
+        for a in context.call_conv.get_arguments(builder.function):
+            if isinstance(a.type, ir.PointerType):
+                a.add_attribute("noalias")
+        return context.get_dummy_value()
+
+    return types.none(), codegen
+
+
+@intrinsic
 def _ix(typingctx, row, l):
     """The index of lane l of a block row, ``np.uint64(row * _B + l)``, unsigned: Numba
     then emits no wraparound test for negative indices, which LLVM failed to remove in

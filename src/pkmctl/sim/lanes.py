@@ -28,7 +28,7 @@ import numpy as np
 from numba.core.errors import NumbaError
 
 from pkmctl._jit import kernel, specialise
-from pkmctl.model.lanes import wide_vectors
+from pkmctl.model.lanes import make_lane_work, wide_vectors
 from pkmctl.parts import (
     LaneMismatch,
     Part,
@@ -47,8 +47,9 @@ from pkmctl.sim.loop import (
     Inputs,
     LogBuffers,
     LoopOutput,
-    accumulate_metrics,
+    accumulate_metrics_lanes,
     compile_error,
+    metric_windows,
     pose_status,
 )
 
@@ -85,12 +86,14 @@ def _save(src, dst, l):
 
 
 @kernel(inline="always", refcount=False)
-def _stop(l, st, k, status, kstop, alive, x, ss, cs, ast, fin, init):
-    """Lane l stops at period k with status st: keep its states, reset them to the initial
-    ones (benign numbers until the loop ends)."""
+def _stop(l, st, k, status, kstop, alive, x, ss, cs, ast, fin, init, acc, accL):
+    """Lane l stops at period k with status st: keep its states and metrics' accumulators,
+    reset its states to the initial ones (benign numbers until the loop ends)."""
     status[l] = st
     kstop[l] = k
     alive[l] = 0
+    for i in range(accL.shape[0]):
+        acc[l, i] = accL[i, l]
     states = (x, ss, cs, ast)
     for n in range(4):
         _save(states[n], fin[n], l)
@@ -101,7 +104,7 @@ def _stop(l, st, k, status, kstop, alive, x, ss, cs, ast, fin, init):
 def _run_lanes(
     plant, x, pw, sensor, ss, sw, ctrl, cs, cw, act, ast, aw, n_z, Tc, substeps,
     k0, every, ref, qdes, dist_values, dist_index, kx, kz, xs, zs, vec, logs, log_c, log_s,
-    row_c, row_s, acc, mp, mw, lane1, alive, status, kstop, fin, init, frz,
+    row_c, row_s, acc, accL, mpL, mwL, alive, status, kstop, fin, init, frz,
 ):  # fmt: skip
     """Periods k0 .. k0 + len(ref) - 1 of L lanes on preallocated arrays.
 
@@ -113,8 +116,9 @@ def _run_lanes(
     leading lane axis (L, rows, .), ``log_c``, ``log_s`` likewise (L, rows or 0, m) and
     their lane-form rows ``row_c``, ``row_s`` (m, L) (no argument's type depends on L:
     one compiled loop serves every lane count);
-    ``acc`` (L, .) and ``mp`` (L, .) the metrics' accumulators and parameters, ``mw``
-    their scratch, ``lane1`` = (x, q, tau) of one lane (contiguous, for the metrics).
+    ``accL`` (., L) and ``mpL`` (., L) the metrics' accumulators and parameters, lane
+    innermost, ``mwL`` their scratch (:func:`~pkmctl.sim.loop.accumulate_metrics_lanes`);
+    ``acc`` (L, .) receives a lane's accumulators when it stops.
     ``alive``, ``status``, ``kstop`` (L,) per lane; ``fin`` the states of stopped lanes,
     ``init`` the initial states, ``frz`` = (x, ast, flags) of lanes whose pose became
     invalid within the period. Returns the number of lanes still running.
@@ -124,8 +128,6 @@ def _run_lanes(
     L = x.shape[1]
     nx = x.shape[0]
     y, F, cmd, tau, q, Fa, r, dist = vec
-    R, Jm, qm, ev = mw
-    x1, q1, tau1 = lane1
     fx, fz, frozen = frz
     h = Tc / substeps
     log_c_on = log_c.shape[1] > 0
@@ -144,7 +146,7 @@ def _run_lanes(
             if alive[l]:
                 st = pose_status(x[:, l])
                 if st != 0:
-                    _stop(l, st, k, status, kstop, alive, x, ss, cs, ast, fin, init)
+                    _stop(l, st, k, status, kstop, alive, x, ss, cs, ast, fin, init, acc, accL)
                     running -= 1
         if running == 0:
             return 0
@@ -153,7 +155,7 @@ def _run_lanes(
             if alive[l]:
                 for i in range(6):
                     if not math.isfinite(y[i, l]):
-                        _stop(l, 3, k, status, kstop, alive, x, ss, cs, ast, fin, init)
+                        _stop(l, 3, k, status, kstop, alive, x, ss, cs, ast, fin, init, acc, accL)
                         running -= 1
                         break
         logged = k == nxt
@@ -211,22 +213,15 @@ def _run_lanes(
                 actuator_derivative(act, zs, cmd, k_z)
                 if sub == 0 and st == 0:
                     plant_observe(plant, xs, tau, pw, q, Fa)
-                    for l in range(L):
-                        if not alive[l]:
-                            continue
-                        if logged:
-                            for i in range(4):
-                                log_tau[l, row, i] = tau[i, l]
-                                log_q[l, row, i] = q[i, l]
-                            for i in range(3):
-                                log_F[l, row, i] = Fa[i, l]
-                        for i in range(nx):
-                            x1[i] = x[i, l]
-                        for i in range(4):
-                            q1[i] = q[i, l]
-                            tau1[i] = tau[i, l]
-                        accumulate_metrics(acc[l], mp[l], k, ref[j], x1, qdes[j], q1, tau1,
-                                           R, Jm, qm, ev)  # fmt: skip
+                    if logged:
+                        for l in range(L):
+                            if alive[l]:
+                                for i in range(4):
+                                    log_tau[l, row, i] = tau[i, l]
+                                    log_q[l, row, i] = q[i, l]
+                                for i in range(3):
+                                    log_F[l, row, i] = Fa[i, l]
+                    accumulate_metrics_lanes(accL, mpL, k, ref[j], x, qdes[j], q, tau, mwL)
             k1, k2, k3, k4 = kx[0], kx[1], kx[2], kx[3]
             for i in range(nx):
                 for l in range(L):
@@ -332,9 +327,13 @@ def run_lanes(
     n_log, n_slog = runs[0].n_log, runs[0].n_slog
     row_c, row_s = e((max(1, n_log), L)), e((max(1, n_slog), L))
     acc = np.stack([run.metrics for run in runs])
-    mp = np.ascontiguousarray(np.stack([inp.metrics for inp in inputs]))
+    accL = np.ascontiguousarray(acc.T)
+    mp = np.stack([inp.metrics for inp in inputs])
+    if np.any(metric_windows(mp) != metric_windows(mp[0])):
+        raise LaneMismatch("the runs differ in their metric windows")
+    mpL = np.ascontiguousarray(mp.T)
+    mwL = (make_lane_work(L), e((4, 3, L)), e((4, L)), e((7, L)))
     dist_values = np.ascontiguousarray(np.stack([inp.dist_values for inp in inputs]))
-    lane1 = (e(nx), e(4), e(4))
     alive = np.ones(L, dtype=np.int64)
     status = np.zeros(L, dtype=np.int64)
     kstop = np.full(L, shared.periods, dtype=np.int64)
@@ -345,8 +344,8 @@ def run_lanes(
     loop = lane_loop_for(parts, lane)
     head = (plant_p, x, pw, sensor_p, ss, sw, ctrl_p, cs, cw, act_p, ast, aw, n_z,
             float(period), int(substeps))  # fmt: skip
-    tail = (kx, kz, xs, zs, vec, logs, log_c, log_s, row_c, row_s, acc, mp,
-            runs[0].metric_work, lane1, alive, status, kstop, fin, init, frz)  # fmt: skip
+    tail = (kx, kz, xs, zs, vec, logs, log_c, log_s, row_c, row_s, acc, accL, mpL, mwL,
+            alive, status, kstop, fin, init, frz)  # fmt: skip
     dt = 0.0
     try:
         for k0, ref, qdes, dist_index in shared.chunks():
@@ -363,6 +362,6 @@ def run_lanes(
     out = []
     for i, run in enumerate(runs):
         m = int(kstop[i]) if status[i] else shared.periods
-        run.metrics[:] = acc[i]
+        run.metrics[:] = acc[i] if status[i] else accL[:, i]
         out.append(run.output(int(status[i]), m, dt / L))
     return out

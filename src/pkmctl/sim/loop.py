@@ -33,6 +33,7 @@ from numba.core.errors import NumbaError
 
 from pkmctl._jit import kernel, specialise, specialised_dir
 from pkmctl.model.kinematics import limb_jacobian
+from pkmctl.model.lanes import disjoint_arrays, lane_limb_jacobian, wide_vectors
 from pkmctl.parts import (
     Part,
     PartError,
@@ -54,10 +55,12 @@ __all__ = [
     "STATUS",
     "Setup",
     "accumulate_metrics",
+    "accumulate_metrics_lanes",
     "compile_error",
     "is_compiled",
     "loop_for",
     "metric_params",
+    "metric_windows",
     "metric_values",
     "pose_status",
     "run_parts",
@@ -106,6 +109,11 @@ def metric_params(
     starts = [float(s) for s in starts]
     head = [float(len(starts)), *map(float, scale), float(force_threshold), float(speed_limit)]
     return np.array([*head, *map(float, geometry), *starts])
+
+
+def metric_windows(mp: np.ndarray) -> np.ndarray:
+    """The first period of each metric window in the parameter vector(s) ``mp`` (.., W)."""
+    return mp[..., _MP_START:]
 
 
 def _accumulators(mp: np.ndarray) -> np.ndarray:
@@ -172,6 +180,69 @@ def accumulate_metrics(acc, mp, k, Xd, x, qd, q, tau, R, Jq, qw, e):
             over += v > mp[_MP_VLIM]
         if over > 0:
             acc[t + _A_OVER] += 1.0
+
+
+@kernel(refcount=False)
+def accumulate_metrics_lanes(acc, mp, k, Xd, x, qd, q, tau, work):
+    """:func:`accumulate_metrics` for L lanes at once, lane innermost: ``acc`` (n, L) and
+    ``mp`` (m, L) the lanes' accumulators and parameters (the window starts equal in
+    every lane), x (nx, L), q and tau (4, L), Xd and qd the shared reference row;
+    ``work`` = (lane model work, Jq (4, 3, L), q (4, L), e (7, L)). Every lane adds
+    period k (a lane that has stopped keeps adding: its caller saved its accumulators
+    when it stopped). The same sums as the scalar function, in the same order, without
+    branches across lanes; the limb speeds come from the lane limb Jacobian, which agrees
+    with the scalar one to rounding."""
+    wide_vectors()
+    disjoint_arrays()
+    w, Jq, qw, e = work
+    L = x.shape[1]
+    for i in range(3):
+        for l in range(L):
+            e[i, l] = (Xd[i] - x[i, l]) * mp[_MP_SCALE + i, l]
+    for i in range(4):
+        for l in range(L):
+            e[3 + i, l] = (qd[i] - q[i, l]) * mp[_MP_SCALE + 3 + i, l]
+    nw = int(mp[0, 0])
+    for win in range(nw):
+        if k >= mp[_MP_START + win, 0]:
+            b = win * _PER_WINDOW
+            for i in range(7):
+                for l in range(L):
+                    v = e[i, l]
+                    acc[b + i, l] += v
+                    acc[b + 7 + i, l] += v * v
+                    acc[b + 14 + i, l] = max(acc[b + 14 + i, l], abs(v))
+    t = nw * _PER_WINDOW
+    if k > 0:
+        for i in range(4):
+            for l in range(L):
+                acc[t + _A_CHAT + i, l] += abs(tau[i, l] - acc[t + _A_PREV + i, l])
+    for l in range(L):
+        e[0, l] = 0.0  # 1.0 where a limb is at the force limit
+    for i in range(4):
+        for l in range(L):
+            a = abs(tau[i, l])
+            acc[t + _A_PREV + i, l] = tau[i, l]
+            acc[t + _A_PEAK + i, l] = max(acc[t + _A_PEAK + i, l], a)
+            e[0, l] = max(e[0, l], 1.0 if a >= mp[_MP_FLIM, l] else 0.0)
+    for l in range(L):
+        acc[t + _A_AT, l] += e[0, l]
+    on = False
+    for l in range(L):
+        on |= mp[_MP_VLIM, l] < math.inf
+    if on:  # lanes without a speed limit add nothing (their speeds count as 0)
+        lane_limb_jacobian(mp[_MP_GEOM : _MP_GEOM + 11], x[0:3], w, Jq, qw)
+        for l in range(L):
+            e[0, l] = 0.0  # 1.0 where a limb is over the speed limit
+            e[1, l] = 1.0 if mp[_MP_VLIM, l] < math.inf else 0.0
+        for i in range(4):
+            for l in range(L):
+                qd_i = Jq[i, 0, l] * x[3, l] + Jq[i, 1, l] * x[4, l] + Jq[i, 2, l] * x[5, l]
+                v = e[1, l] * abs(qd_i)
+                acc[t + _A_SPEED + i, l] = max(acc[t + _A_SPEED + i, l], v)
+                e[0, l] = max(e[0, l], 1.0 if v > mp[_MP_VLIM, l] else 0.0)
+        for l in range(L):
+            acc[t + _A_OVER, l] += e[0, l]
 
 
 def _run_loop(
