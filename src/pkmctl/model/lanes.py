@@ -26,9 +26,11 @@ vectoriser turns into packed FMAs. Three things decide whether it can:
 - Loops within the lane loop. Only the innermost loop is vectorised, so the scalar
   code's loops over limbs and bodies are unrolled by hand: a helper called once per
   limb or body with a constant index, which also makes every row offset a constant.
-- Math calls. cos, sin and tanh are calls into libm, which has no vector variants
-  without Intel's SVML; they run in a short scalar pass per block whose results the
-  vector stages read from the block.
+- Math calls. libm has no vector variants (nor has this Numba Intel's SVML). cos and
+  sin of the two angles are computed here instead (:func:`sincos_lane`, within 1 ulp
+  of libm), vectorised like the rest; tanh (friction, §7) stays a short scalar pass of
+  libm calls per block whose results the vector stages read from the block. So a lane
+  differs from its scalar kernel by rounding (tests: within 1e-12 relative).
 
 The work tuple of :func:`make_lane_work` receives what the scalar kernels leave in
 their work for later use, the limb Jacobian and lengths at X; the intermediate
@@ -70,7 +72,7 @@ LANE_BLOCK = 8
 _B = LANE_BLOCK
 
 # Rows of the stack block (each row LANE_BLOCK doubles, lane l at row * _B + l).
-_CA, _SA, _CB, _SB = 0, 1, 2, 3  # cos/sin of alpha and beta (the scalar pass)
+_CA, _SA, _CB, _SB = 0, 1, 2, 3  # cos/sin of alpha and beta
 _TA, _SEC2, _ZS, _AV01, _AW01, _AW02 = 4, 5, 6, 7, 8, 9  # platform values the limbs reuse
 _RB = 10  # body frames, 5 x (3, 3) (as the scalar work: rows 0-4 only)
 _JV = _RB + 45  # linear velocity Jacobians, 9 x (3, 3)
@@ -269,13 +271,48 @@ def _limbs_out(W, l0, n, Jq, q):
 
 
 # ---------------------------------------------------------------- kinematics
+# cos and sin without libm, so that they vectorise across the lanes (Numba has no vector
+# math library here): x = k pi/2 + r, |r| <= pi/4, by Cody and Waite with fdlibm's split of
+# pi/2 (33 + 53 bits), then fdlibm's minimax polynomials for sin and cos on [-pi/4, pi/4]
+# (__kernel_sin, __kernel_cos), and the quadrant k mod 4 by selects. Within 1 ulp of
+# libm's correctly rounded results over the workspace (tests/test_lanes_model.py).
+_INV_PIO2 = 6.36619772367581382433e-01
+_PIO2_1, _PIO2_1T = 1.57079632673412561417e00, 6.07710050650619224932e-11
+_S1, _S2, _S3 = -1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04
+_S4, _S5, _S6 = 2.75573137070700676789e-06, -2.50507602534068634195e-08, 1.58969099521155010221e-10
+_C1, _C2, _C3 = 4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015872894767294178e-05
+_C4, _C5, _C6 = -2.75573143513906633035e-07, 2.08757232129817482790e-09, -1.13596475577881948265e-11
+
+
+@kernel(inline="always", refcount=False)
+def sincos_lane(x):
+    """(cos x, sin x), branch-free (see above); NaN for a non-finite x, as libm."""
+    k = np.floor(x * _INV_PIO2 + 0.5)
+    r = (x - k * _PIO2_1) - k * _PIO2_1T
+    z = r * r
+    sr = r + (z * r) * (_S1 + z * (_S2 + z * (_S3 + z * (_S4 + z * (_S5 + z * _S6)))))
+    hz = 0.5 * z
+    w = 1.0 - hz
+    cr = w + (
+        ((1.0 - w) - hz) + (z * z) * (_C1 + z * (_C2 + z * (_C3 + z * (_C4 + z * (_C5 + z * _C6)))))
+    )
+    q = k - 4.0 * np.floor(0.25 * k)  # 0, 1, 2 or 3
+    odd = q == 1.0 or q == 3.0
+    s = cr if odd else sr
+    c = sr if odd else cr
+    s = -s if q >= 2.0 else s
+    c = -c if q == 1.0 or q == 2.0 else c
+    return c, s
+
+
 @kernel(inline="always", refcount=False)
 def _trig(X, l0, n, W):
-    """The scalar pass: cos and sin of alpha and beta (libm calls, no vector variant)."""
+    """cos and sin of alpha and beta, vectorised across the lanes (:func:`sincos_lane`)."""
     for l in range(n):
-        a, b = X[1, np.uint64(l0 + l)], X[2, np.uint64(l0 + l)]
-        W[_ix(_CA, l)], W[_ix(_SA, l)] = math.cos(a), math.sin(a)
-        W[_ix(_CB, l)], W[_ix(_SB, l)] = math.cos(b), math.sin(b)
+        ca, sa = sincos_lane(X[1, np.uint64(l0 + l)])
+        cb, sb = sincos_lane(X[2, np.uint64(l0 + l)])
+        W[_ix(_CA, l)], W[_ix(_SA, l)] = ca, sa
+        W[_ix(_CB, l)], W[_ix(_SB, l)] = cb, sb
 
 
 @kernel(inline="always", refcount=False)
