@@ -186,7 +186,8 @@ def disjoint_arrays(typingctx):
     """Promise LLVM that the calling function's array arguments do not overlap (each
     pointer argument ``noalias``), so that it vectorises the function's lane loops over
     several arrays without run-time overlap checks. Call it only where that holds: the
-    lane controller steps, whose arrays are separate allocations of the lane loop."""
+    lane controller steps and the lane metrics, whose arrays are separate allocations of
+    the lane loop (not the lane loop itself: its ``EachLane`` tuples repeat a bundle)."""
 
     def codegen(context, builder, sig, args):
         for a in context.call_conv.get_arguments(builder.function):
@@ -275,7 +276,7 @@ def _limbs_out(W, l0, n, Jq, q):
 # math library here): x = k pi/2 + r, |r| <= pi/4, by Cody and Waite with fdlibm's split of
 # pi/2 (33 + 53 bits), then fdlibm's minimax polynomials for sin and cos on [-pi/4, pi/4]
 # (__kernel_sin, __kernel_cos), and the quadrant k mod 4 by selects. Within 1 ulp of
-# libm's correctly rounded results over the workspace (tests/test_lanes_model.py).
+# libm over the workspace and far beyond (tests/test_lanes_model.py).
 _INV_PIO2 = 6.36619772367581382433e-01
 _PIO2_1, _PIO2_1T = 1.57079632673412561417e00, 6.07710050650619224932e-11
 _S1, _S2, _S3 = -1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04
