@@ -6,7 +6,8 @@
 Runs ``simulate_many`` (8 seeds of ``--seconds`` on ``paper``, ``--lanes`` at once, or 1
 for the single loop) ``--repeats`` times, then writes ``/tmp/perf-<pid>.map``, the file
 ``perf report`` reads to name code that no ELF file describes: the address of every
-function in Numba's execution engine, each taken to run to the next one's address.
+function in Numba's execution engine (read from its private attributes, so a Numba
+upgrade may need this script changed), each taken to run to the next one's address.
 Functions that LLVM inlined are part of their callers. ``--dump`` also writes the lane
 or single loop's machine code to a file, for ``objdump -D -b binary -m i386:x86-64
 --adjust-vma=<its address>`` (the address is printed), to read the hottest

@@ -57,6 +57,7 @@ __all__ = [
     "LANE_JQ",
     "LANE_Q",
     "LaneRigidPlant",
+    "disjoint_arrays",
     "lane_actuator_forces",
     "lane_dynamics",
     "lane_gravity",
@@ -65,6 +66,8 @@ __all__ = [
     "lane_rigid_derivative",
     "lane_rigid_plant",
     "make_lane_work",
+    "sincos_lane",
+    "wide_vectors",
 ]
 
 #: Lanes per block: the stages' loops run over at most this many lanes at a time.
