@@ -71,8 +71,9 @@ def test_bench_quick_smoke(tmp_path):
 
 
 def test_flop_counter_counts_what_it_should():
-    # The 3x3 Cholesky solve counted by hand, statement by statement:
+    # The 3x3 L D L^T solve counted by hand, statement by statement (a conditional
+    # expression counts its costlier branch, its comparison nothing):
     n = count("cholesky_solve3")
-    # l00 sqrt, l10 /, l20 /, l11 (*, -, sqrt), l21 (*, -, /), l22 (*, *, -, -, sqrt),
-    # y0 /, y1 (*, -, /), y2 (*, *, -, -, /), x2 /, x1 (*, -, /), x0 (*, *, -, -, /)
-    assert n == 1 + 1 + 1 + 3 + 3 + 5 + 1 + 3 + 5 + 1 + 3 + 5
+    # r0 /, l10 *, l20 *, d1 (*, -), r1 /, t21 (*, -), l21 *, d2 (*, *, -, -), r2 /,
+    # z1 (*, -), z2 (*, *, -, -), x2 *, x1 (*, *, -), x0 (*, *, *, -, -)
+    assert n == 1 + 1 + 1 + 2 + 1 + 2 + 1 + 4 + 1 + 2 + 4 + 1 + 3 + 5

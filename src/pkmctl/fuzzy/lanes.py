@@ -44,6 +44,7 @@ from pkmctl.fuzzy.kernels import (
     _O_ROUT,
     _SMF,
     _T,
+    _THIRD,
     _TRAP,
     _TRI,
     _ZMF,
@@ -82,20 +83,22 @@ def _memberships(kind, a, b, c, d, WX, rx, rc, j, WMU, row, n):
     branch-free loop over the lanes per kind."""
     fj = float(j)
     if kind == _TRI:
+        iup, idown = 1.0 / (b - a), 1.0 / (c - b)
         for l in range(n):
             y = WX[_ix(rx, l)]
-            up = (y - a) / (b - a)
-            down = (c - y) / (c - b)
+            up = (y - a) * iup
+            down = (c - y) * idown
             v = down if b < y and y < c else 0.0
             v = up if a < y and y < b else v
             v = 1.0 if y == b else v
             cl = WX[_ix(rc, l)]
             WMU[_ix(row, l)] = v if cl == fj or cl + 1.0 == fj else 0.0
     elif kind == _TRAP:
+        iup, idown = 1.0 / (b - a), 1.0 / (d - c)
         for l in range(n):
             y = WX[_ix(rx, l)]
-            up = (y - a) / (b - a)
-            down = (d - y) / (d - c)
+            up = (y - a) * iup
+            down = (d - y) * idown
             v = 1.0 if y <= c else down
             v = up if y < b else v
             v = 0.0 if y < a or y > d else v
@@ -138,11 +141,11 @@ def _ramp_int(shape, t):
     full0 = 0.5 + (t - 1.0)
     full1 = (1.0 / 3.0 if shape == 0 else 17.0 / 48.0) + 0.5 * (t * t - 1.0)
     lin0 = 0.5 * t * t
-    lin1 = t * t * t / 3.0
-    low0 = 2.0 * t**3 / 3.0
+    lin1 = t * t * t * _THIRD
+    low0 = 2.0 * t**3 * _THIRD
     low1 = 0.5 * t**4
     s = 1.0 - t
-    high0 = t - 0.5 + 2.0 * s**3 / 3.0
+    high0 = t - 0.5 + 2.0 * s**3 * _THIRD
     high1 = t * t * (-0.5 + t * (4.0 / 3.0 - 0.5 * t)) + 1.0 / 48.0
     r0 = low0 if t <= 0.5 else high0
     r1 = low1 if t <= 0.5 else high1
@@ -166,8 +169,9 @@ def _ramp_inv(shape, h):
 
 @_jit_inl
 def _ramp_moments(shape, p, w, u, v):
-    f0, f1 = _ramp_int(shape, (u - p) / w)
-    F0, F1 = _ramp_int(shape, (v - p) / w)
+    iw = 1.0 / w
+    f0, f1 = _ramp_int(shape, (u - p) * iw)
+    F0, F1 = _ramp_int(shape, (v - p) * iw)
     return w * (F0 - f0), w * (p * (F0 - f0) + w * (F1 - f1))
 
 

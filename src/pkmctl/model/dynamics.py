@@ -306,19 +306,28 @@ def actuator_forces_kernel(Jq, F, tau):
 
 @kernel(inline="always")
 def cholesky_solve3(a00, a01, a02, a11, a12, a22, b0, b1, b2):
-    """x with A x = b for a symmetric positive definite 3x3 A given by its upper triangle."""
-    l00 = np.sqrt(a00)
-    l10 = a01 / l00
-    l20 = a02 / l00
-    l11 = np.sqrt(a11 - l10 * l10)
-    l21 = (a12 - l20 * l10) / l11
-    l22 = np.sqrt(a22 - l20 * l20 - l21 * l21)
-    y0 = b0 / l00
-    y1 = (b1 - l10 * y0) / l11
-    y2 = (b2 - l20 * y0 - l21 * y1) / l22
-    x2 = y2 / l22
-    x1 = (y1 - l21 * x2) / l11
-    x0 = (y0 - l10 * x1 - l20 * x2) / l00
+    """x with A x = b for a symmetric positive definite 3x3 A given by its upper triangle.
+
+    The square-root-free Cholesky factorisation A = L D L^T (L unit lower triangular):
+    three divisions (the pivots' reciprocals) and no square root, where A = L L^T took
+    nine divisions and three square roots: the slow instructions, here in one long
+    dependent chain (docs/performance.md). A pivot that is not positive (A not positive
+    definite, or NaN) gives NaN, as the square root did.
+    """
+    r0 = 1.0 / a00 if a00 > 0.0 else np.nan
+    l10 = a01 * r0
+    l20 = a02 * r0
+    d1 = a11 - l10 * a01
+    r1 = 1.0 / d1 if d1 > 0.0 else np.nan
+    t21 = a12 - l20 * a01  # l21 d1
+    l21 = t21 * r1
+    d2 = a22 - l20 * a02 - l21 * t21
+    r2 = 1.0 / d2 if d2 > 0.0 else np.nan
+    z1 = b1 - l10 * b0
+    z2 = b2 - l20 * b0 - l21 * z1
+    x2 = z2 * r2
+    x1 = z1 * r1 - l21 * x2
+    x0 = b0 * r0 - l10 * x1 - l20 * x2
     return x0, x1, x2
 
 

@@ -150,7 +150,8 @@ def limb_jacobian_rate(geom, X, Xd, v, R, Jq, q, Jdv):
         )
         d0, d1, d2 = rx - r_b * _LIMB_DIR[i, 0], -z * ta + ry - r_b * _LIMB_DIR[i, 1], z + rz
         qi = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        u0, u1, u2 = d0 / qi, d1 / qi, d2 / qi
+        iq = 1.0 / qi
+        u0, u1, u2 = d0 * iq, d1 * iq, d2 * iq
         j0, j1, j2 = _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22)
         q[i] = qi
         Jq[i, 0], Jq[i, 1], Jq[i, 2] = j0, j1, j2
@@ -162,7 +163,7 @@ def limb_jacobian_rate(geom, X, Xd, v, R, Jq, q, Jdv):
         Pv2 = v[0] + p21 * v[1] + p22 * v[2]
         qd = u0 * Pd0 + u1 * Pd1 + u2 * Pd2
         qv = u0 * Pv0 + u1 * Pv1 + u2 * Pv2
-        Jdv[i] = (Pd0 * Pv0 + Pd1 * Pv1 + Pd2 * Pv2 - qd * qv) / qi + (u0 * a0 + u1 * a1 + u2 * a2)
+        Jdv[i] = (Pd0 * Pv0 + Pd1 * Pv1 + Pd2 * Pv2 - qd * qv) * iq + (u0 * a0 + u1 * a1 + u2 * a2)
 
 
 @kernel(inline="always")

@@ -840,7 +840,8 @@ def _limb_rate(geom, X, Xd, W, j, l, i):
     )
     d0, d1, d2 = rx - r_b * _LIMB_DIR[i, 0], -z * ta + ry - r_b * _LIMB_DIR[i, 1], z + rz
     qi = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-    u0, u1, u2 = d0 / qi, d1 / qi, d2 / qi
+    iq = 1.0 / qi
+    u0, u1, u2 = d0 * iq, d1 * iq, d2 * iq
     j0, j1, j2 = _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22)
     Pd0 = p02 * bd
     Pd1 = p10 * zd + p11 * ad + p12 * bd
@@ -850,7 +851,7 @@ def _limb_rate(geom, X, Xd, W, j, l, i):
     Pv2 = zd + p21 * ad + p22 * bd
     qd = u0 * Pd0 + u1 * Pd1 + u2 * Pd2
     qv = u0 * Pv0 + u1 * Pv1 + u2 * Pv2
-    jdv = (Pd0 * Pv0 + Pd1 * Pv1 + Pd2 * Pv2 - qd * qv) / qi + (u0 * a0 + u1 * a1 + u2 * a2)
+    jdv = (Pd0 * Pv0 + Pd1 * Pv1 + Pd2 * Pv2 - qd * qv) * iq + (u0 * a0 + u1 * a1 + u2 * a2)
     _put3(W, _JQR + 3 * i, l, j0, j1, j2)
     W[_ix((_JDV + i), l)] = jdv
     # the limb rate of the friction law, from this Jacobian (as plants._machine_terms)
