@@ -1,11 +1,12 @@
 """The built-in controllers in lane form (:mod:`pkmctl.sim.lanes`): smc, fsmc, afsmc, pd,
 ctc for L runs at once, every array with a trailing lane dimension.
 
-Lane l computes what the scalar step computes on lane l's numbers, in the same order:
-the model terms come from the lane kernels of :mod:`pkmctl.model.lanes`, the rest is
-written here as loops over the lanes, innermost, which LLVM vectorises. The fuzzy term
-evaluates the lanes of each axis at once (:func:`pkmctl.fuzzy.term.term_eval_lanes`: on
-the fast kernel, branch-free and bit for bit the scalar result). A run whose controller
+Lane l computes what the scalar step computes on lane l's numbers: the model terms come
+from the lane kernels of :mod:`pkmctl.model.lanes` (within 1e-12 relative of the scalar
+ones, tests/test_lanes_model.py), the rest is written here, in the scalar step's order,
+as loops over the lanes, innermost, which LLVM vectorises. The fuzzy term evaluates the
+lanes of each axis at once (:func:`pkmctl.fuzzy.term.term_eval_lanes`: on the fast
+kernel, branch-free and bit for bit the scalar result). A run whose controller
 has the machine model of DESIGN.md §7 switched on (``mach_on``) runs its controller lane
 by lane instead (``lane_ok``).
 """
@@ -163,19 +164,25 @@ def lane_afsmc_step(p, state, work, y, ref, F):
     for i in range(3):
         for l in range(L):
             F[i, l] = 0.0
-        for k in range(n):
-            for l in range(L):
-                F[i, l] += Y[i, k, l] * th[k, l]
+    # F = Y Theta^ and the projected adaptive law (pkmctl.control.adaptive.adapt) in one
+    # pass over the parameters: the same sums in the same order as the scalar step's two
+    # loops (the law reads neither F nor the terms added below), and one loop over the
+    # lanes per parameter instead of four, each of which set up its pointers anew.
+    for k in range(n):
+        for l in range(L):
+            t = th[k, l]
+            y0, y1, y2 = Y[0, k, l], Y[1, k, l], Y[2, k, l]
+            F[0, l] += y0 * t
+            F[1, l] += y1 * t
+            F[2, l] += y2 * t
+            upd = 0.0
+            upd += y0 * s[0, l]
+            upd += y1 * s[1, l]
+            upd += y2 * s[2, l]
+            v = t + p.Tc[l] * p.gamma_vec[k, l] * upd
+            th[k, l] = min(p.theta_max[k, l], max(p.theta_min[k, l], v))
     _add_ks(p.K, s, F)
     _fuzzy(p, work[_FLC], work[_FLC_IO], s, state, F)
-    for k in range(n):  # the projected adaptive law (pkmctl.control.adaptive.adapt)
-        for l in range(L):
-            upd = 0.0
-            upd += Y[0, k, l] * s[0, l]
-            upd += Y[1, k, l] * s[1, l]
-            upd += Y[2, k, l] * s[2, l]
-            v = th[k, l] + p.Tc[l] * p.gamma_vec[k, l] * upd
-            th[k, l] = min(p.theta_max[k, l], max(p.theta_min[k, l], v))
 
 
 @kernel(refcount=False)

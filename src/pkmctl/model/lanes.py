@@ -552,7 +552,7 @@ def _mcg_out(W, l0, n, M, Cv, G):
         _row_out(W, _GG + a, G[a], l0, n)
 
 
-@kernel(refcount=False)
+@kernel(refcount=False, llvm_inline=True)
 def lane_dynamics(geom, theta, X, Xd, v, work, M, Cv, G):
     """Per lane, M (3, 3, L), C(X, Xd) v (3, L) and G (3, L) of
     :func:`~pkmctl.model.dynamics.dynamics_kernel`; geom (11, L), theta (36, L), X, Xd,
@@ -597,7 +597,7 @@ def _add_mg(theta, j, b, g, row, s):
     return s[0] + mg * row[0], s[1] + mg * row[1], s[2] + mg * row[2]
 
 
-@kernel(refcount=False)
+@kernel(refcount=False, llvm_inline=True)
 def lane_gravity(geom, theta, X, work, G):
     """Per lane, G (3, L) of :func:`~pkmctl.model.dynamics.gravity_kernel` at X (3, L);
     the limb Jacobian and lengths at X go to ``work``."""
@@ -700,7 +700,7 @@ def _regressor_lanes(geom, Xd, Xr_d, Xr_dd, W, l0, n, b):
         _regressor_body(geom, Xd, Xr_d, Xr_dd, W, np.uint64(l0 + l), l, b)
 
 
-@kernel(refcount=False)
+@kernel(refcount=False, llvm_inline=True)
 def lane_regressor(geom, X, Xd, Xr_d, Xr_dd, work, Y):
     """Per lane, Y (3, 36, L) of :func:`~pkmctl.model.dynamics.regressor_kernel`:
     Y Theta = M Xr_dd + C(X, Xd) Xr_d + G; geom (11, L), X, Xd, Xr_d, Xr_dd (3, L); the
@@ -741,7 +741,7 @@ def _limb_position(r_a, r_b, z, ta, zs, ca, sa, cb, sb, W, l, i):
     _put3(W, _JQ + 3 * i, l, j0, j1, j2)
 
 
-@kernel(refcount=False)
+@kernel(refcount=False, llvm_inline=True)
 def lane_limb_jacobian(geom, X, work, Jq, q):
     """Per lane, the limb Jacobian Jq (4, 3, L) and lengths q (4, L) of
     :func:`~pkmctl.model.kinematics.limb_jacobian` at X (3, L). ``work`` is not written
@@ -779,7 +779,7 @@ def _gram(s, q0, q1, q2):
     return a00, a01, a02, a11, a12, a22
 
 
-@kernel(refcount=False)
+@kernel(refcount=False, llvm_inline=True)
 def lane_actuator_forces(Jq, F, tau):
     """Per lane, the minimum-norm actuator forces tau (4, L) with J^T tau = F (3, L),
     J = Jq (4, 3, L): tau = J (J^T J)^-1 F, as

@@ -15,8 +15,10 @@ the stopped lane's states are reset to their initial values so that it computes 
 numbers until the loop ends. Within a period, a lane whose pose becomes invalid after a
 sub-step keeps that sub-step's state, as the single loop does when it stops integrating.
 
-:func:`run_lanes` gives one :class:`~pkmctl.sim.loop.LoopOutput` per lane, equal to what
-:func:`~pkmctl.sim.loop.run_parts` gives for that run alone (tests/test_lanes.py).
+:func:`run_lanes` gives one :class:`~pkmctl.sim.loop.LoopOutput` per lane, equal within
+1e-12 relative to what :func:`~pkmctl.sim.loop.run_parts` gives for that run alone
+(tests/test_lanes.py); not bit for bit, since the lane model kernels have their own order
+of sums and their own cos and sin (docs/performance.md).
 """
 
 from __future__ import annotations

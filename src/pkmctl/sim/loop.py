@@ -182,7 +182,7 @@ def accumulate_metrics(acc, mp, k, Xd, x, qd, q, tau, R, Jq, qw, e):
             acc[t + _A_OVER] += 1.0
 
 
-@kernel(refcount=False)
+@kernel(refcount=False, llvm_inline=True)
 def accumulate_metrics_lanes(acc, mp, k, Xd, x, qd, q, tau, work):
     """:func:`accumulate_metrics` for L lanes at once, lane innermost: ``acc`` (n, L) and
     ``mp`` (m, L) the lanes' accumulators and parameters (the window starts equal in
