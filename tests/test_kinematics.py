@@ -106,6 +106,15 @@ def test_condition_number(robot):
     assert robot.condition_number(np.array([robot.home, [0.7, 0.4, 0.4]])).shape == (2,)
 
 
+def test_checked_condition_numbers_check_and_equal_condition_number(robot):
+    rng = np.random.default_rng(5)
+    X = random_poses(rng, 50)
+    assert np.array_equal(robot.checked_condition_numbers(X), robot.condition_number(X))
+    bad = np.vstack([X, [[robot.home[0], 2.0, 0.0]]])  # |alpha| >= pi/2
+    with pytest.raises(pkmctl.InvalidPoseError, match="alpha"):
+        robot.checked_condition_numbers(bad)
+
+
 def test_batch_equals_single(robot):
     rng = np.random.default_rng(4)
     X = random_poses(rng, 7)

@@ -120,6 +120,26 @@ def test_make_figures_writes_17_pngs_and_nothing_else(figure_dir) -> None:
         assert data.startswith(PNG_SIGNATURE)
 
 
+def test_figure_window_is_the_samples_between_its_ends() -> None:
+    import numpy as np
+
+    from pkmctl.report.figures import _window
+
+    t = np.arange(0, 20001) * 5e-5  # a run's sample times
+    y = np.sin(t)
+    for lo, hi in [
+        (0.0, np.inf),
+        (1.0, np.inf),
+        (0.0, 0.3),
+        (0.3, 0.30005),
+        (2.0, 1.0),
+        (5.0, 9.0),
+    ]:
+        sel = (t >= lo - 1e-12) & (t <= hi + 1e-12)
+        tw, yw = _window(t, y, lo, hi)
+        assert np.array_equal(tw, t[sel]) and np.array_equal(yw, y[sel]), (lo, hi)
+
+
 def test_figure_specs_follow_the_paper_numbering() -> None:
     assert [s.filename for s in FIGURES] == EXPECTED_FIGURES
     assert [s.kind for s in FIGURES] == ["tracking"] * 7 + ["error"] * 3 + ["box"] * 3 + [

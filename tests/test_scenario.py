@@ -23,6 +23,16 @@ def test_builtins_hold_the_paper_numbers():
 
 
 @pytest.mark.parametrize("name", list(BUILTINS))
+def test_builtin_with_a_duration_is_the_builtin_replaced(name):
+    assert Scenario.builtin(name, 0.25) == Scenario.builtin(name).replace(
+        **{"timing.duration": 0.25}
+    )
+    assert BUILTINS[name].get("timing", {}).get("duration") != 0.25  # the table unchanged
+    with pytest.raises(ScenarioError, match="duration"):
+        Scenario.builtin(name, -1.0)
+
+
+@pytest.mark.parametrize("name", list(BUILTINS))
 def test_toml_round_trip_exact(name):
     sc = Scenario.builtin(name)
     text = sc.to_toml()

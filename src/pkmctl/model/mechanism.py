@@ -253,6 +253,12 @@ class Mechanism:
         c = np.linalg.cond(J)
         return float(c[0]) if single else c
 
+    def checked_condition_numbers(self, X: np.ndarray) -> np.ndarray:
+        """:meth:`check_pose` and :meth:`condition_number` of poses X (N, 3) in one pass
+        (one SVD per pose, not two): raises as :meth:`check_pose`, else returns (N,)."""
+        Xb, _ = _as_batch(X, "X")
+        return _checked_poses(self._geom, Xb)[2]
+
     def forward_kinematics(
         self,
         q: np.ndarray,
@@ -403,6 +409,12 @@ def _check_basic(Xb: np.ndarray) -> None:
 
 def _check_poses(geom: np.ndarray, Xb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Validate a batch of poses; return their limb lengths (N, 4) and Jacobians (N, 4, 3)."""
+    q, J, _ = _checked_poses(geom, Xb)
+    return q, J
+
+
+def _checked_poses(geom: np.ndarray, Xb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_check_poses`, and the condition numbers of J (N,) from the same SVD."""
     _check_basic(Xb)
     q, J = limbs_batch(geom, Xb)
     short = np.argwhere(q < MIN_LIMB_LENGTH)
@@ -422,7 +434,7 @@ def _check_poses(geom: np.ndarray, Xb: np.ndarray) -> tuple[np.ndarray, np.ndarr
             f"smallest singular value {sv[n, -1]:.3g}; need < {MAX_CONDITION:g} and "
             f"> {MIN_SINGULAR_VALUE:g})"
         )
-    return q, J
+    return q, J, cond
 
 
 @kernel

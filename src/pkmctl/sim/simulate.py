@@ -238,12 +238,12 @@ def prepare(scenario: Scenario | str, duration: float | None) -> Prepared:
     on one scenario: :func:`run_prepared`); its memory is checked before anything is
     allocated."""
     if isinstance(scenario, str):
-        scenario = Scenario.builtin(scenario)
-    if not isinstance(scenario, Scenario):
+        scenario = Scenario.builtin(scenario, None if duration is None else float(duration))
+    elif not isinstance(scenario, Scenario):
         raise TypeError(
             f"scenario: expected a pkmctl.Scenario or a built-in name, got {scenario!r}"
         )
-    if duration is not None:
+    elif duration is not None:
         scenario = scenario.replace(**{"timing.duration": float(duration)})
     plant = scenario.plant()
     Tc = scenario.timing.control_period
