@@ -82,7 +82,12 @@ def _check_mf(kind: str, params: Sequence[float]) -> tuple[float, ...]:
 
 
 def _membership(kind: str, params: Sequence[float], x: ArrayLike) -> np.ndarray:
-    p = (_check_mf(kind, params) + (0.0,) * 4)[:4]
+    return _membership_checked(kind, _check_mf(kind, params), x)
+
+
+def _membership_checked(kind: str, params: tuple[float, ...], x: ArrayLike) -> np.ndarray:
+    """:func:`_membership` of parameters already validated (a Term's)."""
+    p = (params + (0.0,) * 4)[:4]
     xa = np.asarray(x, dtype=np.float64)
     flat = np.ascontiguousarray(xa).reshape(-1)
     out = np.empty(flat.shape)
@@ -159,7 +164,7 @@ class Term:
 
     def __call__(self, x: ArrayLike) -> np.ndarray:
         """Membership of x, shape of x."""
-        return _membership(self.kind, self.params, x)
+        return _membership_checked(self.kind, self.params, x)  # checked in __post_init__
 
     def support(self) -> tuple[float, float]:
         """Closure of the set where the membership is positive (may be infinite)."""
