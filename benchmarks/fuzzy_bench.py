@@ -225,7 +225,13 @@ def run_corpus(path, n: int = 200, *, echo: bool = False) -> dict:
     centroid), ``pkmctl_general_us`` (FuzzySystem kernels), ``skfuzzy_us``,
     ``fuzzylite_us``, and each peer's ``*_max_diff`` to pkmctl.
     """
-    import fuzzylite as fl  # noqa: F401  (the oracle of tests/test_fis_corpus.py)
+    import logging
+
+    root = logging.getLogger()
+    handlers = list(root.handlers)
+    import fuzzylite as fl  # the oracle of tests/test_fis_corpus.py
+
+    root.handlers[:] = handlers  # its import adds one: Dask's INFO records would print
     import skfuzzy as fuzz
     from skfuzzy import control as ctrl
 

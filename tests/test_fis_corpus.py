@@ -19,6 +19,7 @@ WeightedSum directly.
 of 20 001); both forms check 200 points per file.
 """
 
+import logging
 import os
 import warnings
 import zlib
@@ -41,7 +42,30 @@ GRID = 100001 if FULL else 20001  # the oracle's finer grid
 RICHARDSON = (GRID // 2 + 1, GRID)  # nested grids, h and h / 2
 REFUSED = {"frss_malformed.fis"}  # hand-edited: [system] and OrMethod="max'
 
-fl = pytest.importorskip("fuzzylite")
+
+def _import_fuzzylite():
+    """pyfuzzylite, without what its import does to the whole process: numpy's floating
+    point errors set to "ignore", and a handler on the root logger (through which every
+    library's INFO records then print, Dask's in ``pkmctl bench`` included)."""
+    root = logging.getLogger()
+    handlers = list(root.handlers)
+    with np.errstate():  # restores numpy's error handling on leaving
+        module = pytest.importorskip("fuzzylite")
+    root.handlers[:] = handlers
+    return module
+
+
+fl = _import_fuzzylite()
+
+
+@pytest.fixture(autouse=True)
+def _fuzzylite_numpy_errors():
+    """pyfuzzylite divides by zero on purpose (its terms' edges): numpy's warnings of it
+    off for this module's tests, as its import would have set them for the process."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        yield
+
+
 fuzz = pytest.importorskip("skfuzzy")
 
 
