@@ -297,11 +297,12 @@ def run_corpus(path, n: int = 200, *, echo: bool = False) -> dict:
 
     def fl_all():
         res = []
-        for x in X[:m]:
-            for iv, v in zip(eng.input_variables, x, strict=True):
-                iv.value = v
-            eng.process()
-            res.append(float(np.asarray(eng.output_variables[0].value).reshape(-1)[0]))
+        with np.errstate(divide="ignore", invalid="ignore"):  # pyfuzzylite's own setting
+            for x in X[:m]:
+                for iv, v in zip(eng.input_variables, x, strict=True):
+                    iv.value = v
+                eng.process()
+                res.append(float(np.asarray(eng.output_variables[0].value).reshape(-1)[0]))
         return np.array(res)
 
     t0 = time.perf_counter()
