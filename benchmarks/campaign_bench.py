@@ -91,7 +91,7 @@ def overhead(seeds: int = 10) -> dict[str, float]:
     from pkmctl.campaign.spec import CampaignSpec
     from pkmctl.campaign.store import write_task
     from pkmctl.sim.metrics import summary
-    from pkmctl.sim.simulate import prepare, resolve_parts, run_prepared
+    from pkmctl.sim.simulate import metrics_only, prepare, resolve_parts, run_prepared
 
     spec = CampaignSpec.from_toml(SPEC.format(seeds=seeds))
     task = spec.tasks()[0]
@@ -119,7 +119,7 @@ def overhead(seeds: int = 10) -> dict[str, float]:
             sc = spec.scenario(0)
             keep("scenario", (time.perf_counter() - t) / per_task)
             t = time.perf_counter()
-            prep = prepare(sc, None)
+            prep = prepare(metrics_only(sc), None, desired_forces=False)  # as run_task
             keep("prepare", (time.perf_counter() - t) / per_task)
             t = time.perf_counter()
             result = run_prepared(prep, resolve_parts(prep.scenario, "smc"), 0)

@@ -237,6 +237,21 @@ def test_fis_path_is_relative_to_the_scenario_file_and_kept_absolute(tmp_path, m
     assert (raw.input_range, raw.samples) == ("raw", 101)
 
 
+def test_paper_flc_is_built_once_a_fis_file_read_each_time(tmp_path):
+    sc = paper(0.01)
+    assert sc.fuzzy_system() is sc.fuzzy_system()  # immutable: shared by every run
+    raw = sc.replace(**{"fuzzy.input_range": "raw"})
+    assert raw.fuzzy_system() is not sc.fuzzy_system() and raw.fuzzy_system().input_range == "raw"
+    path = tmp_path / "mine.fis"
+    path.write_text(Path(PAPER_FIS).read_text())
+    via_file = sc.replace(**{"fuzzy.fis": str(path)})
+    assert via_file.fuzzy_system() == FLC()
+    changed = FLC()
+    changed = dataclasses.replace(changed, rules=changed.rules[:-1])
+    path.write_text(to_fis_text(changed))  # the same scenario now reads another system
+    assert via_file.fuzzy_system() == changed
+
+
 def _bad(tmp_path, name, text):
     path = tmp_path / name
     path.write_bytes(text if isinstance(text, bytes) else text.encode())

@@ -154,6 +154,51 @@ def test_desired_forces_match_the_mechanism_methods(paper):
     np.testing.assert_allclose(r.q_desired[k], plant.inverse_kinematics(r.X_desired[k]), rtol=1e-13)
 
 
+def test_desired_limb_lengths_are_those_of_desired_forces_bit_for_bit(paper):
+    from pkmctl.sim.simulate import desired_forces, desired_limb_lengths
+
+    rng = np.random.default_rng(7)
+    n = 20_000
+    X = np.column_stack([rng.uniform(0.4, 1.0, n), rng.uniform(-1.3, 1.3, (n, 2))])
+    X[:1000] = paper.trajectory.build().evaluate(np.arange(1000) * 1e-2)[0]
+    plant = paper.plant()
+    q, _ = desired_forces(plant, X, rng.normal(size=(n, 3)), rng.normal(size=(n, 3)))
+    np.testing.assert_array_equal(desired_limb_lengths(plant, X), q)
+
+
+def test_metrics_only_runs_log_t0_and_keep_every_metric(paper):
+    from pkmctl.sim.simulate import metrics_only, prepare, resolve_parts, run_prepared
+
+    sc = paper.replace(**{"timing.duration": 0.3})
+    light = metrics_only(sc)
+    assert light.logging.every == sc.timing.periods and light.replace() == light  # valid
+    assert light.model_dump(exclude={"logging"}) == sc.model_dump(exclude={"logging"})
+    parts = resolve_parts(sc, "fsmc")
+    full = run_prepared(prepare(sc, None), parts, 5)
+    one = run_prepared(prepare(light, None, desired_forces=False), parts, 5)
+    assert one.t.tolist() == [0.0] and one.X.shape == (1, 3)
+    np.testing.assert_array_equal(one.X[0], full.X[0])
+    np.testing.assert_array_equal(one.final_state["plant"], full.final_state["plant"])
+    assert metrics.summary(one) == metrics.summary(full, source="loop")
+
+
+def test_prepare_without_desired_forces_changes_only_tau_desired(paper):
+    from pkmctl.sim.simulate import prepare, resolve_parts, run_prepared
+
+    sc = paper.replace(**{"timing.duration": 0.05})
+    full, light = prepare(sc, None), prepare(sc, None, desired_forces=False)
+    assert light.tau_des is None
+    for name in ("t", "reference", "q_des", "dist_index"):
+        np.testing.assert_array_equal(getattr(light, name), getattr(full, name))
+    parts = resolve_parts(sc, "afsmc")
+    a, b = run_prepared(full, parts, 3), run_prepared(light, parts, 3)
+    assert np.all(np.isnan(b.tau_desired)) and b.tau_desired.shape == a.tau_desired.shape
+    assert not b.tau_desired.flags.writeable
+    for name in ("X", "Xdot", "q", "q_desired", "tau", "F", "theta_hat"):
+        np.testing.assert_array_equal(getattr(b, name), getattr(a, name))
+    assert metrics.summary(b) == metrics.summary(a)
+
+
 def test_summary_of_some_groups_is_the_metrics_bit_for_bit(paper):
     from pkmctl.sim import metrics
 
@@ -180,7 +225,8 @@ def test_simulate_many_metrics_mode_equals_full_results(paper):
     light = simulate_many(paper, "afsmc", seeds=seeds, duration=0.05, workers=2, keep="metrics")
     for s, r, m in zip(seeds, full, light, strict=True):
         assert m["seed"] == s
-        assert m["rmse"] == summary(r)["rmse"]  # reused buffers change nothing
-        assert m["peak_force_N"] == summary(r)["peak_force_N"]
+        # no log, no desired forces, reused buffers: the loop's metrics of the full run
+        assert m == {"seed": s, **summary(r, source="loop")}
+        assert m["rmse"] == summary(r)["rmse"] and m["max_error"] == summary(r)["max_error"]
     with pytest.raises(ValueError, match="keep = 'all'"):
         simulate_many(paper, "afsmc", seeds=[1], duration=0.05, keep="all")

@@ -107,15 +107,15 @@ def run_task(spec: CampaignSpec, task: Task, lanes: int | None = None) -> pa.Tab
     from pkmctl.errors import SimulationDiverged
     from pkmctl.sim.lanes import lane_count, lanes_supported
     from pkmctl.sim.metrics import summary
-    from pkmctl.sim.simulate import prepare, resolve_parts
+    from pkmctl.sim.simulate import metrics_only, prepare, resolve_parts
 
     rows = []
     host = f"{socket.gethostname()}:{os.getpid()}"
     cell = task.runs[0].cell  # one cell a task
     factors = {factor_column(p): factor_value(spec, p, spec.cells[cell][p]) for p in spec.factors}
-    # The trajectory is prepared once a task; records hold the metrics the loop computes
-    # over every period (not recomputed from the log).
-    prep = prepare(spec.scenario(cell), None)
+    # Records hold the metrics the loop computes over every period (not recomputed from a
+    # log): the runs log nothing but t = 0, and need no desired forces (no metric reads them).
+    prep = prepare(metrics_only(spec.scenario(cell)), None, desired_forces=False)
     batches: list[tuple[list, list]] = []  # (runs, their outcomes)
     for controller in dict.fromkeys(r.controller for r in task.runs):
         runs = [r for r in task.runs if r.controller == controller]

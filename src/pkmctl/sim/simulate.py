@@ -25,6 +25,7 @@ from pkmctl.model.dynamics import (
     inverse_dynamics,
     make_work,
 )
+from pkmctl.model.kinematics import limb_jacobian
 from pkmctl.model.mechanism import Mechanism
 from pkmctl.parts import Part, PartContext, PartError, get_part
 from pkmctl.sim import metrics
@@ -44,7 +45,9 @@ from pkmctl.sim.stepped import run_stepped
 __all__ = [
     "check_memory",
     "desired_forces",
+    "desired_limb_lengths",
     "memory_needed",
+    "metrics_only",
     "part_memory",
     "precompile",
     "prepare",
@@ -167,6 +170,22 @@ def desired_forces(plant: Mechanism, Xd, Xdd, Xddd) -> tuple[np.ndarray, np.ndar
     return q_des, tau_des
 
 
+def desired_limb_lengths(plant: Mechanism, Xd) -> np.ndarray:
+    """q_d (N, 4) along a trajectory (N, 3): what :func:`desired_forces` gives as q_d, bit
+    for bit, from the limb kinematics alone (no body kinematics, no dynamics)."""
+    Xd = np.ascontiguousarray(Xd, dtype=float)
+    q_des = np.empty((Xd.shape[0], 4))
+    _limb_lengths_kernel(plant.geometry, Xd, q_des)
+    return q_des
+
+
+@kernel
+def _limb_lengths_kernel(geom, Xd, q_out):
+    R, Jq = np.empty((3, 3)), np.empty((4, 3))
+    for k in range(Xd.shape[0]):
+        limb_jacobian(geom, Xd[k], R, Jq, q_out[k])
+
+
 @kernel
 def _desired_kernel(geom, theta, Xd, Xdd, Xddd, q_out, tau_out):
     work = make_work()
@@ -195,12 +214,17 @@ def _disturbance_index(k0: int, k1: int, Tc: float, hold: float) -> np.ndarray:
     return np.floor(np.arange(k0, k1) * Tc / hold + 1e-9).astype(np.int64)
 
 
-def _desired(scenario: Scenario, plant: Mechanism, periods: np.ndarray):
+def _desired(scenario: Scenario, plant: Mechanism, periods: np.ndarray, forces: bool = True):
     """t (m,), the reference [X_d, Xdot_d, Xddot_d] (m, 9), q_d and tau_d (m, 4) at the
-    periods k of ``periods`` (each row computed alone: any subset gives the same bits)."""
+    periods k of ``periods`` (each row computed alone: any subset gives the same bits);
+    without ``forces``, tau_d is None and q_d comes from the limb kinematics alone (the
+    same bits, a test checks)."""
     t = periods * scenario.timing.control_period
     Xdes, Xddes, Xdddes = scenario.trajectory.build().evaluate(t)
-    q_des, tau_des = desired_forces(plant, Xdes, Xddes, Xdddes)
+    if forces:
+        q_des, tau_des = desired_forces(plant, Xdes, Xddes, Xdddes)
+    else:
+        q_des, tau_des = desired_limb_lengths(plant, Xdes), None
     reference = np.ascontiguousarray(np.hstack([Xdes, Xddes, Xdddes]))
     return t, reference, q_des, tau_des
 
@@ -217,7 +241,7 @@ class Prepared:
     t: np.ndarray  # (rows,)
     reference: np.ndarray  # (rows, 9): X_d, Xdot_d, Xddot_d
     q_des: np.ndarray
-    tau_des: np.ndarray
+    tau_des: np.ndarray | None  # None when prepared without the desired forces
     flc: MamdaniSystem | FuzzySystem  # the fuzzy term's system ([fuzzy])
     periods: int
     every: int
@@ -228,23 +252,34 @@ class Prepared:
         views of the prepared arrays when they hold every period, else computed."""
         if self.every == 1:
             return self.reference[k0:k1], self.q_des[k0:k1], self.dist_index[k0:k1]
-        _, reference, q_des, _ = _desired(self.scenario, self.plant, np.arange(k0, k1))
+        _, reference, q_des, _ = _desired(self.scenario, self.plant, np.arange(k0, k1), False)
         Tc, hold = self.scenario.timing.control_period, self.scenario.disturbance.hold
         return reference, q_des, _disturbance_index(k0, k1, Tc, hold)
 
 
-def prepare(scenario: Scenario | str, duration: float | None) -> Prepared:
-    """Everything the runs of ``scenario`` share (for runs of many seeds or controllers
-    on one scenario: :func:`run_prepared`); its memory is checked before anything is
-    allocated."""
+def _resolve(scenario: Scenario | str, duration: float | None) -> Scenario:
+    """The scenario (a built-in's name or a Scenario) with ``duration`` if given."""
     if isinstance(scenario, str):
-        scenario = Scenario.builtin(scenario, None if duration is None else float(duration))
-    elif not isinstance(scenario, Scenario):
+        return Scenario.builtin(scenario, None if duration is None else float(duration))
+    if not isinstance(scenario, Scenario):
         raise TypeError(
             f"scenario: expected a pkmctl.Scenario or a built-in name, got {scenario!r}"
         )
-    elif duration is not None:
-        scenario = scenario.replace(**{"timing.duration": float(duration)})
+    if duration is not None:
+        return scenario.replace(**{"timing.duration": float(duration)})
+    return scenario
+
+
+def prepare(
+    scenario: Scenario | str, duration: float | None, *, desired_forces: bool = True
+) -> Prepared:
+    """Everything the runs of ``scenario`` share (for runs of many seeds or controllers
+    on one scenario: :func:`run_prepared`); its memory is checked before anything is
+    allocated. ``desired_forces=False`` skips the desired forces, which no metric reads
+    (a third of the cost, for callers that keep only metrics: campaign tasks,
+    ``simulate_many(keep="metrics")``); the Results of its runs then hold NaN as
+    ``tau_desired``."""
+    scenario = _resolve(scenario, duration)
     plant = scenario.plant()
     Tc = scenario.timing.control_period
     n = scenario.timing.periods
@@ -262,11 +297,21 @@ def prepare(scenario: Scenario | str, duration: float | None) -> Prepared:
         every=every,
         periods=n,
     )
-    t, reference, q_des, tau_des = _desired(scenario, plant, np.arange(0, n, every))
+    t, reference, q_des, tau_des = _desired(scenario, plant, np.arange(0, n, every), desired_forces)
     index = _disturbance_index(0, n, Tc, scenario.disturbance.hold) if every == 1 else None
     model = scenario.controller_mechanism()
     flc = scenario.fuzzy_system()
     return Prepared(scenario, plant, model, t, reference, q_des, tau_des, flc, n, every, index)
+
+
+def metrics_only(scenario: Scenario) -> Scenario:
+    """The scenario logging one row (t = 0): for runs judged by their metrics alone, which
+    the loop accumulates over every period whatever ``logging.every`` is (campaign tasks,
+    ``simulate_many(keep="metrics")``). Nothing else changes. A log of every period
+    costs a lane loop about a fifth of its time (docs/performance.md) and a 10 s run
+    ~45 MB of memory."""
+    logging = scenario.logging.model_copy(update={"every": max(1, scenario.timing.periods)})
+    return scenario.model_copy(update={"logging": logging})  # valid: every in [1, periods]
 
 
 def _with_seed(scenario: Scenario, seed: int) -> Scenario:
@@ -451,6 +496,10 @@ def run_prepared_lanes(
     return results
 
 
+#: tau_desired of a run prepared without the desired forces: NaN, read-only, no memory.
+_NOT_COMPUTED = np.broadcast_to(np.nan, (np.iinfo(np.int64).max // 64, 4))
+
+
 def _result(prep: Prepared, parts: dict[str, Part], run: _Run, out) -> Result:
     """The Result of one run's LoopOutput; raises SimulationDiverged if it stopped."""
     scenario, bundles = run.scenario, run.bundles
@@ -497,7 +546,7 @@ def _result(prep: Prepared, parts: dict[str, Part], run: _Run, out) -> Result:
         q_desired=prep.q_des[:rows],
         F=lg["F"],
         tau=lg["tau"],
-        tau_desired=prep.tau_des[:rows],
+        tau_desired=_NOT_COMPUTED[:rows] if prep.tau_des is None else prep.tau_des[:rows],
         disturbance=lg["disturbance"],
         theta_hat=theta_hat,
         X_measured=lg["y"][:, 0:3],
@@ -546,10 +595,12 @@ def simulate_many(
     the first failing run's error is raised.
 
     ``keep="results"`` returns the :class:`Result` of every run. ``keep="metrics"``
-    returns ``{"seed": s, **metrics.summary(result)}`` per run instead, and each
-    worker logs every run into the same buffers: a campaign of many seeds then never
-    touches fresh memory after its first runs (first-touch page faults of ~45 MB per
-    10 s run are what limits thread scaling otherwise; see docs/performance.md).
+    returns ``{"seed": s, **metrics.summary(result, source="loop")}`` per run instead:
+    the metrics the loop accumulates over every period, which need no log, so those runs
+    log only t = 0 (:func:`metrics_only`) and compute no desired forces, and each worker
+    reuses its log buffers: a campaign of many seeds then never touches fresh memory
+    after its first runs (first-touch page faults of ~45 MB per 10 s run limited thread
+    scaling; see docs/performance.md).
     """
     import threading
     from concurrent.futures import ThreadPoolExecutor
@@ -565,7 +616,10 @@ def simulate_many(
         raise ValueError(f"workers = {workers}: must be >= 1")
     if lanes is not None and not (isinstance(lanes, int) and 1 <= lanes <= 64):
         raise ValueError(f"lanes = {lanes!r}: must be an integer in [1, 64]")
-    prep = prepare(scenario, duration)
+    if keep == "results":
+        prep = prepare(scenario, duration)
+    else:  # the metrics alone: no log, no desired forces
+        prep = prepare(metrics_only(_resolve(scenario, duration)), None, desired_forces=False)
     parts = resolve_parts(prep.scenario, controller)
     for s in seeds:
         _with_seed(prep.scenario, s)  # fail fast on a bad seed, before any run
@@ -594,7 +648,9 @@ def simulate_many(
                     raise r
         if keep == "results":
             return out
-        return [{"seed": int(s), **summary(r)} for s, r in zip(chunk, out, strict=True)]
+        return [
+            {"seed": int(s), **summary(r, source="loop")} for s, r in zip(chunk, out, strict=True)
+        ]
 
     chunks = [seeds[i : i + lanes] for i in range(0, len(seeds), lanes)]
     with ThreadPoolExecutor(max_workers=workers) as pool:
