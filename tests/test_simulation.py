@@ -182,6 +182,22 @@ def test_metrics_only_runs_log_t0_and_keep_every_metric(paper):
     assert metrics.summary(one) == metrics.summary(full, source="loop")
 
 
+def test_a_decimated_run_of_one_chunk_has_its_inputs_prepared_once(paper):
+    from pkmctl.sim.simulate import CHUNK_PERIODS, prepare
+
+    sc = paper.replace(**{"timing.duration": 0.3})
+    full = prepare(sc, None)
+    dec = prepare(sc.replace(**{"logging.every": 7}), None, desired_forces=False)
+    n = sc.timing.periods
+    assert dec.whole is not None and dec.chunk(0, n) is dec.whole  # not computed per run
+    for a, b in zip(dec.whole, full.chunk(0, n), strict=True):
+        np.testing.assert_array_equal(a, b)  # the rows of the full preparation, bit for bit
+    for a, b in zip(dec.chunk(5, 99), full.chunk(5, 99), strict=True):
+        np.testing.assert_array_equal(a, b)
+    long = paper.replace(**{"timing.duration": (CHUNK_PERIODS + 1) * 5e-5, "logging.every": 7})
+    assert prepare(long, None).whole is None  # several chunks: computed as the loop goes
+
+
 def test_prepare_without_desired_forces_changes_only_tau_desired(paper):
     from pkmctl.sim.simulate import prepare, resolve_parts, run_prepared
 
