@@ -676,8 +676,9 @@ def _compile_group(scenario_toml: str, job: tuple[str, list[str]]) -> str:
     """In a worker process, one job of :func:`_plan`: ``("loops", names)`` runs each
     controller for one period, which compiles its loop (and every kernel it calls) into
     the disk cache; ``("steps", names)`` calls each controller's compiled step once from Python,
-    which compiles its own kernels (the fuzzy term, the regressor) without a loop.
-    Returns "" or the first error (the caller will meet it again)."""
+    which compiles its own kernels (the fuzzy term, the regressor) without a loop, and
+    the model's batch kernel of ``Mechanism.gravity``. Returns "" or the first error (the
+    caller will meet it again)."""
     what, controllers = job
     try:
         sc = Scenario.from_toml(scenario_toml)
@@ -693,6 +694,9 @@ def _compile_group(scenario_toml: str, job: tuple[str, list[str]]) -> str:
                 step = part.compiled.get("step")
                 if step is not None:  # a built-in kernel, cached as the loop will call it
                     step(params, state, work, vec[0], ref[0], vec[1, 0:3])
+            # and the model's batch kernel, which a report's gravity paragraph would
+            # otherwise compile after the runs (5 s): here it overlaps the first loop's
+            sc.plant().gravity(np.asarray(sc.trajectory.offset, dtype=float))
             return ""
         sc = sc.replace(**{"timing.duration": sc.timing.control_period, "logging.every": 1})
         for c in controllers:
