@@ -119,7 +119,7 @@ def overhead(seeds: int = 10) -> dict[str, float]:
             sc = spec.scenario(0)
             keep("scenario", (time.perf_counter() - t) / per_task)
             t = time.perf_counter()
-            prep = prepare(metrics_only(sc), None, desired_forces=False)  # as run_task
+            prep = prepare(metrics_only(sc), None)  # as run_task
             keep("prepare", (time.perf_counter() - t) / per_task)
             t = time.perf_counter()
             result = run_prepared(prep, resolve_parts(prep.scenario, "smc"), 0)

@@ -175,9 +175,10 @@ def test_metrics_only_runs_log_t0_and_keep_every_metric(paper):
     assert light.model_dump(exclude={"logging"}) == sc.model_dump(exclude={"logging"})
     parts = resolve_parts(sc, "fsmc")
     full = run_prepared(prepare(sc, None), parts, 5)
-    one = run_prepared(prepare(light, None, desired_forces=False), parts, 5)
+    one = run_prepared(prepare(light, None), parts, 5)
     assert one.t.tolist() == [0.0] and one.X.shape == (1, 3)
-    np.testing.assert_array_equal(one.X[0], full.X[0])
+    for name in ("X", "tau", "q_desired", "tau_desired", "F"):
+        np.testing.assert_array_equal(getattr(one, name)[0], getattr(full, name)[0])
     np.testing.assert_array_equal(one.final_state["plant"], full.final_state["plant"])
     assert metrics.summary(one) == metrics.summary(full, source="loop")
 
@@ -187,7 +188,7 @@ def test_a_decimated_run_of_one_chunk_has_its_inputs_prepared_once(paper):
 
     sc = paper.replace(**{"timing.duration": 0.3})
     full = prepare(sc, None)
-    dec = prepare(sc.replace(**{"logging.every": 7}), None, desired_forces=False)
+    dec = prepare(sc.replace(**{"logging.every": 7}), None)
     n = sc.timing.periods
     assert dec.whole is not None and dec.chunk(0, n) is dec.whole  # not computed per run
     for a, b in zip(dec.whole, full.chunk(0, n), strict=True):
@@ -196,23 +197,6 @@ def test_a_decimated_run_of_one_chunk_has_its_inputs_prepared_once(paper):
         np.testing.assert_array_equal(a, b)
     long = paper.replace(**{"timing.duration": (CHUNK_PERIODS + 1) * 5e-5, "logging.every": 7})
     assert prepare(long, None).whole is None  # several chunks: computed as the loop goes
-
-
-def test_prepare_without_desired_forces_changes_only_tau_desired(paper):
-    from pkmctl.sim.simulate import prepare, resolve_parts, run_prepared
-
-    sc = paper.replace(**{"timing.duration": 0.05})
-    full, light = prepare(sc, None), prepare(sc, None, desired_forces=False)
-    assert light.tau_des is None
-    for name in ("t", "reference", "q_des", "dist_index"):
-        np.testing.assert_array_equal(getattr(light, name), getattr(full, name))
-    parts = resolve_parts(sc, "afsmc")
-    a, b = run_prepared(full, parts, 3), run_prepared(light, parts, 3)
-    assert np.all(np.isnan(b.tau_desired)) and b.tau_desired.shape == a.tau_desired.shape
-    assert not b.tau_desired.flags.writeable
-    for name in ("X", "Xdot", "q", "q_desired", "tau", "F", "theta_hat"):
-        np.testing.assert_array_equal(getattr(b, name), getattr(a, name))
-    assert metrics.summary(b) == metrics.summary(a)
 
 
 def test_summary_of_some_groups_is_the_metrics_bit_for_bit(paper):

@@ -114,8 +114,8 @@ def run_task(spec: CampaignSpec, task: Task, lanes: int | None = None) -> pa.Tab
     cell = task.runs[0].cell  # one cell a task
     factors = {factor_column(p): factor_value(spec, p, spec.cells[cell][p]) for p in spec.factors}
     # Records hold the metrics the loop computes over every period (not recomputed from a
-    # log): the runs log nothing but t = 0, and need no desired forces (no metric reads them).
-    prep = prepare(metrics_only(spec.scenario(cell)), None, desired_forces=False)
+    # log): the runs log nothing but t = 0.
+    prep = prepare(metrics_only(spec.scenario(cell)), None)
     batches: list[tuple[list, list]] = []  # (runs, their outcomes)
     for controller in dict.fromkeys(r.controller for r in task.runs):
         runs = [r for r in task.runs if r.controller == controller]

@@ -241,7 +241,7 @@ class Prepared:
     t: np.ndarray  # (rows,)
     reference: np.ndarray  # (rows, 9): X_d, Xdot_d, Xddot_d
     q_des: np.ndarray
-    tau_des: np.ndarray | None  # None when prepared without the desired forces
+    tau_des: np.ndarray
     flc: MamdaniSystem | FuzzySystem  # the fuzzy term's system ([fuzzy])
     periods: int
     every: int
@@ -280,15 +280,10 @@ def _resolve(scenario: Scenario | str, duration: float | None) -> Scenario:
     return scenario
 
 
-def prepare(
-    scenario: Scenario | str, duration: float | None, *, desired_forces: bool = True
-) -> Prepared:
+def prepare(scenario: Scenario | str, duration: float | None) -> Prepared:
     """Everything the runs of ``scenario`` share (for runs of many seeds or controllers
     on one scenario: :func:`run_prepared`); its memory is checked before anything is
-    allocated. ``desired_forces=False`` skips the desired forces, which no metric reads
-    (a third of the cost, for callers that keep only metrics: campaign tasks,
-    ``simulate_many(keep="metrics")``); the Results of its runs then hold NaN as
-    ``tau_desired``."""
+    allocated."""
     scenario = _resolve(scenario, duration)
     plant = scenario.plant()
     Tc = scenario.timing.control_period
@@ -307,7 +302,7 @@ def prepare(
         every=every,
         periods=n,
     )
-    t, reference, q_des, tau_des = _desired(scenario, plant, np.arange(0, n, every), desired_forces)
+    t, reference, q_des, tau_des = _desired(scenario, plant, np.arange(0, n, every))
     index = _disturbance_index(0, n, Tc, scenario.disturbance.hold) if every == 1 else None
     model = scenario.controller_mechanism()
     flc = scenario.fuzzy_system()
@@ -323,8 +318,8 @@ def metrics_only(scenario: Scenario) -> Scenario:
     """The scenario logging one row (t = 0): for runs judged by their metrics alone, which
     the loop accumulates over every period whatever ``logging.every`` is (campaign tasks,
     ``simulate_many(keep="metrics")``). Nothing else changes. A log of every period
-    costs a lane loop about a fifth of its time (docs/performance.md) and a 10 s run
-    ~45 MB of memory."""
+    costs a lane loop about a fifth of its time (docs/performance.md), a 10 s run ~45 MB
+    of memory, and its desired forces (which no metric reads) 14 ms a second of run."""
     logging = scenario.logging.model_copy(update={"every": max(1, scenario.timing.periods)})
     return scenario.model_copy(update={"logging": logging})  # valid: every in [1, periods]
 
@@ -511,10 +506,6 @@ def run_prepared_lanes(
     return results
 
 
-#: tau_desired of a run prepared without the desired forces: NaN, read-only, no memory.
-_NOT_COMPUTED = np.broadcast_to(np.nan, (np.iinfo(np.int64).max // 64, 4))
-
-
 def _result(prep: Prepared, parts: dict[str, Part], run: _Run, out) -> Result:
     """The Result of one run's LoopOutput; raises SimulationDiverged if it stopped."""
     scenario, bundles = run.scenario, run.bundles
@@ -561,7 +552,7 @@ def _result(prep: Prepared, parts: dict[str, Part], run: _Run, out) -> Result:
         q_desired=prep.q_des[:rows],
         F=lg["F"],
         tau=lg["tau"],
-        tau_desired=_NOT_COMPUTED[:rows] if prep.tau_des is None else prep.tau_des[:rows],
+        tau_desired=prep.tau_des[:rows],
         disturbance=lg["disturbance"],
         theta_hat=theta_hat,
         X_measured=lg["y"][:, 0:3],
@@ -612,10 +603,10 @@ def simulate_many(
     ``keep="results"`` returns the :class:`Result` of every run. ``keep="metrics"``
     returns ``{"seed": s, **metrics.summary(result, source="loop")}`` per run instead:
     the metrics the loop accumulates over every period, which need no log, so those runs
-    log only t = 0 (:func:`metrics_only`) and compute no desired forces, and each worker
-    reuses its log buffers: a campaign of many seeds then never touches fresh memory
-    after its first runs (first-touch page faults of ~45 MB per 10 s run limited thread
-    scaling; see docs/performance.md).
+    log only t = 0 (:func:`metrics_only`), and each worker reuses its log buffers: a
+    campaign of many seeds then never touches fresh memory after its first runs
+    (first-touch page faults of ~45 MB per 10 s run limited thread scaling; see
+    docs/performance.md).
     """
     import threading
     from concurrent.futures import ThreadPoolExecutor
@@ -633,8 +624,8 @@ def simulate_many(
         raise ValueError(f"lanes = {lanes!r}: must be an integer in [1, 64]")
     if keep == "results":
         prep = prepare(scenario, duration)
-    else:  # the metrics alone: no log, no desired forces
-        prep = prepare(metrics_only(_resolve(scenario, duration)), None, desired_forces=False)
+    else:  # the metrics alone: no log
+        prep = prepare(metrics_only(_resolve(scenario, duration)), None)
     parts = resolve_parts(prep.scenario, controller)
     for s in seeds:
         _with_seed(prep.scenario, s)  # fail fast on a bad seed, before any run
