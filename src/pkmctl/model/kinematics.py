@@ -13,10 +13,12 @@ The compiled kernels here work on a geometry vector ``geom`` (see
 distance of the lower-limb centre of mass from its base joint and of the upper-limb
 centre of mass from its platform joint, and the gravitational acceleration.
 
-The body kernel :func:`body_jacobians` returns, for the 9 bodies (0 platform,
-1-4 lower limbs, 5-8 upper limbs), the body frame ``R_b``, the Jacobians ``J_v``
-(v = J_v Xdot) and ``J_w`` (omega = J_w Xdot) and their time derivatives along ``Xdot``
-applied to a vector. Everything is closed form; nothing is finite-differenced.
+The body kinematics of the dynamics (9 bodies: 0 platform, 1-4 lower limbs, 5-8 upper
+limbs) come limb by limb: :func:`platform_motion` gives what the platform contributes and
+every limb reuses, :func:`limb_motion` one limb's frame, velocity Jacobians and their time
+derivatives along ``Xdot`` applied to a vector, without a branch on the limb's kind, so
+that the dynamics kernels run the four limbs as four SIMD lanes of one loop
+(:mod:`pkmctl.model.dynamics`). Everything is closed form; nothing is finite-differenced.
 """
 
 from __future__ import annotations
@@ -31,11 +33,11 @@ __all__ = [
     "GEOM_SIZE",
     "LIMB_ANGLES_DEG",
     "N_BODIES",
-    "body_jacobians",
     "forward_kinematics_kernel",
     "limb_jacobian",
     "limb_jacobian_rate",
-    "limb_kinematics",
+    "limb_motion",
+    "platform_motion",
     "platform_point",
 ]
 
@@ -45,6 +47,11 @@ LIMB_ANGLES_DEG = (90.0, 180.0, 270.0, 0.0)
 _LIMB_DIR = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
 #: Limbs whose joint axis turns with the platform (SPR: limbs 2 and 4, zero-based 1 and 3).
 _SPR = np.array([False, True, False, True])
+# The same per limb, as arrays a loop over the limbs (SIMD lanes) indexes: cos theta_i,
+# sin theta_i, and 1.0 for an SPR limb.
+_LIMB_COS = np.ascontiguousarray(_LIMB_DIR[:, 0])
+_LIMB_SIN = np.ascontiguousarray(_LIMB_DIR[:, 1])
+_LIMB_SPR = _SPR.astype(np.float64)
 N_BODIES = 9
 GEOM_SIZE = 11
 
@@ -56,12 +63,12 @@ def _cx(a0, a1, a2, b0, b1, b2):
 
 
 @kernel(inline="always", refcount=False)
-def _limb(r_a, r_b, z, ta, zs, ca, sa, cb, sb, i):
-    """Limb i at the platform pose: rho = R a_i, the length q, 1/q, the unit vector u and
-    the non-trivial entries of J_P = dP/dX (eq. 4-8). R's first two columns are written
-    from (ca, sa, cb, sb) here, as the callers store R: scalars stay in registers, where
-    values read back from R would be reloaded after every store into the outputs."""
-    cth, sth = _LIMB_DIR[i, 0], _LIMB_DIR[i, 1]
+def _limb_at(r_a, r_b, z, ta, zs, ca, sa, cb, sb, cth, sth):
+    """The limb at angle theta (cos cth, sin sth) at the platform pose: rho = R a, the
+    length q, 1/q, the unit vector u and the non-trivial entries of J_P = dP/dX (eq. 4-8).
+    R's first two columns are written from (ca, sa, cb, sb) here, as the callers store R:
+    scalars stay in registers, where values read back from R would be reloaded after every
+    store into the outputs."""
     rx = r_a * (cb * cth)  # rho = R a_i (R[0, 1] = 0)
     ry = r_a * (sa * sb * cth + ca * sth)
     rz = r_a * (-ca * sb * cth + sa * sth)
@@ -78,6 +85,12 @@ def _limb(r_a, r_b, z, ta, zs, ca, sa, cb, sb, i):
 
 
 @kernel(inline="always", refcount=False)
+def _limb(r_a, r_b, z, ta, zs, ca, sa, cb, sb, i):
+    """:func:`_limb_at` of limb i (a constant index into the limb angles)."""
+    return _limb_at(r_a, r_b, z, ta, zs, ca, sa, cb, sb, _LIMB_DIR[i, 0], _LIMB_DIR[i, 1])
+
+
+@kernel(inline="always", refcount=False)
 def _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22):
     """The row J_i = u^T J_P of the limb Jacobian (eq. 8)."""
     return u1 * p10 + u2, u1 * p11 + u2 * p21, u0 * p02 + u1 * p12 + u2 * p22
@@ -90,7 +103,7 @@ def limb_jacobian(geom, X, R, Jq, q):
     r_a, r_b, z = geom[0], geom[1], X[0]
     ca, sa, cb, sb = math.cos(X[1]), math.sin(X[1]), math.cos(X[2]), math.sin(X[2])
     ta = sa / ca
-    zs = z * (1.0 / (ca * ca))  # as body_jacobians rounds it
+    zs = z * (1.0 / (ca * ca))  # as platform_motion rounds it
     R[0, 0], R[0, 1], R[0, 2] = cb, 0.0, sb
     R[1, 0], R[1, 1], R[1, 2] = sa * sb, ca, -sa * cb
     R[2, 0], R[2, 1], R[2, 2] = -ca * sb, sa, ca * cb
@@ -117,7 +130,7 @@ def platform_point(z, ta, zs, sec2, ca, sa, R, ox, oy, oz, Xd, v):
     p02 = ca * rz - sa * ry
     p10, p11, p12 = -ta, -zs - rz, sa * rx
     p21, p22 = ry, -ca * rx
-    # dJ_P v = dJv0 v + (dJw0 v) x rho + (Jw0 v) x (omega x rho), as in body_jacobians
+    # dJ_P v = dJv0 v + (dJw0 v) x rho + (Jw0 v) x (omega x rho), as in limb_motion
     av1 = -sec2 * ad * v[0] - (zd * sec2 + 2.0 * z * sec2 * ta * ad) * v[1]
     t0, t1, t2 = _cx(0.0, -sa * ad * v[2], ca * ad * v[2], rx, ry, rz)
     rdx, rdy, rdz = _cx(ad, ca * bd, sa * bd, rx, ry, rz)
@@ -166,144 +179,109 @@ def limb_jacobian_rate(geom, X, Xd, v, R, Jq, q, Jdv):
         Jdv[i] = (Pd0 * Pv0 + Pd1 * Pv1 + Pd2 * Pv2 - qd * qv) * iq + (u0 * a0 + u1 * a1 + u2 * a2)
 
 
-@kernel(inline="always")
-def body_jacobians(geom, X, Xd, v, Rb, Jv, Jw, av, aw, Jq, q):
-    """Fill the kinematics of all 9 bodies and of the 4 limbs at (X, Xd).
-
-    Besides the Jacobians, it gives their time derivatives (along Xd) applied to one
-    vector v: ``av = dJ_v v`` and ``aw = dJ_w v``. Every dynamic quantity needs only
-    that product (v = Xdot for the plant, v = Xr_dot for the controllers), which is
-    three times cheaper than the full derivative matrices.
-
-    Parameters
-    ----------
-    geom : ndarray, shape (11,)
-    X, Xd, v : ndarray, shape (3,)
-        Pose, pose rate, and the vector the Jacobian derivatives are applied to.
-    Rb : ndarray, shape (9, 3, 3)
-        Out: body frames (columns are the body axes in B); rows 0-4 only, since an upper
-        limb (5-8) shares the frame of its lower limb (1-4).
-    Jv, Jw : ndarray, shape (9, 3, 3)
-        Out: linear and angular velocity Jacobians (v_b = Jv Xd, omega_b = Jw Xd); Jw
-        rows 0-4 only, as for Rb.
-    av, aw : ndarray, shape (9, 3)
-        Out: dJv/dt v and dJw/dt v (aw rows 0-4 only).
-    Jq : ndarray, shape (4, 3)
-        Out: the limb Jacobian J = dq/dX (eq. 8).
-    q : ndarray, shape (4,)
-        Out: limb lengths.
-    """
-    r_a, r_b = geom[0], geom[1]
+@kernel(inline="always", refcount=False)
+def platform_motion(X, Xd, v):
+    """The platform's values every limb reuses (eq. 1-3): cos and sin of alpha and beta,
+    tan alpha, sec^2 alpha, z sec^2 alpha, its angular velocity omega = a_dot e_x +
+    b_dot R_x(alpha) e_y and J_w v, and the non-zero entries of dJ_v v and dJ_w v of the
+    platform (body 0): av = (0, av01, 0), aw = (0, aw01, aw02)."""
     z, zd, ad, bd = X[0], Xd[0], Xd[1], Xd[2]
-    v0, v1, v2 = v[0], v[1], v[2]  # scalars: not reloaded after each store below
+    v0, v1, v2 = v[0], v[1], v[2]
     ca, sa, cb, sb = math.cos(X[1]), math.sin(X[1]), math.cos(X[2]), math.sin(X[2])
     ta = sa / ca
     sec2 = 1.0 / (ca * ca)
-    # -- platform (eq. 1-3): p = [0, -z tan a, z], R = R_x(a) R_y(b),
-    #    omega = a_dot e_x + b_dot R_x(a) e_y
-    R = Rb[0]
-    R[0, 0], R[0, 1], R[0, 2] = cb, 0.0, sb
-    R[1, 0], R[1, 1], R[1, 2] = sa * sb, ca, -sa * cb
-    R[2, 0], R[2, 1], R[2, 2] = -ca * sb, sa, ca * cb
-    # every entry written (a slice set to 0 compiles to a call of memset)
-    Jv[0, 0, 0], Jv[0, 0, 1], Jv[0, 0, 2] = 0.0, 0.0, 0.0
-    Jv[0, 1, 0], Jv[0, 1, 1], Jv[0, 1, 2] = -ta, -z * sec2, 0.0
-    Jv[0, 2, 0], Jv[0, 2, 1], Jv[0, 2, 2] = 1.0, 0.0, 0.0
-    Jw[0, 0, 0], Jw[0, 0, 1], Jw[0, 0, 2] = 0.0, 1.0, 0.0
-    Jw[0, 1, 0], Jw[0, 1, 1], Jw[0, 1, 2] = 0.0, 0.0, ca
-    Jw[0, 2, 0], Jw[0, 2, 1], Jw[0, 2, 2] = 0.0, 0.0, sa
     av01 = -sec2 * ad * v0 - (zd * sec2 + 2.0 * z * sec2 * ta * ad) * v1
     aw01, aw02 = -sa * ad * v2, ca * ad * v2
-    av[0, 0], av[0, 1], av[0, 2] = 0.0, av01, 0.0
-    aw[0, 0], aw[0, 1], aw[0, 2] = 0.0, aw01, aw02
-    w0x, w0y, w0z = ad, ca * bd, sa * bd  # platform angular velocity
-    wv0x, wv0y, wv0z = v1, ca * v2, sa * v2  # J_w v
-    zs = z * sec2
-    for i in range(4):
-        rx, ry, rz, qi, iq, u0, u1, u2, p02, p10, p11, p12, p21, p22 = _limb(
-            r_a, r_b, z, ta, zs, ca, sa, cb, sb, i
-        )
-        rdx, rdy, rdz = _cx(w0x, w0y, w0z, rx, ry, rz)  # rho_dot = omega x rho
-        q[i] = qi
-        # dJ_P v = av0 + aw0 x rho + (Jw0 v) x rho_dot
-        t0, t1, t2 = _cx(0.0, aw01, aw02, rx, ry, rz)
-        s0, s1, s2 = _cx(wv0x, wv0y, wv0z, rdx, rdy, rdz)
-        aP0, aP1, aP2 = t0 + s0, av01 + t1 + s1, t2 + s2
-        # P_dot = J_P Xd, P_v = J_P v; q_dot = u . P_dot; u_dot = (I - u u^T) P_dot / q
-        Pd0 = p02 * bd
-        Pd1 = p10 * zd + p11 * ad + p12 * bd
-        Pd2 = zd + p21 * ad + p22 * bd
-        Pv0 = p02 * v2
-        Pv1 = p10 * v0 + p11 * v1 + p12 * v2
-        Pv2 = v0 + p21 * v1 + p22 * v2
-        qd = u0 * Pd0 + u1 * Pd1 + u2 * Pd2
-        ud0, ud1, ud2 = (Pd0 - u0 * qd) * iq, (Pd1 - u1 * qd) * iq, (Pd2 - u2 * qd) * iq
-        # J = u^T J_P (eq. 8); J_u = (I - u u^T) J_P / q, so u_dot = J_u Xd
-        j0, j1, j2 = _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22)
-        Jq[i, 0], Jq[i, 1], Jq[i, 2] = j0, j1, j2
-        k00, k01, k02 = -u0 * j0 * iq, -u0 * j1 * iq, (p02 - u0 * j2) * iq
-        k10, k11, k12 = (p10 - u1 * j0) * iq, (p11 - u1 * j1) * iq, (p12 - u1 * j2) * iq
-        k20, k21, k22 = (1.0 - u2 * j0) * iq, (p21 - u2 * j1) * iq, (p22 - u2 * j2) * iq
-        # dJ_u v = d/dt[(I - u u^T)/q] P_v + (I - u u^T)/q dJ_P v
-        uPv = u0 * Pv0 + u1 * Pv1 + u2 * Pv2
-        udPv = ud0 * Pv0 + ud1 * Pv1 + ud2 * Pv2
-        uaP = u0 * aP0 + u1 * aP1 + u2 * aP2
-        Juv0, Juv1, Juv2 = (Pv0 - u0 * uPv) * iq, (Pv1 - u1 * uPv) * iq, (Pv2 - u2 * uPv) * iq
-        cc = uaP + udPv
-        au0 = (aP0 - u0 * cc - ud0 * uPv - Juv0 * qd) * iq
-        au1 = (aP1 - u1 * cc - ud1 * uPv - Juv1 * qd) * iq
-        au2 = (aP2 - u2 * cc - ud2 * uPv - Juv2 * qd) * iq
-        lo, up = 1 + i, 5 + i
-        l1, l2 = geom[2 + i], geom[6 + i]
-        Jv[lo, 0, 0], Jv[lo, 0, 1], Jv[lo, 0, 2] = l1 * k00, l1 * k01, l1 * k02
-        Jv[lo, 1, 0], Jv[lo, 1, 1], Jv[lo, 1, 2] = l1 * k10, l1 * k11, l1 * k12
-        Jv[lo, 2, 0], Jv[lo, 2, 1], Jv[lo, 2, 2] = l1 * k20, l1 * k21, l1 * k22
-        Jv[up, 0, 0], Jv[up, 0, 1], Jv[up, 0, 2] = -l2 * k00, -l2 * k01, p02 - l2 * k02
-        Jv[up, 1, 0], Jv[up, 1, 1], Jv[up, 1, 2] = p10 - l2 * k10, p11 - l2 * k11, p12 - l2 * k12
-        Jv[up, 2, 0], Jv[up, 2, 1], Jv[up, 2, 2] = 1.0 - l2 * k20, p21 - l2 * k21, p22 - l2 * k22
-        av[lo, 0], av[lo, 1], av[lo, 2] = l1 * au0, l1 * au1, l1 * au2
-        av[up, 0], av[up, 1], av[up, 2] = aP0 - l2 * au0, aP1 - l2 * au1, aP2 - l2 * au2
-        # Limb frame [x_i, u_i x x_i, u_i]; x_i = e_x (RPU) or w = R_x(alpha) e_y (SPR).
-        spr = _SPR[i]
-        if spr:
-            x0, x1, x2 = 0.0, ca, sa
-        else:
-            x0, x1, x2 = 1.0, 0.0, 0.0
-        y0, y1, y2 = _cx(u0, u1, u2, x0, x1, x2)
-        # omega_i = u x u_dot + spin u; for SPR the spin (x_dot . y) is alpha_dot u_x,
-        # so J_w = [u]x J_u (+ u u_x in the alpha column) and
-        # dJ_w v = u_dot x (J_u v) + u x (dJ_u v) (+ v_alpha (u_dot_x u + u_x u_dot)).
-        w00, w10, w20 = _cx(u0, u1, u2, k00, k10, k20)
-        w01, w11, w21 = _cx(u0, u1, u2, k01, k11, k21)
-        w02, w12, w22 = _cx(u0, u1, u2, k02, k12, k22)
-        t0, t1, t2 = _cx(ud0, ud1, ud2, Juv0, Juv1, Juv2)
-        s0, s1, s2 = _cx(u0, u1, u2, au0, au1, au2)
-        e0, e1, e2 = t0 + s0, t1 + s1, t2 + s2
-        if spr:
-            w01 += u0 * u0
-            w11 += u0 * u1
-            w21 += u0 * u2
-            e0 += v1 * (ud0 * u0 + u0 * ud0)
-            e1 += v1 * (ud0 * u1 + u0 * ud1)
-            e2 += v1 * (ud0 * u2 + u0 * ud2)
-        # Both bodies of the limb share its frame and rotation: they are stored once, at
-        # the lower body (index 1 + i); rows 5-8 of Rb, Jw and aw are not written.
-        Rb[lo, 0, 0], Rb[lo, 0, 1], Rb[lo, 0, 2] = x0, y0, u0
-        Rb[lo, 1, 0], Rb[lo, 1, 1], Rb[lo, 1, 2] = x1, y1, u1
-        Rb[lo, 2, 0], Rb[lo, 2, 1], Rb[lo, 2, 2] = x2, y2, u2
-        Jw[lo, 0, 0], Jw[lo, 0, 1], Jw[lo, 0, 2] = w00, w01, w02
-        Jw[lo, 1, 0], Jw[lo, 1, 1], Jw[lo, 1, 2] = w10, w11, w12
-        Jw[lo, 2, 0], Jw[lo, 2, 1], Jw[lo, 2, 2] = w20, w21, w22
-        aw[lo, 0], aw[lo, 1], aw[lo, 2] = e0, e1, e2
+    w0 = (ad, ca * bd, sa * bd)  # platform angular velocity
+    wv0 = (v1, ca * v2, sa * v2)  # J_w v
+    return ca, sa, cb, sb, ta, sec2, z * sec2, av01, aw01, aw02, w0, wv0
 
 
-@kernel
-def limb_kinematics(geom, X, Jq, q):
-    """Limb lengths ``q`` (4,) and Jacobian ``Jq`` (4, 3) at pose X (eq. 4-8)."""
-    z3 = np.zeros(3)
-    m3 = np.empty((3, N_BODIES, 3, 3))  # Rb, Jv, Jw (must not alias: Jv, Jw are read back)
-    m1 = np.empty((2, N_BODIES, 3))  # av, aw
-    body_jacobians(geom, X, z3, z3, m3[0], m3[1], m3[2], m1[0], m1[1], Jq, q)
+@kernel(inline="always", refcount=False)
+def limb_motion(Xd, v, ca, sa, av01, aw01, aw02, w0, wv0, spr, limb):
+    """The velocity kinematics of one limb, from its :func:`_limb_at` values ``limb``.
+
+    The limb's two bodies share its frame R_i = [x_i, u_i x x_i, u_i] and angular
+    velocity; the lower body's centre of mass is l1 u from the base joint, the upper
+    body's l2 u before the platform joint, so both velocity Jacobians follow from J_P and
+    J_u = du/dX = (I - u u^T) J_P / q:
+
+        J_v,lower = l1 J_u,   J_v,upper = J_P - l2 J_u,   J_w = [u]x J_u (+ u u_x e_alpha^T)
+
+    and their time derivatives along Xd applied to v from dJ_P v and dJ_u v (the product
+    is all any dynamic quantity needs: v = Xdot for the plant, v = Xr_dot for the
+    controllers). ``spr`` (a bool, possibly per SIMD lane) marks an SPR limb, whose joint
+    axis x_i = R_x(alpha) e_y turns with the platform and adds the spin (x_dot . y) u =
+    alpha_dot u_x u to omega; an RPU limb has x_i = e_x. Branch-free: the SPR terms are
+    selects, so the four limbs vectorise as one loop.
+
+    Returns ``(j, K, aP, au, x, y, Jw, aw)``: the row j = u^T J_P of the limb Jacobian
+    (eq. 8), J_u (9, row by row), dJ_P v and dJ_u v (3 each), the frame axes x and y
+    (3 each), J_w (9, row by row) and dJ_w v (3).
+    """
+    zd, ad, bd = Xd[0], Xd[1], Xd[2]
+    v0, v1, v2 = v[0], v[1], v[2]
+    rx, ry, rz, qi, iq, u0, u1, u2, p02, p10, p11, p12, p21, p22 = limb
+    rdx, rdy, rdz = _cx(w0[0], w0[1], w0[2], rx, ry, rz)  # rho_dot = omega x rho
+    # dJ_P v = av0 + aw0 x rho + (Jw0 v) x rho_dot
+    t0, t1, t2 = _cx(0.0, aw01, aw02, rx, ry, rz)
+    s0, s1, s2 = _cx(wv0[0], wv0[1], wv0[2], rdx, rdy, rdz)
+    aP0, aP1, aP2 = t0 + s0, av01 + t1 + s1, t2 + s2
+    # P_dot = J_P Xd, P_v = J_P v; q_dot = u . P_dot; u_dot = (I - u u^T) P_dot / q
+    Pd0 = p02 * bd
+    Pd1 = p10 * zd + p11 * ad + p12 * bd
+    Pd2 = zd + p21 * ad + p22 * bd
+    Pv0 = p02 * v2
+    Pv1 = p10 * v0 + p11 * v1 + p12 * v2
+    Pv2 = v0 + p21 * v1 + p22 * v2
+    qd = u0 * Pd0 + u1 * Pd1 + u2 * Pd2
+    ud0, ud1, ud2 = (Pd0 - u0 * qd) * iq, (Pd1 - u1 * qd) * iq, (Pd2 - u2 * qd) * iq
+    # J = u^T J_P (eq. 8); J_u = (I - u u^T) J_P / q, so u_dot = J_u Xd
+    j0, j1, j2 = _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22)
+    k00, k01, k02 = -u0 * j0 * iq, -u0 * j1 * iq, (p02 - u0 * j2) * iq
+    k10, k11, k12 = (p10 - u1 * j0) * iq, (p11 - u1 * j1) * iq, (p12 - u1 * j2) * iq
+    k20, k21, k22 = (1.0 - u2 * j0) * iq, (p21 - u2 * j1) * iq, (p22 - u2 * j2) * iq
+    # dJ_u v = d/dt[(I - u u^T)/q] P_v + (I - u u^T)/q dJ_P v
+    uPv = u0 * Pv0 + u1 * Pv1 + u2 * Pv2
+    udPv = ud0 * Pv0 + ud1 * Pv1 + ud2 * Pv2
+    uaP = u0 * aP0 + u1 * aP1 + u2 * aP2
+    Juv0, Juv1, Juv2 = (Pv0 - u0 * uPv) * iq, (Pv1 - u1 * uPv) * iq, (Pv2 - u2 * uPv) * iq
+    cc = uaP + udPv
+    au0 = (aP0 - u0 * cc - ud0 * uPv - Juv0 * qd) * iq
+    au1 = (aP1 - u1 * cc - ud1 * uPv - Juv1 * qd) * iq
+    au2 = (aP2 - u2 * cc - ud2 * uPv - Juv2 * qd) * iq
+    # Limb frame [x_i, u_i x x_i, u_i]; x_i = e_x (RPU) or w = R_x(alpha) e_y (SPR).
+    x0 = 0.0 if spr else 1.0
+    x1 = ca if spr else 0.0
+    x2 = sa if spr else 0.0
+    y0, y1, y2 = _cx(u0, u1, u2, x0, x1, x2)
+    # omega_i = u x u_dot + spin u; for SPR the spin (x_dot . y) is alpha_dot u_x,
+    # so J_w = [u]x J_u (+ u u_x in the alpha column) and
+    # dJ_w v = u_dot x (J_u v) + u x (dJ_u v) (+ v_alpha (u_dot_x u + u_x u_dot)).
+    w00, w10, w20 = _cx(u0, u1, u2, k00, k10, k20)
+    w01, w11, w21 = _cx(u0, u1, u2, k01, k11, k21)
+    w02, w12, w22 = _cx(u0, u1, u2, k02, k12, k22)
+    t0, t1, t2 = _cx(ud0, ud1, ud2, Juv0, Juv1, Juv2)
+    s0, s1, s2 = _cx(u0, u1, u2, au0, au1, au2)
+    e0, e1, e2 = t0 + s0, t1 + s1, t2 + s2
+    # (a + (m if spr else 0.0), not (a + m if spr else a): the same sum, and a select of
+    # two operands where the other form vectorises to a masked load and store)
+    w01 += (u0 * u0) if spr else 0.0
+    w11 += (u0 * u1) if spr else 0.0
+    w21 += (u0 * u2) if spr else 0.0
+    e0 += (v1 * (ud0 * u0 + u0 * ud0)) if spr else 0.0
+    e1 += (v1 * (ud0 * u1 + u0 * ud1)) if spr else 0.0
+    e2 += (v1 * (ud0 * u2 + u0 * ud2)) if spr else 0.0
+    return (
+        (j0, j1, j2),
+        (k00, k01, k02, k10, k11, k12, k20, k21, k22),
+        (aP0, aP1, aP2),
+        (au0, au1, au2),
+        (x0, x1, x2),
+        (y0, y1, y2),
+        (w00, w01, w02, w10, w11, w12, w20, w21, w22),
+        (e0, e1, e2),
+    )
 
 
 @kernel
@@ -315,8 +293,9 @@ def forward_kinematics_kernel(geom, q_target, guess, tol, max_iter):
     X = guess.copy()
     Jq = np.empty((4, 3))
     q = np.empty(4)
+    R = np.empty((3, 3))
     mu = 1e-9
-    limb_kinematics(geom, X, Jq, q)
+    limb_jacobian(geom, X, R, Jq, q)
     r = q - q_target
     cost = r @ r
     it = 0
@@ -332,7 +311,7 @@ def forward_kinematics_kernel(geom, q_target, guess, tol, max_iter):
             if Xn[0] <= 0.0 or abs(Xn[1]) >= 1.5 or abs(Xn[2]) >= 1.5:
                 mu *= 10.0
                 continue
-            limb_kinematics(geom, Xn, Jq, q)
+            limb_jacobian(geom, Xn, R, Jq, q)
             rn = q - q_target
             cn = rn @ rn
             if cn < cost:
@@ -341,7 +320,7 @@ def forward_kinematics_kernel(geom, q_target, guess, tol, max_iter):
                 break
             mu *= 10.0
         else:
-            limb_kinematics(geom, X, Jq, q)
+            limb_jacobian(geom, X, R, Jq, q)
             return X, math.sqrt(cost), it
-        limb_kinematics(geom, X, Jq, q)
+        limb_jacobian(geom, X, R, Jq, q)
     return X, math.sqrt(cost), it

@@ -45,12 +45,13 @@ from typing import NamedTuple
 import numpy as np
 from llvmlite import ir
 from numba import types
-from numba.core import cgutils
 from numba.extending import intrinsic
 
 from pkmctl._jit import kernel
 from pkmctl.model.dynamics import cholesky_solve3
 from pkmctl.model.kinematics import _LIMB_DIR, _SPR, _cx, _limb, _limb_row
+from pkmctl.model.simd import disjoint_arrays, wide_vectors
+from pkmctl.model.simd import stack_block as _stack_block
 
 __all__ = [
     "LANE_BLOCK",
@@ -141,66 +142,6 @@ def lane_rigid_plant(plants) -> LaneRigidPlant:
 
 
 # ---------------------------------------------------------------- the stack block
-@intrinsic
-def _stack_block(typingctx, size):
-    """A 1-D float64 array of ``size`` (a literal int) elements on the stack, 64-byte
-    aligned and uninitialised: scratch that LLVM knows no argument points into."""
-    if not isinstance(size, types.IntegerLiteral):
-        return None
-    count = size.literal_value
-    arr = types.Array(types.float64, 1, "C")
-
-    def codegen(context, builder, sig, args):
-        data = cgutils.alloca_once(builder, ir.DoubleType(), size=count)
-        data.align = 64
-        intp = context.get_value_type(types.intp)
-        ary = context.make_array(arr)(context, builder)
-        context.populate_array(
-            ary,
-            data=data,
-            shape=[ir.Constant(intp, count)],
-            strides=[ir.Constant(intp, 8)],
-            itemsize=ir.Constant(intp, 8),
-            meminfo=None,
-        )
-        return ary._getvalue()
-
-    return arr(size), codegen
-
-
-@intrinsic
-def wide_vectors(typingctx):
-    """Let LLVM vectorise the calling function with 512-bit vectors on a CPU that has
-    them: LLVM's tuning for some AVX-512 CPUs (this machine's Xeon, which it takes for a
-    Rocket Lake) prefers 256-bit ones, so a block of 8 lanes would be two vectors. Sets
-    the function attribute ``"prefer-vector-width"="512"``, which overrides that tuning
-    for this function only (no effect where the CPU has no 512-bit vectors)."""
-
-    def codegen(context, builder, sig, args):
-        # llvmlite's FunctionAttributes accepts only attributes without a value
-        set.add(builder.function.attributes, '"prefer-vector-width"="512"')
-        return context.get_dummy_value()
-
-    return types.none(), codegen
-
-
-@intrinsic
-def disjoint_arrays(typingctx):
-    """Promise LLVM that the calling function's array arguments do not overlap (each
-    pointer argument ``noalias``), so that it vectorises the function's lane loops over
-    several arrays without run-time overlap checks. Call it only where that holds: the
-    lane controller steps and the lane metrics, whose arrays are separate allocations of
-    the lane loop (not the lane loop itself: its ``EachLane`` tuples repeat a bundle)."""
-
-    def codegen(context, builder, sig, args):
-        for a in context.call_conv.get_arguments(builder.function):
-            if isinstance(a.type, ir.PointerType):
-                a.add_attribute("noalias")
-        return context.get_dummy_value()
-
-    return types.none(), codegen
-
-
 @intrinsic
 def _ix(typingctx, row, l):
     """The index of lane l of a block row, ``np.uint64(row * _B + l)``, unsigned: Numba

@@ -23,7 +23,7 @@ from pkmctl.model.dynamics import (
     make_work,
     regressor_kernel,
 )
-from pkmctl.model.kinematics import GEOM_SIZE, N_BODIES, forward_kinematics_kernel, limb_kinematics
+from pkmctl.model.kinematics import GEOM_SIZE, N_BODIES, forward_kinematics_kernel, limb_jacobian
 from pkmctl.model.machine import N_THETA_EXT, extended_regressor_kernel
 
 __all__ = ["BODY_NAMES", "Body", "Mechanism", "PAPER_TABLE2"]
@@ -442,8 +442,9 @@ def limbs_batch(geom, Xb):
     n = Xb.shape[0]
     q = np.empty((n, 4))
     J = np.empty((n, 4, 3))
+    R = np.empty((3, 3))
     for k in range(n):
-        limb_kinematics(geom, Xb[k], J[k], q[k])
+        limb_jacobian(geom, Xb[k], R, J[k], q[k])
     return q, J
 
 
