@@ -43,6 +43,11 @@ from pkmctl.model.simd import limb_vectors, stack_block
 
 __all__ = [
     "JQ",
+    "limb_columns",
+    "limb_gravity",
+    "limb_sums",
+    "platform_columns",
+    "platform_sums",
     "N_THETA",
     "Q",
     "WORK_SHAPES",
@@ -227,7 +232,7 @@ def _rotation(i0, i1, i2, R, Jw, aw, Xd, v, s):
 
 
 @kernel(inline="always", refcount=False)
-def _platform_body(X, pm):
+def _platform_body(pm):
     """The platform's frame R (9), J_v (9), dJ_v v, J_w (9) and dJ_w v (body 0), from
     :func:`~pkmctl.model.kinematics.platform_motion`'s values ``pm``."""
     ca, sa, cb, sb, ta, _, zs, av01, aw01, aw02, _, _ = pm
@@ -258,101 +263,6 @@ def _frame(x, y, limb):
     """The limb frame R_i = [x, y, u] (9, row by row)."""
     u0, u1, u2 = limb[5], limb[6], limb[7]
     return x[0], y[0], u0, x[1], y[1], u1, x[2], y[2], u2
-
-
-@kernel(refcount=False, llvm_inline=True)
-def dynamics_kernel(geom, theta, X, Xd, v, work, M, Cv, G):
-    """Fill M (3, 3), C(X, Xd) v (3,) and G (3,) (eq. 9-24); the limb Jacobian and lengths
-    at X go to ``work`` (:func:`make_work`).
-
-    v = Xd gives the Coriolis/centrifugal vector of the plant; v = Xr_dot the
-    controllers' C Xr_dot. The matrix C is C e_j column by column. The four limbs run as
-    SIMD lanes (see above); each limb's two bodies and its frame give one partial sum.
-    """
-    limb_vectors()
-    W = stack_block(_BLOCK)
-    Jq, q = work[JQ], work[Q]
-    pm = platform_motion(X, Xd, v)
-    ca, sa, cb, sb, ta, _, zs, av01, aw01, aw02, w0, wv0 = pm
-    _limb_parameters(geom, theta, W)
-    r_a, r_b, z = geom[0], geom[1], X[0]
-    for ii in range(q.shape[0]):
-        i = np.uint64(ii)
-        limb = _limb_at(r_a, r_b, z, ta, zs, ca, sa, cb, sb, _LIMB_COS[i], _LIMB_SIN[i])
-        j, K, aP, au, x, y, Jw, aw = limb_motion(
-            Xd, v, ca, sa, av01, aw01, aw02, w0, wv0, _LIMB_SPR[i] > 0.0, limb
-        )
-        lower, av_lo, upper, av_up = _limb_bodies(W[_row(W, _L1, i)], W[_row(W, _L2, i)],
-                                                  limb, K, aP, au)  # fmt: skip
-        s = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        s = _translation(W[_row(W, _MLO, i)], lower, av_lo, s)
-        s = _translation(W[_row(W, _MUP, i)], upper, av_up, s)
-        s = _rotation(W[_row(W, _I0, i)], W[_row(W, _I1, i)], W[_row(W, _I2, i)],
-                      _frame(x, y, limb), Jw, aw, Xd, v, s)  # fmt: skip
-        _put3(W, _OS, i, s[0:3])
-        _put3(W, _OS + 3, i, s[3:6])
-        _put3(W, _OS + 6, i, s[6:9])
-        _put3(W, _OS + 9, i, s[9:12])
-        _put_limb(W, i, limb, j)
-    R0, Jv0, av0, Jw0, aw0 = _platform_body(X, pm)
-    s = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    s = _translation(theta[0], Jv0, av0, s)
-    s = _rotation(theta[1], theta[2], theta[3], R0, Jw0, aw0, Xd, v, s)
-    m00, m01, m02, m11, m12, m22, c0, c1, c2, g0, g1, g2 = s
-    for i in range(4):
-        m00 += W[4 * _OS + i]
-        m01 += W[4 * (_OS + 1) + i]
-        m02 += W[4 * (_OS + 2) + i]
-        m11 += W[4 * (_OS + 3) + i]
-        m12 += W[4 * (_OS + 4) + i]
-        m22 += W[4 * (_OS + 5) + i]
-        c0 += W[4 * (_OS + 6) + i]
-        c1 += W[4 * (_OS + 7) + i]
-        c2 += W[4 * (_OS + 8) + i]
-        g0 += W[4 * (_OS + 9) + i]
-        g1 += W[4 * (_OS + 10) + i]
-        g2 += W[4 * (_OS + 11) + i]
-    g = geom[10]
-    M[0, 0], M[0, 1], M[0, 2] = m00, m01, m02
-    M[1, 0], M[1, 1], M[1, 2] = m01, m11, m12
-    M[2, 0], M[2, 1], M[2, 2] = m02, m12, m22
-    Cv[0], Cv[1], Cv[2] = c0, c1, c2
-    G[0], G[1], G[2] = g * g0, g * g1, g * g2
-    _limbs_out(W, Jq, q)
-
-
-@kernel(refcount=False, llvm_inline=True)
-def gravity_kernel(geom, theta, X, work, G):
-    """Fill G (3,) at X: sum of m g dz_b/dX (eq. 24), without the velocity terms; the limb
-    Jacobian and lengths at X go to ``work``. Row 2 of a limb body's J_v is row 2 of l1 J_u
-    (lower) or J_P - l2 J_u (upper), J_u = (I - u u^T) J_P / q."""
-    limb_vectors()
-    W = stack_block(_BLOCK)
-    Jq, q = work[JQ], work[Q]
-    _limb_parameters(geom, theta, W)
-    r_a, r_b, z, g = geom[0], geom[1], X[0], geom[10]
-    ca, sa, cb, sb = math.cos(X[1]), math.sin(X[1]), math.cos(X[2]), math.sin(X[2])
-    ta = sa / ca
-    zs = z * (1.0 / (ca * ca))  # as platform_motion rounds it
-    for ii in range(q.shape[0]):
-        i = np.uint64(ii)
-        limb = _limb_at(r_a, r_b, z, ta, zs, ca, sa, cb, sb, _LIMB_COS[i], _LIMB_SIN[i])
-        _, _, _, _, iq, u0, u1, u2, p02, p10, p11, p12, p21, p22 = limb
-        j = _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22)
-        k20, k21, k22 = (1.0 - u2 * j[0]) * iq, (p21 - u2 * j[1]) * iq, (p22 - u2 * j[2]) * iq
-        l1, l2 = W[_row(W, _L1, i)], W[_row(W, _L2, i)]
-        mlo, mup = W[_row(W, _MLO, i)] * g, W[_row(W, _MUP, i)] * g
-        W[_row(W, _OS, i)] = mlo * (l1 * k20) + mup * (1.0 - l2 * k20)
-        W[_row(W, _OS + 1, i)] = mlo * (l1 * k21) + mup * (p21 - l2 * k21)
-        W[_row(W, _OS + 2, i)] = mlo * (l1 * k22) + mup * (p22 - l2 * k22)
-        _put_limb(W, i, limb, j)
-    g0, g1, g2 = theta[0] * g, 0.0, 0.0  # the platform: dz/dX = e_z
-    for i in range(4):
-        g0 += W[4 * _OS + i]
-        g1 += W[4 * (_OS + 1) + i]
-        g2 += W[4 * (_OS + 2) + i]
-    G[0], G[1], G[2] = g0, g1, g2
-    _limbs_out(W, Jq, q)
 
 
 @kernel(inline="always", refcount=False)
@@ -405,6 +315,148 @@ def _inertia_columns(R, Jw, aw, Xd, r_d, r_dd):
     )
 
 
+@kernel(inline="always", refcount=False)
+def limb_sums(l1, l2, masses, inertias, Xd, v, pm, spr, limb):
+    """One limb's terms of M (upper triangle), C v and G, its two bodies and its frame
+    (12 sums, :func:`_translation`'s order), and its row of J: what the limb loops of the
+    scalar and the lane kernels add up. ``masses`` (lower, upper), ``inertias`` the summed
+    principal inertias (3), ``pm`` :func:`~pkmctl.model.kinematics.platform_motion`'s
+    values, ``limb`` :func:`~pkmctl.model.kinematics._limb_at`'s."""
+    ca, sa, _, _, _, _, _, av01, aw01, aw02, w0, wv0 = pm
+    j, K, aP, au, x, y, Jw, aw = limb_motion(Xd, v, ca, sa, av01, aw01, aw02, w0, wv0, spr, limb)
+    lower, av_lo, upper, av_up = _limb_bodies(l1, l2, limb, K, aP, au)
+    s = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    s = _translation(masses[0], lower, av_lo, s)
+    s = _translation(masses[1], upper, av_up, s)
+    s = _rotation(inertias[0], inertias[1], inertias[2], _frame(x, y, limb), Jw, aw, Xd, v, s)
+    return j, s
+
+
+@kernel(inline="always", refcount=False)
+def platform_sums(theta0, Xd, v, pm):
+    """The platform's terms of M (upper triangle), C v and G (12 sums): body 0 with
+    Theta_0 = ``theta0`` (4: m, I_xx, I_yy, I_zz)."""
+    R0, Jv0, av0, Jw0, aw0 = _platform_body(pm)
+    s = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    s = _translation(theta0[0], Jv0, av0, s)
+    return _rotation(theta0[1], theta0[2], theta0[3], R0, Jw0, aw0, Xd, v, s)
+
+
+@kernel(inline="always", refcount=False)
+def limb_gravity(l1, l2, mg_lo, mg_up, limb):
+    """One limb's terms of G (3) and its row of J: m g dz/dX of its two bodies, whose rows
+    2 of J_v are those of l1 J_u and J_P - l2 J_u, J_u = (I - u u^T) J_P / q."""
+    _, _, _, _, iq, u0, u1, u2, p02, p10, p11, p12, p21, p22 = limb
+    j = _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22)
+    k20, k21, k22 = (1.0 - u2 * j[0]) * iq, (p21 - u2 * j[1]) * iq, (p22 - u2 * j[2]) * iq
+    g0 = mg_lo * (l1 * k20) + mg_up * (1.0 - l2 * k20)
+    g1 = mg_lo * (l1 * k21) + mg_up * (p21 - l2 * k21)
+    g2 = mg_lo * (l1 * k22) + mg_up * (p22 - l2 * k22)
+    return j, (g0, g1, g2)
+
+
+@kernel(inline="always", refcount=False)
+def limb_columns(l1, l2, g, Xd, r_d, r_dd, pm, spr, limb):
+    """One limb's columns of Y: the mass columns of its lower and upper bodies (3 each) and
+    its frame's three inertia columns (9, column n's rows at 3 n), and its row of J
+    (``pm`` with v = Xr_d)."""
+    ca, sa, _, _, _, _, _, av01, aw01, aw02, w0, wv0 = pm
+    j, K, aP, au, x, y, Jw, aw = limb_motion(Xd, r_d, ca, sa, av01, aw01, aw02, w0, wv0, spr,
+                                             limb)  # fmt: skip
+    lower, av_lo, upper, av_up = _limb_bodies(l1, l2, limb, K, aP, au)
+    m_lo = _mass_column(g, lower, av_lo, r_dd)
+    m_up = _mass_column(g, upper, av_up, r_dd)
+    return j, m_lo, m_up, _inertia_columns(_frame(x, y, limb), Jw, aw, Xd, r_d, r_dd)
+
+
+@kernel(inline="always", refcount=False)
+def platform_columns(g, Xd, r_d, r_dd, pm):
+    """The platform's mass column (3) and its three inertia columns of Y."""
+    R0, Jv0, av0, Jw0, aw0 = _platform_body(pm)
+    return _mass_column(g, Jv0, av0, r_dd), _inertia_columns(R0, Jw0, aw0, Xd, r_d, r_dd)
+
+
+@kernel(inline="always", refcount=False)
+def _limb_at_lane(geom, X, pm, i):
+    """:func:`~pkmctl.model.kinematics._limb_at` of limb (lane) i."""
+    ca, sa, cb, sb, ta, _, zs = pm[0:7]
+    return _limb_at(geom[0], geom[1], X[0], ta, zs, ca, sa, cb, sb, _LIMB_COS[i], _LIMB_SIN[i])
+
+
+@kernel(refcount=False, llvm_inline=True)
+def dynamics_kernel(geom, theta, X, Xd, v, work, M, Cv, G):
+    """Fill M (3, 3), C(X, Xd) v (3,) and G (3,) (eq. 9-24); the limb Jacobian and lengths
+    at X go to ``work`` (:func:`make_work`).
+
+    v = Xd gives the Coriolis/centrifugal vector of the plant; v = Xr_dot the
+    controllers' C Xr_dot. The matrix C is C e_j column by column. The four limbs run as
+    SIMD lanes (see above): each limb's two bodies and frame give one partial sum
+    (:func:`limb_sums`), added to the platform's in the order of the limbs.
+    """
+    limb_vectors()
+    W = stack_block(_BLOCK)
+    Jq, q = work[JQ], work[Q]
+    pm = platform_motion(X, Xd, v)
+    _limb_parameters(geom, theta, W)
+    for ii in range(q.shape[0]):
+        i = np.uint64(ii)
+        masses = (W[_row(W, _MLO, i)], W[_row(W, _MUP, i)])
+        inertias = (W[_row(W, _I0, i)], W[_row(W, _I1, i)], W[_row(W, _I2, i)])
+        limb = _limb_at_lane(geom, X, pm, i)
+        j, s = limb_sums(W[_row(W, _L1, i)], W[_row(W, _L2, i)], masses, inertias, Xd, v, pm,
+                         _LIMB_SPR[i] > 0.0, limb)  # fmt: skip
+        _put3(W, _OS, i, s[0:3])
+        _put3(W, _OS + 3, i, s[3:6])
+        _put3(W, _OS + 6, i, s[6:9])
+        _put3(W, _OS + 9, i, s[9:12])
+        _put_limb(W, i, limb, j)
+    s = platform_sums(theta[0:4], Xd, v, pm)
+    for i in range(4):
+        s = (s[0] + W[4 * _OS + i], s[1] + W[4 * (_OS + 1) + i], s[2] + W[4 * (_OS + 2) + i],
+             s[3] + W[4 * (_OS + 3) + i], s[4] + W[4 * (_OS + 4) + i],
+             s[5] + W[4 * (_OS + 5) + i], s[6] + W[4 * (_OS + 6) + i],
+             s[7] + W[4 * (_OS + 7) + i], s[8] + W[4 * (_OS + 8) + i],
+             s[9] + W[4 * (_OS + 9) + i], s[10] + W[4 * (_OS + 10) + i],
+             s[11] + W[4 * (_OS + 11) + i])  # fmt: skip
+    m00, m01, m02, m11, m12, m22, c0, c1, c2, g0, g1, g2 = s
+    g = geom[10]
+    M[0, 0], M[0, 1], M[0, 2] = m00, m01, m02
+    M[1, 0], M[1, 1], M[1, 2] = m01, m11, m12
+    M[2, 0], M[2, 1], M[2, 2] = m02, m12, m22
+    Cv[0], Cv[1], Cv[2] = c0, c1, c2
+    G[0], G[1], G[2] = g * g0, g * g1, g * g2
+    _limbs_out(W, Jq, q)
+
+
+@kernel(refcount=False, llvm_inline=True)
+def gravity_kernel(geom, theta, X, work, G):
+    """Fill G (3,) at X: sum of m g dz_b/dX (eq. 24), without the velocity terms; the limb
+    Jacobian and lengths at X go to ``work``."""
+    limb_vectors()
+    W = stack_block(_BLOCK)
+    Jq, q = work[JQ], work[Q]
+    _limb_parameters(geom, theta, W)
+    g = geom[10]
+    ca, sa, cb, sb = math.cos(X[1]), math.sin(X[1]), math.cos(X[2]), math.sin(X[2])
+    ta = sa / ca
+    zs = X[0] * (1.0 / (ca * ca))  # as platform_motion rounds it
+    pm = (ca, sa, cb, sb, ta, 0.0, zs)
+    for ii in range(q.shape[0]):
+        i = np.uint64(ii)
+        limb = _limb_at_lane(geom, X, pm, i)
+        j, gl = limb_gravity(W[_row(W, _L1, i)], W[_row(W, _L2, i)], W[_row(W, _MLO, i)] * g,
+                             W[_row(W, _MUP, i)] * g, limb)  # fmt: skip
+        _put3(W, _OS, i, gl)
+        _put_limb(W, i, limb, j)
+    g0, g1, g2 = theta[0] * g, 0.0, 0.0  # the platform: dz/dX = e_z
+    for i in range(4):
+        g0 += W[4 * _OS + i]
+        g1 += W[4 * (_OS + 1) + i]
+        g2 += W[4 * (_OS + 2) + i]
+    G[0], G[1], G[2] = g0, g1, g2
+    _limbs_out(W, Jq, q)
+
+
 @kernel(refcount=False, llvm_inline=True)
 def regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, work, Y):
     """Fill the regressor Y (3, 36) with Y Theta = M Xr_dd + C(X, Xd) Xr_d + G (eq. 24);
@@ -418,29 +470,22 @@ def regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, work, Y):
     W = stack_block(_BLOCK)
     Jq, q = work[JQ], work[Q]
     pm = platform_motion(X, Xd, Xr_d)
-    ca, sa, cb, sb, ta, _, zs, av01, aw01, aw02, w0, wv0 = pm
     _limb_lengths(geom, W)
-    r_a, r_b, z, g = geom[0], geom[1], X[0], geom[10]
+    g = geom[10]
     for ii in range(q.shape[0]):
         i = np.uint64(ii)
-        limb = _limb_at(r_a, r_b, z, ta, zs, ca, sa, cb, sb, _LIMB_COS[i], _LIMB_SIN[i])
-        j, K, aP, au, x, y, Jw, aw = limb_motion(
-            Xd, Xr_d, ca, sa, av01, aw01, aw02, w0, wv0, _LIMB_SPR[i] > 0.0, limb
-        )
-        lower, av_lo, upper, av_up = _limb_bodies(W[_row(W, _L1, i)], W[_row(W, _L2, i)],
-                                                  limb, K, aP, au)  # fmt: skip
-        _put3(W, _OS, i, _mass_column(g, lower, av_lo, Xr_dd))
-        _put3(W, _OS + 3, i, _mass_column(g, upper, av_up, Xr_dd))
-        col0, col1, col2 = _inertia_columns(_frame(x, y, limb), Jw, aw, Xd, Xr_d, Xr_dd)
-        _put3(W, _OS + 6, i, col0)
-        _put3(W, _OS + 9, i, col1)
-        _put3(W, _OS + 12, i, col2)
+        limb = _limb_at_lane(geom, X, pm, i)
+        j, m_lo, m_up, cols = limb_columns(W[_row(W, _L1, i)], W[_row(W, _L2, i)], g, Xd, Xr_d,
+                                           Xr_dd, pm, _LIMB_SPR[i] > 0.0, limb)  # fmt: skip
+        _put3(W, _OS, i, m_lo)
+        _put3(W, _OS + 3, i, m_up)
+        _put3(W, _OS + 6, i, cols[0])
+        _put3(W, _OS + 9, i, cols[1])
+        _put3(W, _OS + 12, i, cols[2])
         _put_limb(W, i, limb, j)
-    R0, Jv0, av0, Jw0, aw0 = _platform_body(X, pm)
-    m = _mass_column(g, Jv0, av0, Xr_dd)
-    col0, col1, col2 = _inertia_columns(R0, Jw0, aw0, Xd, Xr_d, Xr_dd)
+    m, cols = platform_columns(g, Xd, Xr_d, Xr_dd, pm)
     for r in range(3):
-        Y[r, 0], Y[r, 1], Y[r, 2], Y[r, 3] = m[r], col0[r], col1[r], col2[r]
+        Y[r, 0], Y[r, 1], Y[r, 2], Y[r, 3] = m[r], cols[0][r], cols[1][r], cols[2][r]
     for i in range(4):
         for r in range(3):
             lo, up = 4 * (1 + i), 4 * (5 + i)

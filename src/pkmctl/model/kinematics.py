@@ -39,6 +39,7 @@ __all__ = [
     "limb_motion",
     "platform_motion",
     "platform_point",
+    "platform_rates",
 ]
 
 #: Joint angles theta_i of limbs 1..4 around the z axis (DESIGN.md §1): +y, -x, -y, +x.
@@ -180,21 +181,28 @@ def limb_jacobian_rate(geom, X, Xd, v, R, Jq, q, Jdv):
 
 
 @kernel(inline="always", refcount=False)
-def platform_motion(X, Xd, v):
-    """The platform's values every limb reuses (eq. 1-3): cos and sin of alpha and beta,
-    tan alpha, sec^2 alpha, z sec^2 alpha, its angular velocity omega = a_dot e_x +
-    b_dot R_x(alpha) e_y and J_w v, and the non-zero entries of dJ_v v and dJ_w v of the
-    platform (body 0): av = (0, av01, 0), aw = (0, aw01, aw02)."""
-    z, zd, ad, bd = X[0], Xd[0], Xd[1], Xd[2]
+def platform_rates(z, Xd, v, ca, sa):
+    """The platform's values every limb reuses (eq. 1-3), from the pose's z, cos and sin
+    of alpha, Xd and v (3 each, arrays or tuples): tan alpha, sec^2 alpha, z sec^2 alpha,
+    the non-zero entries of dJ_v v and dJ_w v of the platform (body 0): av = (0, av01, 0),
+    aw = (0, aw01, aw02), its angular velocity omega = a_dot e_x + b_dot R_x(alpha) e_y and
+    J_w v."""
+    zd, ad, bd = Xd[0], Xd[1], Xd[2]
     v0, v1, v2 = v[0], v[1], v[2]
-    ca, sa, cb, sb = math.cos(X[1]), math.sin(X[1]), math.cos(X[2]), math.sin(X[2])
     ta = sa / ca
     sec2 = 1.0 / (ca * ca)
     av01 = -sec2 * ad * v0 - (zd * sec2 + 2.0 * z * sec2 * ta * ad) * v1
     aw01, aw02 = -sa * ad * v2, ca * ad * v2
     w0 = (ad, ca * bd, sa * bd)  # platform angular velocity
     wv0 = (v1, ca * v2, sa * v2)  # J_w v
-    return ca, sa, cb, sb, ta, sec2, z * sec2, av01, aw01, aw02, w0, wv0
+    return ta, sec2, z * sec2, av01, aw01, aw02, w0, wv0
+
+
+@kernel(inline="always", refcount=False)
+def platform_motion(X, Xd, v):
+    """cos and sin of alpha and beta (libm), then :func:`platform_rates`."""
+    ca, sa, cb, sb = math.cos(X[1]), math.sin(X[1]), math.cos(X[2]), math.sin(X[2])
+    return (ca, sa, cb, sb) + platform_rates(X[0], Xd, v, ca, sa)
 
 
 @kernel(inline="always", refcount=False)

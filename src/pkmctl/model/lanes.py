@@ -3,12 +3,13 @@
 Every array carries the lane dimension last: geom (11, L), theta (36, L), X (3, L),
 M (3, 3, L), Y (3, 36, L), a plant's state x (6, L). Lane l of every output is what
 the scalar kernel of :mod:`pkmctl.model.dynamics`, :mod:`~pkmctl.model.kinematics` or
-:mod:`pkmctl.sim.plants` gives on lane l's numbers: the same formulas, written in the
-same order, so that the values agree bit for bit or within an ulp where LLVM fuses a
-multiply-add differently (tests/test_lanes_model.py). Lanes may differ in every number,
-not in the code that runs: where the scalar code tests a number (``p.machine > 0``,
-``p.payload > 0``), a block of lanes runs the option's terms if any of its lanes needs
-them and each lane keeps, by a select, its own result.
+:mod:`pkmctl.sim.plants` gives on lane l's numbers: the same formulas (the scalar
+kernels' own per-limb functions ``limb_sums``, ``limb_columns`` and ``limb_gravity``, and
+the platform's), summed in the same order, so that the values agree within a few ulps
+where LLVM fuses a multiply-add differently (tests/test_lanes_model.py). Lanes may
+differ in every number, not in the code that runs: where the scalar code tests a number
+(``p.machine > 0``, ``p.payload > 0``), a block of lanes runs the option's terms if any
+of its lanes needs them and each lane keeps, by a select, its own result.
 
 How it vectorises (docs/performance.md). The lanes are processed in blocks of
 :data:`LANE_BLOCK` (8 doubles, one AVX-512 register, two AVX2 ones); each stage of a
@@ -18,14 +19,16 @@ vectoriser turns into packed FMAs. Three things decide whether it can:
 - Aliasing. LLVM must know that a store of one lane does not feed a load of another.
   Between arrays it can only check that at run time, one check per pair of rows, and
   gives up beyond 8 checks (a kernel here touches hundreds of rows). So every stage
-  writes only into a block of scratch on the stack (:func:`_stack_block`): memory LLVM
-  knows no argument can point into, with rows LANE_BLOCK doubles apart (a distance it
-  sees as a constant, where the rows of an (..., L) array are L apart, unknown). Inputs
-  are read from the caller's arrays directly; results are copied out row by row, each
-  copy a loop with one source and one destination.
-- Loops within the lane loop. Only the innermost loop is vectorised, so the scalar
-  code's loops over limbs and bodies are unrolled by hand: a helper called once per
-  limb or body with a constant index, which also makes every row offset a constant.
+  writes only into a block of scratch on the stack (:func:`pkmctl.model.simd.stack_block`):
+  memory LLVM knows no argument can point into, with rows LANE_BLOCK doubles apart (a
+  distance it sees as a constant, where the rows of an (..., L) array are L apart,
+  unknown). Inputs are read from the caller's arrays directly; results are copied out
+  row by row, each copy a loop with one source and one destination.
+- Loops within the lane loop. Only the innermost loop is vectorised, so where the scalar
+  kernels loop over the four limbs (their own SIMD lanes), the lane kernels have one lane
+  loop per limb: a helper called once per limb with a constant index, which also makes
+  every row offset a constant. Each limb's terms are added to the block's sums there, as
+  the scalar kernels add each limb's partial sums after their limb loop.
 - Math calls. libm has no vector variants (nor has this Numba Intel's SVML). cos and
   sin of the two angles are computed here instead (:func:`sincos_lane`, within 1 ulp
   of libm), vectorised like the rest; tanh (friction, §7) stays a short scalar pass of
@@ -48,8 +51,15 @@ from numba import types
 from numba.extending import intrinsic
 
 from pkmctl._jit import kernel
-from pkmctl.model.dynamics import cholesky_solve3
-from pkmctl.model.kinematics import _LIMB_DIR, _SPR, _cx, _limb, _limb_row
+from pkmctl.model.dynamics import (
+    cholesky_solve3,
+    limb_columns,
+    limb_gravity,
+    limb_sums,
+    platform_columns,
+    platform_sums,
+)
+from pkmctl.model.kinematics import _LIMB_DIR, _SPR, _cx, _limb, _limb_row, platform_rates
 from pkmctl.model.simd import disjoint_arrays, wide_vectors
 from pkmctl.model.simd import stack_block as _stack_block
 
@@ -78,12 +88,8 @@ _B = LANE_BLOCK
 # Rows of the stack block (each row LANE_BLOCK doubles, lane l at row * _B + l).
 _CA, _SA, _CB, _SB = 0, 1, 2, 3  # cos/sin of alpha and beta
 _TA, _SEC2, _ZS, _AV01, _AW01, _AW02 = 4, 5, 6, 7, 8, 9  # platform values the limbs reuse
-_RB = 10  # body frames, 5 x (3, 3) (as the scalar work: rows 0-4 only)
-_JV = _RB + 45  # linear velocity Jacobians, 9 x (3, 3)
-_JW = _JV + 81  # angular velocity Jacobians, 5 x (3, 3)
-_AV = _JW + 45  # dJ_v v, 9 x 3
-_AW = _AV + 27  # dJ_w v, 5 x 3
-_JQ = _AW + 15  # limb Jacobian (4, 3)
+_RB = 10  # the platform's frame R (3, 3)
+_JQ = _RB + 9  # limb Jacobian (4, 3)
 _Q = _JQ + 12  # limb lengths (4,)
 _KIN_END = _Q + 4
 _MM = _KIN_END  # M's upper triangle m00, m01, m02, m11, m12, m22
@@ -261,224 +267,104 @@ def _trig(X, l0, n, W):
 
 
 @kernel(inline="always", refcount=False)
+def _lane3(A, j):
+    """Lane j of a (3, L) array as a tuple (Xd, v, ... of one lane)."""
+    return A[0, j], A[1, j], A[2, j]
+
+
+@kernel(inline="always", refcount=False)
+def _pm(Xd, v, W, j, l):
+    """Lane l's :func:`~pkmctl.model.kinematics.platform_motion` values, from the block
+    (written by :func:`_platform`) and its Xd and v (the platform's omega and J_w v)."""
+    ca, sa, cb, sb = W[_ix(_CA, l)], W[_ix(_SA, l)], W[_ix(_CB, l)], W[_ix(_SB, l)]
+    ad, bd, v1, v2 = Xd[1, j], Xd[2, j], v[1, j], v[2, j]
+    rates = (W[_ix(_TA, l)], W[_ix(_SEC2, l)], W[_ix(_ZS, l)], W[_ix(_AV01, l)],
+             W[_ix(_AW01, l)], W[_ix(_AW02, l)])  # fmt: skip
+    return (ca, sa, cb, sb) + rates + ((ad, ca * bd, sa * bd), (v1, ca * v2, sa * v2))
+
+
+@kernel(inline="always", refcount=False)
+def _limb_of(geom, X, pm, j, i):
+    """Lane j's :func:`~pkmctl.model.kinematics._limb_at` of limb i (a constant)."""
+    ca, sa, cb, sb, ta, _, zs = pm[0:7]
+    return _limb(geom[0, j], geom[1, j], X[0, j], ta, zs, ca, sa, cb, sb, i)
+
+
+@kernel(inline="always", refcount=False)
 def _platform(X, Xd, v, l0, n, W):
-    """Body 0 of :func:`~pkmctl.model.kinematics.body_jacobians`, and the values its limbs
-    reuse (tan alpha, sec^2 alpha, z sec^2 alpha, dJ_v v and dJ_w v of the platform)."""
+    """The platform's values the limbs reuse (:func:`~pkmctl.model.kinematics.platform_rates`)
+    and its frame R, into the block."""
     for l in range(n):
         j = np.uint64(l0 + l)
-        z, zd, ad = X[0, j], Xd[0, j], Xd[1, j]
-        v0, v1, v2 = v[0, j], v[1, j], v[2, j]
         ca, sa, cb, sb = W[_ix(_CA, l)], W[_ix(_SA, l)], W[_ix(_CB, l)], W[_ix(_SB, l)]
-        ta = sa / ca
-        sec2 = 1.0 / (ca * ca)
-        _put9(W, _RB, l, cb, 0.0, sb, sa * sb, ca, -sa * cb, -ca * sb, sa, ca * cb)
-        _put9(W, _JV, l, 0.0, 0.0, 0.0, -ta, -z * sec2, 0.0, 1.0, 0.0, 0.0)
-        _put9(W, _JW, l, 0.0, 1.0, 0.0, 0.0, 0.0, ca, 0.0, 0.0, sa)
-        av01 = -sec2 * ad * v0 - (zd * sec2 + 2.0 * z * sec2 * ta * ad) * v1
-        aw01, aw02 = -sa * ad * v2, ca * ad * v2
-        _put3(W, _AV, l, 0.0, av01, 0.0)
-        _put3(W, _AW, l, 0.0, aw01, aw02)
-        W[_ix(_TA, l)], W[_ix(_SEC2, l)], W[_ix(_ZS, l)] = ta, sec2, z * sec2
+        rates = platform_rates(X[0, j], _lane3(Xd, j), _lane3(v, j), ca, sa)
+        ta, sec2, zs, av01, aw01, aw02 = rates[0:6]
+        W[_ix(_TA, l)], W[_ix(_SEC2, l)], W[_ix(_ZS, l)] = ta, sec2, zs
         W[_ix(_AV01, l)], W[_ix(_AW01, l)], W[_ix(_AW02, l)] = av01, aw01, aw02
+        _put9(W, _RB, l, cb, 0.0, sb, sa * sb, ca, -sa * cb, -ca * sb, sa, ca * cb)
 
 
 @kernel(inline="always", refcount=False)
-def _limb_body(geom, X, Xd, v, l0, n, W, i):
-    """Limb i (a constant) of :func:`~pkmctl.model.kinematics.body_jacobians`: its two
-    bodies' Jacobians and dJ/dt v, its frame, and its row of the limb Jacobian."""
-    lo, up = 1 + i, 5 + i
-    spr = _SPR[i]
+def _platform_terms(theta, Xd, v, l0, n, W):
+    """The platform's terms of M, C v and G (:func:`~pkmctl.model.dynamics.platform_sums`):
+    the block's sums, to which the limbs' are added."""
     for l in range(n):
         j = np.uint64(l0 + l)
-        r_a, r_b = geom[0, j], geom[1, j]
-        l1, l2 = geom[2 + i, j], geom[6 + i, j]
-        z, zd, ad, bd = X[0, j], Xd[0, j], Xd[1, j], Xd[2, j]
-        v0, v1, v2 = v[0, j], v[1, j], v[2, j]
-        ca, sa, cb, sb = W[_ix(_CA, l)], W[_ix(_SA, l)], W[_ix(_CB, l)], W[_ix(_SB, l)]
-        ta, zs = W[_ix(_TA, l)], W[_ix(_ZS, l)]
-        av01, aw01, aw02 = W[_ix(_AV01, l)], W[_ix(_AW01, l)], W[_ix(_AW02, l)]
-        w0x, w0y, w0z = ad, ca * bd, sa * bd
-        wv0x, wv0y, wv0z = v1, ca * v2, sa * v2
-        # from here on the loop body of body_jacobians, line by line
-        rx, ry, rz, qi, iq, u0, u1, u2, p02, p10, p11, p12, p21, p22 = _limb(
-            r_a, r_b, z, ta, zs, ca, sa, cb, sb, i
-        )
-        rdx, rdy, rdz = _cx(w0x, w0y, w0z, rx, ry, rz)
-        t0, t1, t2 = _cx(0.0, aw01, aw02, rx, ry, rz)
-        s0, s1, s2 = _cx(wv0x, wv0y, wv0z, rdx, rdy, rdz)
-        aP0, aP1, aP2 = t0 + s0, av01 + t1 + s1, t2 + s2
-        Pd0 = p02 * bd
-        Pd1 = p10 * zd + p11 * ad + p12 * bd
-        Pd2 = zd + p21 * ad + p22 * bd
-        Pv0 = p02 * v2
-        Pv1 = p10 * v0 + p11 * v1 + p12 * v2
-        Pv2 = v0 + p21 * v1 + p22 * v2
-        qd = u0 * Pd0 + u1 * Pd1 + u2 * Pd2
-        ud0, ud1, ud2 = (Pd0 - u0 * qd) * iq, (Pd1 - u1 * qd) * iq, (Pd2 - u2 * qd) * iq
-        j0, j1, j2 = _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22)
-        k00, k01, k02 = -u0 * j0 * iq, -u0 * j1 * iq, (p02 - u0 * j2) * iq
-        k10, k11, k12 = (p10 - u1 * j0) * iq, (p11 - u1 * j1) * iq, (p12 - u1 * j2) * iq
-        k20, k21, k22 = (1.0 - u2 * j0) * iq, (p21 - u2 * j1) * iq, (p22 - u2 * j2) * iq
-        uPv = u0 * Pv0 + u1 * Pv1 + u2 * Pv2
-        udPv = ud0 * Pv0 + ud1 * Pv1 + ud2 * Pv2
-        uaP = u0 * aP0 + u1 * aP1 + u2 * aP2
-        Juv0, Juv1, Juv2 = (Pv0 - u0 * uPv) * iq, (Pv1 - u1 * uPv) * iq, (Pv2 - u2 * uPv) * iq
-        cc = uaP + udPv
-        au0 = (aP0 - u0 * cc - ud0 * uPv - Juv0 * qd) * iq
-        au1 = (aP1 - u1 * cc - ud1 * uPv - Juv1 * qd) * iq
-        au2 = (aP2 - u2 * cc - ud2 * uPv - Juv2 * qd) * iq
-        W[_ix((_Q + i), l)] = qi
-        _put3(W, _JQ + 3 * i, l, j0, j1, j2)
-        _put9(W, _JV + 9 * lo, l, l1 * k00, l1 * k01, l1 * k02, l1 * k10, l1 * k11, l1 * k12,
-              l1 * k20, l1 * k21, l1 * k22)  # fmt: skip
-        _put9(W, _JV + 9 * up, l, -l2 * k00, -l2 * k01, p02 - l2 * k02,
-              p10 - l2 * k10, p11 - l2 * k11, p12 - l2 * k12,
-              1.0 - l2 * k20, p21 - l2 * k21, p22 - l2 * k22)  # fmt: skip
-        _put3(W, _AV + 3 * lo, l, l1 * au0, l1 * au1, l1 * au2)
-        _put3(W, _AV + 3 * up, l, aP0 - l2 * au0, aP1 - l2 * au1, aP2 - l2 * au2)
-        if spr:  # a constant: the branch is gone once i is known
-            x0, x1, x2 = 0.0, ca, sa
-        else:
-            x0, x1, x2 = 1.0, 0.0, 0.0
-        y0, y1, y2 = _cx(u0, u1, u2, x0, x1, x2)
-        w00, w10, w20 = _cx(u0, u1, u2, k00, k10, k20)
-        w01, w11, w21 = _cx(u0, u1, u2, k01, k11, k21)
-        w02, w12, w22 = _cx(u0, u1, u2, k02, k12, k22)
-        t0, t1, t2 = _cx(ud0, ud1, ud2, Juv0, Juv1, Juv2)
-        s0, s1, s2 = _cx(u0, u1, u2, au0, au1, au2)
-        e0, e1, e2 = t0 + s0, t1 + s1, t2 + s2
-        if spr:
-            w01 += u0 * u0
-            w11 += u0 * u1
-            w21 += u0 * u2
-            e0 += v1 * (ud0 * u0 + u0 * ud0)
-            e1 += v1 * (ud0 * u1 + u0 * ud1)
-            e2 += v1 * (ud0 * u2 + u0 * ud2)
-        _put9(W, _RB + 9 * lo, l, x0, y0, u0, x1, y1, u1, x2, y2, u2)
-        _put9(W, _JW + 9 * lo, l, w00, w01, w02, w10, w11, w12, w20, w21, w22)
-        _put3(W, _AW + 3 * lo, l, e0, e1, e2)
+        th = (theta[0, j], theta[1, j], theta[2, j], theta[3, j])
+        s = platform_sums(th, _lane3(Xd, j), _lane3(v, j), _pm(Xd, v, W, j, l))
+        _put3(W, _MM, l, s[0], s[1], s[2])
+        _put3(W, _MM + 3, l, s[3], s[4], s[5])
+        _put3(W, _CV, l, s[6], s[7], s[8])
+        _put3(W, _GG, l, s[9], s[10], s[11])
 
 
 @kernel(inline="always", refcount=False)
-def _body_kinematics(geom, X, Xd, v, l0, n, W):
-    """:func:`~pkmctl.model.kinematics.body_jacobians` of lanes l0..l0+n into the block."""
+def _add3(W, row, l, a0, a1, a2):
+    """Rows row..row+2 of lane l += (a0, a1, a2)."""
+    W[_ix(row, l)] += a0
+    W[_ix((row + 1), l)] += a1
+    W[_ix((row + 2), l)] += a2
+
+
+@kernel(inline="always", refcount=False)
+def _limb_terms(geom, theta, X, Xd, v, l0, n, W, i):
+    """Limb i's terms of M, C v and G (:func:`~pkmctl.model.dynamics.limb_sums`) added to the
+    block's sums (the scalar kernel's order: the platform's, then limb by limb); its length
+    and row of J into the block."""
+    lo, up = 4 * (1 + i), 4 * (5 + i)
+    for l in range(n):
+        j = np.uint64(l0 + l)
+        pm = _pm(Xd, v, W, j, l)
+        limb = _limb_of(geom, X, pm, j, i)
+        masses = (theta[lo, j], theta[up, j])
+        inertias = (theta[lo + 1, j] + theta[up + 1, j], theta[lo + 2, j] + theta[up + 2, j],
+                    theta[lo + 3, j] + theta[up + 3, j])  # fmt: skip
+        jr, s = limb_sums(geom[2 + i, j], geom[6 + i, j], masses, inertias, _lane3(Xd, j),
+                          _lane3(v, j), pm, _SPR[i], limb)  # fmt: skip
+        _add3(W, _MM, l, s[0], s[1], s[2])
+        _add3(W, _MM + 3, l, s[3], s[4], s[5])
+        _add3(W, _CV, l, s[6], s[7], s[8])
+        _add3(W, _GG, l, s[9], s[10], s[11])
+        W[_ix((_Q + i), l)] = limb[3]
+        _put3(W, _JQ + 3 * i, l, jr[0], jr[1], jr[2])
+
+
+@kernel(inline="always", refcount=False)
+def _dynamics_block(geom, theta, X, Xd, v, l0, n, W):
+    """M (upper triangle), C v and G of lanes l0..l0+n into the block, with the limb
+    Jacobian and lengths: the scalar dynamics_kernel lane by lane, one lane loop per limb."""
     _trig(X, l0, n, W)
     _platform(X, Xd, v, l0, n, W)
-    _limb_body(geom, X, Xd, v, l0, n, W, 0)
-    _limb_body(geom, X, Xd, v, l0, n, W, 1)
-    _limb_body(geom, X, Xd, v, l0, n, W, 2)
-    _limb_body(geom, X, Xd, v, l0, n, W, 3)
-
-
-# ---------------------------------------------------------------- M, C v, G
-@kernel(inline="always", refcount=False)
-def _translation(theta, W, j, l, b, s):
-    """Body b's terms m J_v^T J_v, m J_v^T (dJ_v v), m dz/dX added to the sums s (as
-    dynamics._assemble's first loop)."""
-    m00, m01, m02, m11, m12, m22, c0, c1, c2, g0, g1, g2 = s
-    m = theta[4 * b, j]
-    a00, a01, a02, a10, a11, a12, a20, a21, a22 = _get9(W, _JV + 9 * b, l)
-    av0, av1, av2 = _get3(W, _AV + 3 * b, l)
-    m00 += m * (a00 * a00 + a10 * a10 + a20 * a20)
-    m01 += m * (a00 * a01 + a10 * a11 + a20 * a21)
-    m02 += m * (a00 * a02 + a10 * a12 + a20 * a22)
-    m11 += m * (a01 * a01 + a11 * a11 + a21 * a21)
-    m12 += m * (a01 * a02 + a11 * a12 + a21 * a22)
-    m22 += m * (a02 * a02 + a12 * a12 + a22 * a22)
-    x0, x1, x2 = m * av0, m * av1, m * av2
-    c0 += a00 * x0 + a10 * x1 + a20 * x2
-    c1 += a01 * x0 + a11 * x1 + a21 * x2
-    c2 += a02 * x0 + a12 * x1 + a22 * x2
-    g0 += m * a20
-    g1 += m * a21
-    g2 += m * a22
-    return m00, m01, m02, m11, m12, m22, c0, c1, c2, g0, g1, g2
-
-
-@kernel(inline="always", refcount=False)
-def _rotation(theta, Xd, v, W, j, l, f, s):
-    """Frame f's rotational terms added to the sums s (as dynamics._assemble's second
-    loop; the two bodies of a limb turn together, their inertias add)."""
-    m00, m01, m02, m11, m12, m22, c0, c1, c2, g0, g1, g2 = s
-    i0, i1, i2 = theta[4 * f + 1, j], theta[4 * f + 2, j], theta[4 * f + 3, j]
-    if f > 0:  # a constant
-        i0 += theta[4 * (f + 4) + 1, j]
-        i1 += theta[4 * (f + 4) + 2, j]
-        i2 += theta[4 * (f + 4) + 3, j]
-    R00, R01, R02, R10, R11, R12, R20, R21, R22 = _get9(W, _RB + 9 * f, l)
-    J00, J01, J02, J10, J11, J12, J20, J21, J22 = _get9(W, _JW + 9 * f, l)
-    aw0, aw1, aw2 = _get3(W, _AW + 3 * f, l)
-    d0, d1, d2 = Xd[0, j], Xd[1, j], Xd[2, j]
-    v0, v1, v2 = v[0, j], v[1, j], v[2, j]
-    b00 = R00 * J00 + R10 * J10 + R20 * J20
-    b01 = R00 * J01 + R10 * J11 + R20 * J21
-    b02 = R00 * J02 + R10 * J12 + R20 * J22
-    b10 = R01 * J00 + R11 * J10 + R21 * J20
-    b11 = R01 * J01 + R11 * J11 + R21 * J21
-    b12 = R01 * J02 + R11 * J12 + R21 * J22
-    b20 = R02 * J00 + R12 * J10 + R22 * J20
-    b21 = R02 * J01 + R12 * J11 + R22 * J21
-    b22 = R02 * J02 + R12 * J12 + R22 * J22
-    m00 += i0 * b00 * b00 + i1 * b10 * b10 + i2 * b20 * b20
-    m01 += i0 * b00 * b01 + i1 * b10 * b11 + i2 * b20 * b21
-    m02 += i0 * b00 * b02 + i1 * b10 * b12 + i2 * b20 * b22
-    m11 += i0 * b01 * b01 + i1 * b11 * b11 + i2 * b21 * b21
-    m12 += i0 * b01 * b02 + i1 * b11 * b12 + i2 * b21 * b22
-    m22 += i0 * b02 * b02 + i1 * b12 * b12 + i2 * b22 * b22
-    w0 = b00 * d0 + b01 * d1 + b02 * d2
-    w1 = b10 * d0 + b11 * d1 + b12 * d2
-    w2 = b20 * d0 + b21 * d1 + b22 * d2
-    h0 = i0 * (b00 * v0 + b01 * v1 + b02 * v2)
-    h1 = i1 * (b10 * v0 + b11 * v1 + b12 * v2)
-    h2 = i2 * (b20 * v0 + b21 * v1 + b22 * v2)
-    e0 = R00 * aw0 + R10 * aw1 + R20 * aw2
-    e1 = R01 * aw0 + R11 * aw1 + R21 * aw2
-    e2 = R02 * aw0 + R12 * aw1 + R22 * aw2
-    t0 = i0 * e0 + w1 * h2 - w2 * h1
-    t1 = i1 * e1 + w2 * h0 - w0 * h2
-    t2 = i2 * e2 + w0 * h1 - w1 * h0
-    c0 += b00 * t0 + b10 * t1 + b20 * t2
-    c1 += b01 * t0 + b11 * t1 + b21 * t2
-    c2 += b02 * t0 + b12 * t1 + b22 * t2
-    return m00, m01, m02, m11, m12, m22, c0, c1, c2, g0, g1, g2
-
-
-@kernel(inline="always", refcount=False)
-def _assemble(geom, theta, Xd, v, l0, n, W):
-    """M (upper triangle), C v and G of lanes l0..l0+n into the block, from its body
-    kinematics: dynamics._assemble, its loops over bodies unrolled, the same sums in the
-    same order. Two lane loops, translation then rotation, each under LLVM's limit of
-    pointers per loop (see the module docstring)."""
-    for l in range(n):
-        j = np.uint64(l0 + l)
-        s = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        s = _translation(theta, W, j, l, 0, s)
-        s = _translation(theta, W, j, l, 1, s)
-        s = _translation(theta, W, j, l, 2, s)
-        s = _translation(theta, W, j, l, 3, s)
-        s = _translation(theta, W, j, l, 4, s)
-        s = _translation(theta, W, j, l, 5, s)
-        s = _translation(theta, W, j, l, 6, s)
-        s = _translation(theta, W, j, l, 7, s)
-        s = _translation(theta, W, j, l, 8, s)
-        m00, m01, m02, m11, m12, m22, c0, c1, c2, g0, g1, g2 = s
-        g = geom[10, j]
-        _put3(W, _MM, l, m00, m01, m02)
-        _put3(W, _MM + 3, l, m11, m12, m22)
-        _put3(W, _CV, l, c0, c1, c2)
-        _put3(W, _GG, l, g * g0, g * g1, g * g2)
-    for l in range(n):
-        j = np.uint64(l0 + l)
-        s = _get3(W, _MM, l) + _get3(W, _MM + 3, l) + _get3(W, _CV, l) + (0.0, 0.0, 0.0)
-        s = _rotation(theta, Xd, v, W, j, l, 0, s)
-        s = _rotation(theta, Xd, v, W, j, l, 1, s)
-        s = _rotation(theta, Xd, v, W, j, l, 2, s)
-        s = _rotation(theta, Xd, v, W, j, l, 3, s)
-        s = _rotation(theta, Xd, v, W, j, l, 4, s)
-        m00, m01, m02, m11, m12, m22, c0, c1, c2, _, _, _ = s
-        _put3(W, _MM, l, m00, m01, m02)
-        _put3(W, _MM + 3, l, m11, m12, m22)
-        _put3(W, _CV, l, c0, c1, c2)
+    _platform_terms(theta, Xd, v, l0, n, W)
+    _limb_terms(geom, theta, X, Xd, v, l0, n, W, 0)
+    _limb_terms(geom, theta, X, Xd, v, l0, n, W, 1)
+    _limb_terms(geom, theta, X, Xd, v, l0, n, W, 2)
+    _limb_terms(geom, theta, X, Xd, v, l0, n, W, 3)
+    for l in range(n):  # G = g sum m dz/dX
+        g = geom[10, np.uint64(l0 + l)]
+        W[_ix(_GG, l)] *= g
+        W[_ix((_GG + 1), l)] *= g
+        W[_ix((_GG + 2), l)] *= g
 
 
 @kernel(inline="always", refcount=False)
@@ -503,39 +389,29 @@ def lane_dynamics(geom, theta, X, Xd, v, work, M, Cv, G):
     L = X.shape[-1]
     for l0 in range(0, L, _B):
         n = min(_B, L - l0)
-        _body_kinematics(geom, X, Xd, v, l0, n, W)
-        _assemble(geom, theta, Xd, v, l0, n, W)
+        _dynamics_block(geom, theta, X, Xd, v, l0, n, W)
         _mcg_out(W, l0, n, M, Cv, G)
         _limbs_out(W, l0, n, work[LANE_JQ], work[LANE_Q])
 
 
 # ---------------------------------------------------------------- gravity
 @kernel(inline="always", refcount=False)
-def _limb_z_rows(geom, X, W, j, l, i):
-    """Limb i's q and J row, and row 2 (dz/dX) of its lower and upper bodies' J_v, as
-    body_jacobians computes them (they do not depend on the velocities)."""
-    r_a, r_b = geom[0, j], geom[1, j]
-    l1, l2 = geom[2 + i, j], geom[6 + i, j]
-    z = X[0, j]
+def _limb_g(geom, theta, X, W, j, l, i, g):
+    """Limb i's terms of G (:func:`~pkmctl.model.dynamics.limb_gravity`); its length and row
+    of J into the block."""
     ca, sa, cb, sb = W[_ix(_CA, l)], W[_ix(_SA, l)], W[_ix(_CB, l)], W[_ix(_SB, l)]
-    ta, zs = W[_ix(_TA, l)], W[_ix(_ZS, l)]
-    _, _, _, qi, iq, u0, u1, u2, p02, p10, p11, p12, p21, p22 = _limb(
-        r_a, r_b, z, ta, zs, ca, sa, cb, sb, i
-    )
-    j0, j1, j2 = _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22)
-    k20, k21, k22 = (1.0 - u2 * j0) * iq, (p21 - u2 * j1) * iq, (p22 - u2 * j2) * iq
-    W[_ix((_Q + i), l)] = qi
-    _put3(W, _JQ + 3 * i, l, j0, j1, j2)
-    lower = (l1 * k20, l1 * k21, l1 * k22)
-    upper = (1.0 - l2 * k20, p21 - l2 * k21, p22 - l2 * k22)
-    return lower, upper
+    pm = (ca, sa, cb, sb, W[_ix(_TA, l)], 0.0, W[_ix(_ZS, l)])
+    limb = _limb_of(geom, X, pm, j, i)
+    jr, gl = limb_gravity(geom[2 + i, j], geom[6 + i, j], theta[4 * (1 + i), j] * g,
+                          theta[4 * (5 + i), j] * g, limb)  # fmt: skip
+    W[_ix((_Q + i), l)] = limb[3]
+    _put3(W, _JQ + 3 * i, l, jr[0], jr[1], jr[2])
+    return gl
 
 
 @kernel(inline="always", refcount=False)
-def _add_mg(theta, j, b, g, row, s):
-    """s += m_b g J_v[b, 2, :], as gravity_kernel sums it."""
-    mg = theta[4 * b, j] * g
-    return s[0] + mg * row[0], s[1] + mg * row[1], s[2] + mg * row[2]
+def _add_g(s, a):
+    return s[0] + a[0], s[1] + a[1], s[2] + a[2]
 
 
 @kernel(refcount=False, llvm_inline=True)
@@ -550,26 +426,14 @@ def lane_gravity(geom, theta, X, work, G):
         _trig(X, l0, n, W)
         for l in range(n):
             j = np.uint64(l0 + l)
-            z = X[0, j]
             ca, sa = W[_ix(_CA, l)], W[_ix(_SA, l)]
-            ta = sa / ca
-            sec2 = 1.0 / (ca * ca)
-            W[_ix(_TA, l)], W[_ix(_ZS, l)] = ta, z * sec2
-            lo0, up0 = _limb_z_rows(geom, X, W, j, l, 0)
-            lo1, up1 = _limb_z_rows(geom, X, W, j, l, 1)
-            lo2, up2 = _limb_z_rows(geom, X, W, j, l, 2)
-            lo3, up3 = _limb_z_rows(geom, X, W, j, l, 3)
+            W[_ix(_TA, l)], W[_ix(_ZS, l)] = sa / ca, X[0, j] * (1.0 / (ca * ca))
             g = geom[10, j]
-            s = (0.0, 0.0, 0.0)
-            s = _add_mg(theta, j, 0, g, (1.0, 0.0, 0.0), s)  # the platform: dz/dX = e_z
-            s = _add_mg(theta, j, 1, g, lo0, s)
-            s = _add_mg(theta, j, 2, g, lo1, s)
-            s = _add_mg(theta, j, 3, g, lo2, s)
-            s = _add_mg(theta, j, 4, g, lo3, s)
-            s = _add_mg(theta, j, 5, g, up0, s)
-            s = _add_mg(theta, j, 6, g, up1, s)
-            s = _add_mg(theta, j, 7, g, up2, s)
-            s = _add_mg(theta, j, 8, g, up3, s)
+            s = (theta[0, j] * g, 0.0, 0.0)  # the platform: dz/dX = e_z; then limb by limb
+            s = _add_g(s, _limb_g(geom, theta, X, W, j, l, 0, g))
+            s = _add_g(s, _limb_g(geom, theta, X, W, j, l, 1, g))
+            s = _add_g(s, _limb_g(geom, theta, X, W, j, l, 2, g))
+            s = _add_g(s, _limb_g(geom, theta, X, W, j, l, 3, g))
             _put3(W, _GG, l, s[0], s[1], s[2])
         for a in range(3):
             _row_out(W, _GG + a, G[a], l0, n)
@@ -578,67 +442,44 @@ def lane_gravity(geom, theta, X, work, G):
 
 # ---------------------------------------------------------------- the regressor
 @kernel(inline="always", refcount=False)
-def _inertia_column(W, l, b, nn, x0, x1, x2, c0, c1, c2, e0, e1, e2, o0, o1, o2,
-                    w00, w01, w02, w10, w11, w12, w20, w21, w22):  # fmt: skip
-    """Y[:, 4 b + 1 + nn] = J_w^T (x a_n + b_n omega x x), x = R[:, nn] (into the block)."""
-    a_n = x0 * c0 + x1 * c1 + x2 * c2
-    b_n = x0 * e0 + x1 * e1 + x2 * e2
-    u0 = x0 * a_n + b_n * (o1 * x2 - o2 * x1)
-    u1 = x1 * a_n + b_n * (o2 * x0 - o0 * x2)
-    u2 = x2 * a_n + b_n * (o0 * x1 - o1 * x0)
-    _put3(W, _Y + 27 + 9 * b + 3 * nn, l,  # block row _Y + 27 + 9 b + 3 nn + i: Y[i, 4 b + 1 + nn]
-          w00 * u0 + w10 * u1 + w20 * u2,
-          w01 * u0 + w11 * u1 + w21 * u2,
-          w02 * u0 + w12 * u1 + w22 * u2)  # fmt: skip
+def _put_column(W, row, l, c):
+    _put3(W, row, l, c[0], c[1], c[2])
 
 
 @kernel(inline="always", refcount=False)
-def _regressor_body(geom, Xd, Xr_d, Xr_dd, W, j, l, b):
-    """Body b's columns of Y (dynamics._regressor_from_work's loop body): the mass column,
-    and for b < 5 the three inertia columns, into the block (an upper limb's inertia
-    columns are its lower limb's, copied out from there)."""
-    g = geom[10, j]
-    d0, d1, d2 = Xd[0, j], Xd[1, j], Xd[2, j]
-    r0d, r1d, r2d = Xr_d[0, j], Xr_d[1, j], Xr_d[2, j]
-    r0dd, r1dd, r2dd = Xr_dd[0, j], Xr_dd[1, j], Xr_dd[2, j]
-    v00, v01, v02, v10, v11, v12, v20, v21, v22 = _get9(W, _JV + 9 * b, l)
-    av0, av1, av2 = _get3(W, _AV + 3 * b, l)
-    a0 = v00 * r0dd + v01 * r1dd + v02 * r2dd + av0
-    a1 = v10 * r0dd + v11 * r1dd + v12 * r2dd + av1
-    a2 = v20 * r0dd + v21 * r1dd + v22 * r2dd + av2
-    m0 = v00 * a0 + v10 * a1 + v20 * a2 + g * v20
-    m1 = v01 * a0 + v11 * a1 + v21 * a2 + g * v21
-    m2 = v02 * a0 + v12 * a1 + v22 * a2 + g * v22
-    _put3(W, _Y + 3 * b, l, m0, m1, m2)  # block row _Y + 3 b + i: Y[i, 4 b]
-    if b >= 5:  # a constant
-        return
-    w00, w01, w02, w10, w11, w12, w20, w21, w22 = _get9(W, _JW + 9 * b, l)
-    aw0, aw1, aw2 = _get3(W, _AW + 3 * b, l)
-    c0 = aw0 + w00 * r0dd + w01 * r1dd + w02 * r2dd
-    c1 = aw1 + w10 * r0dd + w11 * r1dd + w12 * r2dd
-    c2 = aw2 + w20 * r0dd + w21 * r1dd + w22 * r2dd
-    e0 = w00 * r0d + w01 * r1d + w02 * r2d
-    e1 = w10 * r0d + w11 * r1d + w12 * r2d
-    e2 = w20 * r0d + w21 * r1d + w22 * r2d
-    o0 = w00 * d0 + w01 * d1 + w02 * d2
-    o1 = w10 * d0 + w11 * d1 + w12 * d2
-    o2 = w20 * d0 + w21 * d1 + w22 * d2
-    R00, R01, R02, R10, R11, R12, R20, R21, R22 = _get9(W, _RB + 9 * b, l)
-    # the scalar code's loop over the columns x = R[:, n], unrolled
-    _inertia_column(W, l, b, 0, R00, R10, R20, c0, c1, c2, e0, e1, e2, o0, o1, o2, w00, w01, w02,
-                    w10, w11, w12, w20, w21, w22)  # fmt: skip
-    _inertia_column(W, l, b, 1, R01, R11, R21, c0, c1, c2, e0, e1, e2, o0, o1, o2, w00, w01, w02,
-                    w10, w11, w12, w20, w21, w22)  # fmt: skip
-    _inertia_column(W, l, b, 2, R02, R12, R22, c0, c1, c2, e0, e1, e2, o0, o1, o2, w00, w01, w02,
-                    w10, w11, w12, w20, w21, w22)  # fmt: skip
-
-
-@kernel(inline="always", refcount=False)
-def _regressor_lanes(geom, Xd, Xr_d, Xr_dd, W, l0, n, b):
-    """Body b's columns of Y for lanes l0..l0+n: one lane loop per body, as all nine in
-    one loop would pass LLVM's limit of pointers per loop."""
+def _platform_columns(geom, Xd, Xr_d, Xr_dd, l0, n, W):
+    """The platform's columns of Y (:func:`~pkmctl.model.dynamics.platform_columns`) into
+    the block: the mass column at rows _Y + i, the inertia column nn at _Y + 27 + 3 nn + i."""
     for l in range(n):
-        _regressor_body(geom, Xd, Xr_d, Xr_dd, W, np.uint64(l0 + l), l, b)
+        j = np.uint64(l0 + l)
+        pm = _pm(Xd, Xr_d, W, j, l)
+        m, cols = platform_columns(geom[10, j], _lane3(Xd, j), _lane3(Xr_d, j),
+                                   _lane3(Xr_dd, j), pm)  # fmt: skip
+        _put_column(W, _Y, l, m)
+        _put_column(W, _Y + 27, l, cols[0])
+        _put_column(W, _Y + 30, l, cols[1])
+        _put_column(W, _Y + 33, l, cols[2])
+
+
+@kernel(inline="always", refcount=False)
+def _limb_columns(geom, X, Xd, Xr_d, Xr_dd, l0, n, W, i):
+    """Limb i's columns of Y (:func:`~pkmctl.model.dynamics.limb_columns`) into the block
+    (bodies 1 + i and 5 + i, frame 1 + i), its length and row of J."""
+    b, f = 1 + i, 1 + i
+    for l in range(n):
+        j = np.uint64(l0 + l)
+        pm = _pm(Xd, Xr_d, W, j, l)
+        limb = _limb_of(geom, X, pm, j, i)
+        jr, m_lo, m_up, cols = limb_columns(geom[2 + i, j], geom[6 + i, j], geom[10, j],
+                                            _lane3(Xd, j), _lane3(Xr_d, j), _lane3(Xr_dd, j),
+                                            pm, _SPR[i], limb)  # fmt: skip
+        _put_column(W, _Y + 3 * b, l, m_lo)
+        _put_column(W, _Y + 3 * (b + 4), l, m_up)
+        _put_column(W, _Y + 27 + 9 * f, l, cols[0])
+        _put_column(W, _Y + 27 + 9 * f + 3, l, cols[1])
+        _put_column(W, _Y + 27 + 9 * f + 6, l, cols[2])
+        W[_ix((_Q + i), l)] = limb[3]
+        _put3(W, _JQ + 3 * i, l, jr[0], jr[1], jr[2])
 
 
 @kernel(refcount=False, llvm_inline=True)
@@ -651,16 +492,13 @@ def lane_regressor(geom, X, Xd, Xr_d, Xr_dd, work, Y):
     L = X.shape[-1]
     for l0 in range(0, L, _B):
         n = min(_B, L - l0)
-        _body_kinematics(geom, X, Xd, Xr_d, l0, n, W)
-        _regressor_lanes(geom, Xd, Xr_d, Xr_dd, W, l0, n, 0)
-        _regressor_lanes(geom, Xd, Xr_d, Xr_dd, W, l0, n, 1)
-        _regressor_lanes(geom, Xd, Xr_d, Xr_dd, W, l0, n, 2)
-        _regressor_lanes(geom, Xd, Xr_d, Xr_dd, W, l0, n, 3)
-        _regressor_lanes(geom, Xd, Xr_d, Xr_dd, W, l0, n, 4)
-        _regressor_lanes(geom, Xd, Xr_d, Xr_dd, W, l0, n, 5)
-        _regressor_lanes(geom, Xd, Xr_d, Xr_dd, W, l0, n, 6)
-        _regressor_lanes(geom, Xd, Xr_d, Xr_dd, W, l0, n, 7)
-        _regressor_lanes(geom, Xd, Xr_d, Xr_dd, W, l0, n, 8)
+        _trig(X, l0, n, W)
+        _platform(X, Xd, Xr_d, l0, n, W)
+        _platform_columns(geom, Xd, Xr_d, Xr_dd, l0, n, W)
+        _limb_columns(geom, X, Xd, Xr_d, Xr_dd, l0, n, W, 0)
+        _limb_columns(geom, X, Xd, Xr_d, Xr_dd, l0, n, W, 1)
+        _limb_columns(geom, X, Xd, Xr_d, Xr_dd, l0, n, W, 2)
+        _limb_columns(geom, X, Xd, Xr_d, Xr_dd, l0, n, W, 3)
         for i in range(3):
             for b in range(9):
                 _row_out(W, _Y + 3 * b + i, Y[i, 4 * b], l0, n)
@@ -913,8 +751,7 @@ def lane_rigid_derivative(p, x, tau, dist, work, dx):
     L = x.shape[-1]
     for l0 in range(0, L, _B):
         n = min(_B, L - l0)
-        _body_kinematics(p.geom, X, Xd, Xd, l0, n, W)
-        _assemble(p.geom, p.theta, Xd, Xd, l0, n, W)
+        _dynamics_block(p.geom, p.theta, X, Xd, Xd, l0, n, W)
         for l in range(n):  # f = J^T tau + tau_d'
             j = np.uint64(l0 + l)
             J = _get9(W, _JQ, l) + _get3(W, _JQ + 9, l)
