@@ -74,6 +74,33 @@ def test_limb_jacobian_rate_against_finite_differences(robot):
         np.testing.assert_allclose(q, robot.inverse_kinematics(X), rtol=1e-14)
 
 
+def test_dynamics_and_regressor_leave_jdot_v_in_their_work(robot):
+    """The rotor inertia of the plant and of the extended regressor read Jdot v from the
+    limb loop of dynamics_kernel / regressor_kernel (u_dot . J_P v + u . dJ_P v): against
+    finite differences of J along Xd, and limb_jacobian_rate's formula to rounding."""
+    from pkmctl.model.dynamics import JDV, JQ, dynamics_kernel, make_work, regressor_kernel
+    from pkmctl.model.kinematics import limb_jacobian_rate
+
+    rng = np.random.default_rng(11)
+    w = make_work()
+    M, Cv, G, Y = np.empty((3, 3)), np.empty(3), np.empty(3), np.empty((3, 36))
+    R, Jq, q, Jdv = np.empty((3, 3)), np.empty((4, 3)), np.empty(4), np.empty(4)
+    for X in random_poses(rng, 20):
+        Xd, v, a = rng.normal(size=3), rng.normal(size=3), rng.normal(size=3)
+        h = 1e-6
+        Jdot = (robot.jacobian(X + h * Xd) - robot.jacobian(X - h * Xd)) / (2 * h)
+        limb_jacobian_rate(robot.geometry, X, Xd, v, R, Jq, q, Jdv)
+        for kernel in ("dynamics", "regressor"):
+            w[JDV][:] = np.nan
+            if kernel == "dynamics":
+                dynamics_kernel(robot.geometry, robot.theta, X, Xd, v, w, M, Cv, G)
+            else:
+                regressor_kernel(robot.geometry, X, Xd, v, a, w, Y)
+            np.testing.assert_allclose(w[JDV], Jdot @ v, rtol=1e-6, atol=1e-8)
+            np.testing.assert_allclose(w[JDV], Jdv, rtol=1e-13, atol=1e-14 * np.abs(Jdv).max())
+            np.testing.assert_array_equal(w[JQ], Jq)
+
+
 def _C(p, X, Xd) -> np.ndarray:
     return np.column_stack([machine_dynamics(p, X, Xd, e)[1] for e in np.eye(3)])
 

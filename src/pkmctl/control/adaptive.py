@@ -171,9 +171,7 @@ def afsmc_ext_step(p, state, work, y, ref, F):
     w, Y, s, xr_d, xr_dd = work[0], work[5], work[6], work[7], work[8]
     sliding_surface(p.lam, X, Xd, ref[0:3], ref[3:6], ref[6:9], s, xr_d, xr_dd)
     filter_sdot(state, s, p.Tc, p.alpha_f)
-    extended_regressor_kernel(
-        p.geom, X, Xd, xr_d, xr_dd, p.v_s, w, work[9], work[10], work[11], work[12], Y
-    )
+    extended_regressor_kernel(p.geom, X, Xd, xr_d, xr_dd, p.v_s, w, Y)
     for i in range(3):
         acc = 0.0
         for k in range(n):

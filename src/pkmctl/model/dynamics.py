@@ -42,6 +42,7 @@ from pkmctl.model.kinematics import (
 from pkmctl.model.simd import limb_vectors, stack_block
 
 __all__ = [
+    "JDV",
     "JQ",
     "limb_columns",
     "limb_gravity",
@@ -67,17 +68,18 @@ N_THETA = 4 * N_BODIES
 
 
 #: Positions in the workspace tuple of :func:`make_work` (named, not magic numbers).
-JQ, Q = range(2)
+JQ, Q, JDV = range(3)
 #: Shapes of the workspace arrays, at those positions.
-WORK_SHAPES = ((4, 3), (4,))
+WORK_SHAPES = ((4, 3), (4,), (4,))
 
 
 @kernel
 def make_work():
-    """The arrays every dynamics kernel leaves for its caller, at the indices JQ and Q:
+    """The arrays the dynamics kernels leave for their caller, at the indices JQ, Q, JDV:
     the limb Jacobian J (4, 3) and the limb lengths q (4,) at X (the plant's J^T tau and
-    the controllers' force split read them). Everything else lives on the stack."""
-    return np.empty((4, 3)), np.empty(4)
+    the controllers' force split read them), and (dynamics and regressor) Jdot v (4,),
+    Jdot along Xd (the rotor inertia of §7 reads it). Everything else lives on the stack."""
+    return np.empty((4, 3)), np.empty(4), np.empty(4)
 
 
 @kernel(inline="always", refcount=False)
@@ -114,8 +116,8 @@ def task_force(Jq, tau, out):
 # limb's results into a row of a stack block (row r of limb i at 4 r + i); the scalar code
 # after the loop adds the four limbs' partial sums to the platform's.
 _L1, _L2, _MLO, _MUP, _I0, _I1, _I2 = range(7)  # limb parameters (l1, l2, masses, inertias)
-_OQ, _OJ = 7, 8  # q and the row of J (3 rows)
-_OS = 11  # the limb's outputs: 12 sums of M, C v, G, or 15 columns of Y
+_OQ, _OJ, _OJDV = 7, 8, 11  # q, the row of J (3 rows), Jdot v
+_OS = 12  # the limb's outputs: 12 sums of M, C v, G, or 15 columns of Y
 _BLOCK = 4 * (_OS + 15)
 
 
@@ -154,6 +156,13 @@ def _limbs_out(W, Jq, q):
     for i in range(4):
         q[i] = W[4 * _OQ + i]
         Jq[i, 0], Jq[i, 1], Jq[i, 2] = W[4 * _OJ + i], W[4 * (_OJ + 1) + i], W[4 * (_OJ + 2) + i]
+
+
+@kernel(inline="always", refcount=False)
+def _jdv_out(W, Jdv):
+    """Jdot v from the block."""
+    for i in range(4):
+        Jdv[i] = W[4 * _OJDV + i]
 
 
 @kernel(inline="always", refcount=False)
@@ -318,18 +327,19 @@ def _inertia_columns(R, Jw, aw, Xd, r_d, r_dd):
 @kernel(inline="always", refcount=False)
 def limb_sums(l1, l2, masses, inertias, Xd, v, pm, spr, limb):
     """One limb's terms of M (upper triangle), C v and G, its two bodies and its frame
-    (12 sums, :func:`_translation`'s order), and its row of J: what the limb loops of the
+    (12 sums, :func:`_translation`'s order), its row of J and Jdot v: what the limb loops of the
     scalar and the lane kernels add up. ``masses`` (lower, upper), ``inertias`` the summed
     principal inertias (3), ``pm`` :func:`~pkmctl.model.kinematics.platform_motion`'s
     values, ``limb`` :func:`~pkmctl.model.kinematics._limb_at`'s."""
     ca, sa, _, _, _, _, _, av01, aw01, aw02, w0, wv0 = pm
-    j, K, aP, au, x, y, Jw, aw = limb_motion(Xd, v, ca, sa, av01, aw01, aw02, w0, wv0, spr, limb)
+    motion = limb_motion(Xd, v, ca, sa, av01, aw01, aw02, w0, wv0, spr, limb)
+    j, jdv, K, aP, au, x, y, Jw, aw = motion
     lower, av_lo, upper, av_up = _limb_bodies(l1, l2, limb, K, aP, au)
     s = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     s = _translation(masses[0], lower, av_lo, s)
     s = _translation(masses[1], upper, av_up, s)
     s = _rotation(inertias[0], inertias[1], inertias[2], _frame(x, y, limb), Jw, aw, Xd, v, s)
-    return j, s
+    return j, jdv, s
 
 
 @kernel(inline="always", refcount=False)
@@ -358,15 +368,15 @@ def limb_gravity(l1, l2, mg_lo, mg_up, limb):
 @kernel(inline="always", refcount=False)
 def limb_columns(l1, l2, g, Xd, r_d, r_dd, pm, spr, limb):
     """One limb's columns of Y: the mass columns of its lower and upper bodies (3 each) and
-    its frame's three inertia columns (9, column n's rows at 3 n), and its row of J
-    (``pm`` with v = Xr_d)."""
+    its frame's three inertia columns (9, column n's rows at 3 n), its row of J and
+    Jdot Xr_d (``pm`` with v = Xr_d)."""
     ca, sa, _, _, _, _, _, av01, aw01, aw02, w0, wv0 = pm
-    j, K, aP, au, x, y, Jw, aw = limb_motion(Xd, r_d, ca, sa, av01, aw01, aw02, w0, wv0, spr,
-                                             limb)  # fmt: skip
+    motion = limb_motion(Xd, r_d, ca, sa, av01, aw01, aw02, w0, wv0, spr, limb)
+    j, jdv, K, aP, au, x, y, Jw, aw = motion
     lower, av_lo, upper, av_up = _limb_bodies(l1, l2, limb, K, aP, au)
     m_lo = _mass_column(g, lower, av_lo, r_dd)
     m_up = _mass_column(g, upper, av_up, r_dd)
-    return j, m_lo, m_up, _inertia_columns(_frame(x, y, limb), Jw, aw, Xd, r_d, r_dd)
+    return j, jdv, m_lo, m_up, _inertia_columns(_frame(x, y, limb), Jw, aw, Xd, r_d, r_dd)
 
 
 @kernel(inline="always", refcount=False)
@@ -386,7 +396,7 @@ def _limb_at_lane(geom, X, pm, i):
 @kernel(refcount=False, llvm_inline=True)
 def dynamics_kernel(geom, theta, X, Xd, v, work, M, Cv, G):
     """Fill M (3, 3), C(X, Xd) v (3,) and G (3,) (eq. 9-24); the limb Jacobian and lengths
-    at X go to ``work`` (:func:`make_work`).
+    at X and Jdot v go to ``work`` (:func:`make_work`).
 
     v = Xd gives the Coriolis/centrifugal vector of the plant; v = Xr_dot the
     controllers' C Xr_dot. The matrix C is C e_j column by column. The four limbs run as
@@ -403,8 +413,9 @@ def dynamics_kernel(geom, theta, X, Xd, v, work, M, Cv, G):
         masses = (W[_row(W, _MLO, i)], W[_row(W, _MUP, i)])
         inertias = (W[_row(W, _I0, i)], W[_row(W, _I1, i)], W[_row(W, _I2, i)])
         limb = _limb_at_lane(geom, X, pm, i)
-        j, s = limb_sums(W[_row(W, _L1, i)], W[_row(W, _L2, i)], masses, inertias, Xd, v, pm,
-                         _LIMB_SPR[i] > 0.0, limb)  # fmt: skip
+        j, jdv, s = limb_sums(W[_row(W, _L1, i)], W[_row(W, _L2, i)], masses, inertias, Xd, v,
+                              pm, _LIMB_SPR[i] > 0.0, limb)  # fmt: skip
+        W[_row(W, _OJDV, i)] = jdv
         _put3(W, _OS, i, s[0:3])
         _put3(W, _OS + 3, i, s[3:6])
         _put3(W, _OS + 6, i, s[6:9])
@@ -426,6 +437,7 @@ def dynamics_kernel(geom, theta, X, Xd, v, work, M, Cv, G):
     Cv[0], Cv[1], Cv[2] = c0, c1, c2
     G[0], G[1], G[2] = g * g0, g * g1, g * g2
     _limbs_out(W, Jq, q)
+    _jdv_out(W, work[JDV])
 
 
 @kernel(refcount=False, llvm_inline=True)
@@ -460,7 +472,7 @@ def gravity_kernel(geom, theta, X, work, G):
 @kernel(refcount=False, llvm_inline=True)
 def regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, work, Y):
     """Fill the regressor Y (3, 36) with Y Theta = M Xr_dd + C(X, Xd) Xr_d + G (eq. 24);
-    the limb Jacobian and lengths at X go to ``work``.
+    the limb Jacobian and lengths at X and Jdot Xr_d go to ``work``.
 
     Column by column the dynamics of :func:`dynamics_kernel` with v = Xr_d and Xddot =
     Xr_dd, linear in Theta_b = [m, I_xx, I_yy, I_zz]: a body's mass column and its frame's
@@ -475,8 +487,10 @@ def regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, work, Y):
     for ii in range(q.shape[0]):
         i = np.uint64(ii)
         limb = _limb_at_lane(geom, X, pm, i)
-        j, m_lo, m_up, cols = limb_columns(W[_row(W, _L1, i)], W[_row(W, _L2, i)], g, Xd, Xr_d,
-                                           Xr_dd, pm, _LIMB_SPR[i] > 0.0, limb)  # fmt: skip
+        j, jdv, m_lo, m_up, cols = limb_columns(W[_row(W, _L1, i)], W[_row(W, _L2, i)], g, Xd,
+                                                Xr_d, Xr_dd, pm, _LIMB_SPR[i] > 0.0,
+                                                limb)  # fmt: skip
+        W[_row(W, _OJDV, i)] = jdv
         _put3(W, _OS, i, m_lo)
         _put3(W, _OS + 3, i, m_up)
         _put3(W, _OS + 6, i, cols[0])
@@ -494,6 +508,7 @@ def regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, work, Y):
             for n in range(3):
                 Y[r, lo + 1 + n] = Y[r, up + 1 + n] = W[4 * (_OS + 6 + 3 * n + r) + i]
     _limbs_out(W, Jq, q)
+    _jdv_out(W, work[JDV])
 
 
 @kernel(inline="always")

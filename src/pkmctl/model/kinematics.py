@@ -223,9 +223,10 @@ def limb_motion(Xd, v, ca, sa, av01, aw01, aw02, w0, wv0, spr, limb):
     alpha_dot u_x u to omega; an RPU limb has x_i = e_x. Branch-free: the SPR terms are
     selects, so the four limbs vectorise as one loop.
 
-    Returns ``(j, K, aP, au, x, y, Jw, aw)``: the row j = u^T J_P of the limb Jacobian
-    (eq. 8), J_u (9, row by row), dJ_P v and dJ_u v (3 each), the frame axes x and y
-    (3 each), J_w (9, row by row) and dJ_w v (3).
+    Returns ``(j, jdv, K, aP, au, x, y, Jw, aw)``: the row j = u^T J_P of the limb
+    Jacobian (eq. 8), jdv = (dJ_i/dt along Xd) v = u_dot . (J_P v) + u . (dJ_P v) (the
+    rotor inertia's term, §7), J_u (9, row by row), dJ_P v and dJ_u v (3 each), the frame
+    axes x and y (3 each), J_w (9, row by row) and dJ_w v (3).
     """
     zd, ad, bd = Xd[0], Xd[1], Xd[2]
     v0, v1, v2 = v[0], v[1], v[2]
@@ -282,6 +283,7 @@ def limb_motion(Xd, v, ca, sa, av01, aw01, aw02, w0, wv0, spr, limb):
     e2 += (v1 * (ud0 * u2 + u0 * ud2)) if spr else 0.0
     return (
         (j0, j1, j2),
+        cc,
         (k00, k01, k02, k10, k11, k12, k20, k21, k22),
         (aP0, aP1, aP2),
         (au0, au1, au2),

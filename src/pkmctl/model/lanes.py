@@ -339,7 +339,7 @@ def _limb_terms(geom, theta, X, Xd, v, l0, n, W, i):
         masses = (theta[lo, j], theta[up, j])
         inertias = (theta[lo + 1, j] + theta[up + 1, j], theta[lo + 2, j] + theta[up + 2, j],
                     theta[lo + 3, j] + theta[up + 3, j])  # fmt: skip
-        jr, s = limb_sums(geom[2 + i, j], geom[6 + i, j], masses, inertias, _lane3(Xd, j),
+        jr, _, s = limb_sums(geom[2 + i, j], geom[6 + i, j], masses, inertias, _lane3(Xd, j),
                           _lane3(v, j), pm, _SPR[i], limb)  # fmt: skip
         _add3(W, _MM, l, s[0], s[1], s[2])
         _add3(W, _MM + 3, l, s[3], s[4], s[5])
@@ -470,7 +470,7 @@ def _limb_columns(geom, X, Xd, Xr_d, Xr_dd, l0, n, W, i):
         j = np.uint64(l0 + l)
         pm = _pm(Xd, Xr_d, W, j, l)
         limb = _limb_of(geom, X, pm, j, i)
-        jr, m_lo, m_up, cols = limb_columns(geom[2 + i, j], geom[6 + i, j], geom[10, j],
+        jr, _, m_lo, m_up, cols = limb_columns(geom[2 + i, j], geom[6 + i, j], geom[10, j],
                                             _lane3(Xd, j), _lane3(Xr_d, j), _lane3(Xr_dd, j),
                                             pm, _SPR[i], limb)  # fmt: skip
         _put_column(W, _Y + 3 * b, l, m_lo)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 
 from pkmctl._jit import kernel
-from pkmctl.model.dynamics import N_THETA, regressor_kernel
+from pkmctl.model.dynamics import JDV, JQ, N_THETA, regressor_kernel
 from pkmctl.model.kinematics import limb_jacobian_rate, platform_point
 
 __all__ = [
@@ -95,16 +95,17 @@ def add_payload(geom, mass, offset, X, Xd, v, R, M, Cv, G):
 
 
 @kernel(refcount=False, llvm_inline=True)
-def extended_regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, vs, work, R, Jq, q, Jdv, Y):
+def extended_regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, vs, work, Y):
     """Fill Y_ext (3, 48): Y_ext Theta_ext = M Xr_dd + C(X, Xd) Xr_d + G + rotor + friction.
 
     Columns 0-35: the rigid regressor (eq. 24); 36-39: J_i^T (J_i Xr_dd + Jdot_i Xr_d)
     (rotor inertia m_r,i); 40-43: J_i^T tanh(qdot_i / vs) (Coulomb F_c,i); 44-47:
     J_i^T qdot_i (viscous F_v,i), qdot = J Xd the actual limb rates. ``work`` is a
-    dynamics workspace; R (3, 3), Jq (4, 3), q (4,), Jdv (4,) scratch.
+    dynamics workspace (:func:`~pkmctl.model.dynamics.make_work`): the regressor leaves
+    J and Jdot Xr_d there.
     """
     regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, work, Y)
-    limb_jacobian_rate(geom, X, Xd, Xr_d, R, Jq, q, Jdv)
+    Jq, Jdv = work[JQ], work[JDV]
     for i in range(4):
         qa = Jq[i, 0] * Xr_dd[0] + Jq[i, 1] * Xr_dd[1] + Jq[i, 2] * Xr_dd[2] + Jdv[i]
         qd = Jq[i, 0] * Xd[0] + Jq[i, 1] * Xd[1] + Jq[i, 2] * Xd[2]

@@ -495,9 +495,6 @@ def extended_regressor_batch(geom, Xb, Xdb, Xrdb, Xrddb, vs):
     n = Xb.shape[0]
     Y = np.empty((n, 3, N_THETA_EXT))
     work = make_work()
-    R, Jq, q, Jdv = np.empty((3, 3)), np.empty((4, 3)), np.empty(4), np.empty(4)
     for k in range(n):
-        extended_regressor_kernel(
-            geom, Xb[k], Xdb[k], Xrdb[k], Xrddb[k], vs, work, R, Jq, q, Jdv, Y[k]
-        )
+        extended_regressor_kernel(geom, Xb[k], Xdb[k], Xrdb[k], Xrddb[k], vs, work, Y[k])
     return Y

@@ -18,6 +18,7 @@ import numpy as np
 
 from pkmctl._jit import kernel
 from pkmctl.model.dynamics import (
+    JDV,
     JQ,
     Q,
     dynamics_kernel,
@@ -25,7 +26,6 @@ from pkmctl.model.dynamics import (
     make_work,
     task_force,
 )
-from pkmctl.model.kinematics import limb_jacobian_rate
 from pkmctl.model.machine import add_payload, add_rotor_inertia, friction_law, reflected_inertia
 from pkmctl.parts import PartContext, PartError, builtin_part
 
@@ -33,9 +33,9 @@ __all__ = ["MujocoPlant", "RigidPlant", "machine_dynamics", "rigid_plant"]
 
 
 def _rigid_work(p) -> tuple:
-    """(the dynamics workspace, M (3, 3), C Xdot, G, f (3,), R (3, 3), Jq (4, 3), q, Jdv (4,))."""
+    """(the dynamics workspace, M (3, 3), C Xdot, G, f (3,), R (3, 3) the payload's scratch)."""
     e = np.empty
-    return make_work(), e((3, 3)), e(3), e(3), e(3), e((3, 3)), e((4, 3)), e(4), e(4)
+    return make_work(), e((3, 3)), e(3), e(3), e(3), e((3, 3))
 
 
 class RigidPlant(NamedTuple):
@@ -103,12 +103,12 @@ def rigid_plant(
 
 @kernel(inline="always", refcount=False)
 def _machine_terms(p, X, Xd, v, work, M, Cv, G, f):
-    """Add the options' terms: rotor inertia and payload to M, C v, G; friction to f."""
-    R, Jq, q, Jdv = work[5], work[6], work[7], work[8]
-    limb_jacobian_rate(p.geom, X, Xd, v, R, Jq, q, Jdv)
+    """Add the options' terms: rotor inertia and payload to M, C v, G; friction to f. J and
+    Jdot v at (X, Xd, v) are what dynamics_kernel has just left in the workspace."""
+    Jq, Jdv = work[0][JQ], work[0][JDV]
     add_rotor_inertia(p.m_r, Jq, Jdv, M, Cv)
     if p.payload > 0.0:
-        add_payload(p.geom, p.payload, p.payload_offset, X, Xd, v, R, M, Cv, G)
+        add_payload(p.geom, p.payload, p.payload_offset, X, Xd, v, work[5], M, Cv, G)
     for i in range(4):
         qd = Jq[i, 0] * Xd[0] + Jq[i, 1] * Xd[1] + Jq[i, 2] * Xd[2]
         fr = friction_law(p.f_c[i], p.f_v[i], p.v_s, qd)
@@ -155,7 +155,7 @@ def _machine_dynamics(p, X, Xd, v):
 @kernel
 def _rigid_work_jit():
     e = np.empty
-    return make_work(), e((3, 3)), e(3), e(3), e(3), e((3, 3)), e((4, 3)), e(4), e(4)
+    return make_work(), e((3, 3)), e(3), e(3), e(3), e((3, 3))
 
 
 def machine_dynamics(p: RigidPlant, X, Xdot, v) -> tuple[np.ndarray, ...]:
