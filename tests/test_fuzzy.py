@@ -220,7 +220,7 @@ def test_centroid_property_mirror_levels(levels):
 # --- compiled scalar path ------------------------------------------------------------
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache=True: Numba's cache would not see an edit to flc_eval (DESIGN.md §6)
 def _loop_flc_eval(tables, s, sdot, out):
     for n in range(s.shape[0]):
         out[n] = fz.flc_eval(tables, s[n], sdot[n])

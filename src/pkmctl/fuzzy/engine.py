@@ -240,7 +240,7 @@ class FISTables(NamedTuple):
     ``rule_ant (R, n_in)`` (0-based term index, -1 = don't care), ``rule_cons (R,)``,
     ``grid_cons (G, G)``, then of the float64 sections of ``reals``: ``in_range (n_in, 2)``,
     ``grid_inv_step (n_in,)``, ``in_params (n_in, T, 4)``, ``out_range (2,)``,
-    ``out_params (K, 4)``, ``rule_weight (R,)``, ``grid_weight (G, G)``, ``cells (C, 10)``.
+    ``out_params (K, 4)``, ``rule_weight (R,)``, ``grid_weight (G, G)``, ``cells (C, 12)``.
     Kinds are the codes of MF_KINDS (-1 pads), parameters are zero-padded to 4.
 
     The fast kernel (``fast == 1``, G = T, C = K - 1; else G = C = 0) needs two inputs
@@ -248,9 +248,11 @@ class FISTables(NamedTuple):
     per pair of input terms (``grid_cons``/``grid_weight``, -1 = no rule) and output terms
     on a uniform grid that fall (term m) and rise (term m + 1) monotonically across each
     cell [g_m, g_m+1]; ``cells[m]`` = [g_m, g_m+1, shape, end, width of the falling ramp,
-    shape, start, width of the rising one, their crossing point and value] (shape 0: linear,
-    1: quadratic spline). Two arrays, not one per section: Numba reference-counts every
-    array passed to a call, atomically, and that cost dominated with fifteen arrays.
+    shape, start, width of the rising one, their crossing point and value, and the
+    reciprocals of the two widths] (shape 0: linear, 1: quadratic spline; the reciprocals
+    are what the kernels multiply by, so that they divide by no table constant). Two
+    arrays, not one per section: Numba reference-counts every array passed to a call,
+    atomically, and that cost dominated with fifteen arrays.
     """
 
     ints: np.ndarray
@@ -279,7 +281,7 @@ class FISTables(NamedTuple):
             out_params=(K, 4),
             rule_weight=(R,),
             grid_weight=(G, G),
-            cells=(C, 10),
+            cells=(C, 12),
         )
         out = {}
         for arr, names, first in (
@@ -334,7 +336,7 @@ def _ramp(term: Term, rising: bool, g0: float, g1: float) -> tuple[int, float, f
 
 def _cells(var: Variable, g: np.ndarray) -> np.ndarray | None:
     """Per-cell data of the fast kernel (see FISTables), or None if not applicable."""
-    cells = np.zeros((len(g) - 1, 10))
+    cells = np.zeros((len(g) - 1, 12))
     for m in range(len(g) - 1):
         A, B = var.terms[m], var.terms[m + 1]
         ra, rb = _ramp(A, False, g[m], g[m + 1]), _ramp(B, True, g[m], g[m + 1])
@@ -346,7 +348,7 @@ def _cells(var: Variable, g: np.ndarray) -> np.ndarray | None:
             if not lo < mid < hi:
                 break
             lo, hi = (mid, hi) if A(mid) > B(mid) else (lo, mid)
-        cells[m] = (g[m], g[m + 1], *ra, *rb, hi, max(A(hi), B(hi)))
+        cells[m] = (g[m], g[m + 1], *ra, *rb, hi, max(A(hi), B(hi)), 1.0 / ra[2], 1.0 / rb[2])
     return cells
 
 
@@ -396,7 +398,7 @@ def _compile(inputs: tuple[Variable, ...], output: Variable, rules: tuple[Rule, 
         out_params=out_params,
         rule_weight=[r.weight for r in rules],
         grid_weight=grid_weight,
-        cells=cells if fast else np.zeros((0, 10)),
+        cells=cells if fast else np.zeros((0, 12)),
     )
     ints = [np.array([n_in, K, R, T, int(fast)] + [0] * (HEADER - 5), dtype=np.int64)]
     reals: list[np.ndarray] = []

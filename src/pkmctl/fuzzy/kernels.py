@@ -50,6 +50,8 @@ FAST_SLOT = _FAST
 O_NT, _O_KIN, _O_KOUT, _O_ANT, _O_CONS, _O_GCONS = range(5, 11)
 O_RIN, _O_INV, _O_PIN, _O_ROUT, _O_POUT, _O_W, _O_GW, _O_CELLS = range(11, 19)
 HEADER = 19
+#: Numbers per output cell in the ``cells`` section (pkmctl.fuzzy.FISTables).
+CELL_SIZE = 12
 
 # ---------------------------------------------------------------------------------------
 # Scalar kernels and the general exact centroid. One formula per membership function:
@@ -444,16 +446,16 @@ def _ramp_inv(shape, h):
 
 
 @_jit_inl
-def _ramp_moments(shape, p, w, u, v):
-    """(∫ ψ, ∫ z ψ) over z in [u, v] of the ramp ψ((z - p) / w) rising from p to p + w."""
-    iw = 1.0 / w
+def _ramp_moments(shape, p, w, iw, u, v):
+    """(∫ ψ, ∫ z ψ) over z in [u, v] of the ramp ψ((z - p) / w) rising from p to p + w;
+    iw = 1 / w (from the tables: no division here)."""
     f0, f1 = _ramp_int(shape, (u - p) * iw)
     F0, F1 = _ramp_int(shape, (v - p) * iw)
     return w * (F0 - f0), w * (p * (F0 - f0) + w * (F1 - f1))
 
 
 @_jit_inl
-def _cell_moments(g0, g1, sa, qa, wa, sb, pb, wb, yc, vc, ha, hb):
+def _cell_moments(g0, g1, sa, qa, wa, sb, pb, wb, yc, vc, iwa, iwb, ha, hb):
     """Exact (∫ μ, ∫ y μ) over the cell [g0, g1] of μ = max(min(ha, A), min(hb, B)).
 
     A(y) = ψ_sa((qa - y) / wa) falls to 0 at qa, B(y) = ψ_sb((y - pb) / wb) rises from 0 at
@@ -473,7 +475,7 @@ def _cell_moments(g0, g1, sa, qa, wa, sb, pb, wb, yc, vc, ha, hb):
     m0 = ha * (e - g0)
     m1 = ha * 0.5 * (e * e - g0 * g0)
     if ys > e:
-        i0, i1 = _ramp_moments(sa, -qa, wa, -ys, -e)
+        i0, i1 = _ramp_moments(sa, -qa, wa, iwa, -ys, -e)
         m0 += i0
         m1 -= i1
     # [ys, g1]: B up to where B = hb, then hb
@@ -481,7 +483,7 @@ def _cell_moments(g0, g1, sa, qa, wa, sb, pb, wb, yc, vc, ha, hb):
     m0 += hb * (g1 - e)
     m1 += hb * 0.5 * (g1 * g1 - e * e)
     if e > ys:
-        i0, i1 = _ramp_moments(sb, pb, wb, ys, e)
+        i0, i1 = _ramp_moments(sb, pb, wb, iwb, ys, e)
         m0 += i0
         m1 += i1
     return m0, m1
@@ -509,6 +511,15 @@ def _level(k, k0, h0, k1, h1, k2, h2, k3, h3):
     return h
 
 
+@_jit_inl
+def _u(i):
+    """An index as unsigned: Numba then emits no test for a negative (wraparound) index,
+    which it does for every signed one; at ten table reads per output cell that was a
+    compare and a conditional move each (docs/performance.md). Table offsets are never
+    negative."""
+    return np.uint64(i)
+
+
 @_jit_free
 def _grid_eval2(ints, reals, x1, x2):
     """Fast exact kernel: inputs on uniform grids (<= 2 terms of each non-zero, so <= 4
@@ -520,34 +531,40 @@ def _grid_eval2(ints, reals, x1, x2):
     T = ints[_T]
     K = ints[_K]
     r = ints[O_RIN]
-    j1, x1 = _locate(reals[r], reals[r + 1], reals[ints[_O_INV]], ints[ints[O_NT]], x1)
-    j2, x2 = _locate(reals[r + 2], reals[r + 3], reals[ints[_O_INV] + 1], ints[ints[O_NT] + 1], x2)
+    inv = ints[_O_INV]
+    nt = ints[O_NT]
+    j1, x1 = _locate(reals[_u(r)], reals[_u(r + 1)], reals[_u(inv)], ints[_u(nt)], x1)
+    j2, x2 = _locate(reals[_u(r + 2)], reals[_u(r + 3)], reals[_u(inv + 1)], ints[_u(nt + 1)], x2)
     kin = ints[_O_KIN]
     q = ints[_O_PIN] + 4 * j1
-    u1a = mf_piece(ints[kin + j1], reals[q], reals[q + 1], reals[q + 2], reals[q + 3], x1)[0]
+    k = kin + j1
+    u1a = mf_piece(ints[_u(k)], reals[_u(q)], reals[_u(q + 1)], reals[_u(q + 2)],
+                   reals[_u(q + 3)], x1)[0]  # fmt: skip
     q += 4
-    u1b = mf_piece(ints[kin + j1 + 1], reals[q], reals[q + 1], reals[q + 2], reals[q + 3], x1)[0]
+    u1b = mf_piece(ints[_u(k + 1)], reals[_u(q)], reals[_u(q + 1)], reals[_u(q + 2)],
+                   reals[_u(q + 3)], x1)[0]  # fmt: skip
     q = ints[_O_PIN] + 4 * (T + j2)
-    u2a = mf_piece(ints[kin + T + j2], reals[q], reals[q + 1], reals[q + 2], reals[q + 3], x2)[0]
+    k = kin + T + j2
+    u2a = mf_piece(ints[_u(k)], reals[_u(q)], reals[_u(q + 1)], reals[_u(q + 2)],
+                   reals[_u(q + 3)], x2)[0]  # fmt: skip
     q += 4
-    u2b = mf_piece(ints[kin + T + j2 + 1], reals[q], reals[q + 1], reals[q + 2], reals[q + 3], x2)[
-        0
-    ]
+    u2b = mf_piece(ints[_u(k + 1)], reals[_u(q)], reals[_u(q + 1)], reals[_u(q + 2)],
+                   reals[_u(q + 3)], x2)[0]  # fmt: skip
     c = ints[_O_GCONS] + j1 * T + j2
     w = ints[_O_GW] + j1 * T + j2
-    k0, k1, k2, k3 = ints[c], ints[c + 1], ints[c + T], ints[c + T + 1]
-    h0 = min(u1a, u2a) * reals[w]
-    h1 = min(u1a, u2b) * reals[w + 1]
-    h2 = min(u1b, u2a) * reals[w + T]
-    h3 = min(u1b, u2b) * reals[w + T + 1]
+    k0, k1, k2, k3 = ints[_u(c)], ints[_u(c + 1)], ints[_u(c + T)], ints[_u(c + T + 1)]
+    h0 = min(u1a, u2a) * reals[_u(w)]
+    h1 = min(u1a, u2b) * reals[_u(w + 1)]
+    h2 = min(u1b, u2a) * reals[_u(w + T)]
+    h3 = min(u1b, u2b) * reals[_u(w + T + 1)]
     kmin = K
     kmax = -1
     for k, h in ((k0, h0), (k1, h1), (k2, h2), (k3, h3)):
         if k >= 0 and h > 0.0:
             kmin = min(kmin, k)
             kmax = max(kmax, k)
-    lo = reals[ints[_O_ROUT]]
-    hi = reals[ints[_O_ROUT] + 1]
+    lo = reals[_u(ints[_O_ROUT])]
+    hi = reals[_u(ints[_O_ROUT] + 1)]
     m0 = 0.0
     m1 = 0.0
     hb = _level(max(kmin - 1, 0), k0, h0, k1, h1, k2, h2, k3, h3)
@@ -555,18 +572,20 @@ def _grid_eval2(ints, reals, x1, x2):
         ha = hb
         hb = _level(m + 1, k0, h0, k1, h1, k2, h2, k3, h3)
         if ha > 0.0 or hb > 0.0:
-            q = ints[_O_CELLS] + 10 * m
+            q = ints[_O_CELLS] + CELL_SIZE * m
             i0, i1 = _cell_moments(
-                reals[q],
-                reals[q + 1],
-                reals[q + 2],
-                reals[q + 3],
-                reals[q + 4],
-                reals[q + 5],
-                reals[q + 6],
-                reals[q + 7],
-                reals[q + 8],
-                reals[q + 9],
+                reals[_u(q)],
+                reals[_u(q + 1)],
+                reals[_u(q + 2)],
+                reals[_u(q + 3)],
+                reals[_u(q + 4)],
+                reals[_u(q + 5)],
+                reals[_u(q + 6)],
+                reals[_u(q + 7)],
+                reals[_u(q + 8)],
+                reals[_u(q + 9)],
+                reals[_u(q + 10)],
+                reals[_u(q + 11)],
                 ha,
                 hb,
             )

@@ -48,6 +48,7 @@ from pkmctl.fuzzy.kernels import (
     _TRAP,
     _TRI,
     _ZMF,
+    CELL_SIZE,
     O_NT,
     O_RIN,
     _grid_eval2,
@@ -168,8 +169,7 @@ def _ramp_inv(shape, h):
 
 
 @_jit_inl
-def _ramp_moments(shape, p, w, u, v):
-    iw = 1.0 / w
+def _ramp_moments(shape, p, w, iw, u, v):
     f0, f1 = _ramp_int(shape, (u - p) * iw)
     F0, F1 = _ramp_int(shape, (v - p) * iw)
     return w * (F0 - f0), w * (p * (F0 - f0) + w * (F1 - f1))
@@ -182,6 +182,7 @@ def _cell_loop(q, reals, WLEV, WM, m, sa, sb, n):
     two ramps, constants where :func:`_cell_lanes` calls it."""
     g0, g1, qa, wa = reals[q], reals[q + 1], reals[q + 3], reals[q + 4]
     pb, wb, yc, vc = reals[q + 6], reals[q + 7], reals[q + 8], reals[q + 9]
+    iwa, iwb = reals[q + 10], reals[q + 11]
     for l in range(n):
         ha = WLEV[_ix(m, l)]
         hb = WLEV[_ix(m + 1, l)]
@@ -193,13 +194,13 @@ def _cell_loop(q, reals, WLEV, WM, m, sa, sb, n):
         e = min(max(qa - wa * _ramp_inv(sa, ha), g0), ys)
         m0 = ha * (e - g0)
         m1 = ha * 0.5 * (e * e - g0 * g0)
-        i0, i1 = _ramp_moments(sa, -qa, wa, -ys, -e)
+        i0, i1 = _ramp_moments(sa, -qa, wa, iwa, -ys, -e)
         m0 = m0 + i0 if ys > e else m0
         m1 = m1 - i1 if ys > e else m1
         e = max(min(pb + wb * _ramp_inv(sb, hb), g1), ys)
         m0 += hb * (g1 - e)
         m1 += hb * 0.5 * (g1 * g1 - e * e)
-        i0, i1 = _ramp_moments(sb, pb, wb, ys, e)
+        i0, i1 = _ramp_moments(sb, pb, wb, iwb, ys, e)
         m0 = m0 + i0 if e > ys else m0
         m1 = m1 + i1 if e > ys else m1
         on = ha > 0.0 or hb > 0.0
@@ -286,7 +287,7 @@ def _block(ints, reals, x1, x2, out, l0, n, WX, WMU, WLEV, WM):
         for l in range(n):
             touched += (WLEV[_ix(m, l)] > 0.0) | (WLEV[_ix(m + 1, l)] > 0.0)
         if touched > 0:
-            _cell_lanes(ints[_O_CELLS] + 10 * m, reals, WLEV, WM, m, n)
+            _cell_lanes(ints[_O_CELLS] + CELL_SIZE * m, reals, WLEV, WM, m, n)
     lo = reals[ints[_O_ROUT]]
     hi = reals[ints[_O_ROUT] + 1]
     mid = 0.5 * (lo + hi)
