@@ -87,3 +87,47 @@ def test_spd_solve_agrees_with_lapack_and_rejects_indefinite_matrices():
               np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
               np.diag([1.0, 1.0, np.nan])):  # fmt: skip
         assert np.all(np.isnan(solve(A, np.ones(3)))), A
+
+
+def _packed_ymm_fmas(fn, args) -> tuple[int, str]:
+    """Packed double FMAs on ymm registers in ``fn``'s machine code, compiled afresh with
+    the project's options (cached code has no assembly), and its LLVM IR."""
+    import re
+
+    import numba
+
+    from pkmctl._jit import JIT_OPTIONS, NO_REFCOUNT
+
+    fresh = numba.njit(**(JIT_OPTIONS | NO_REFCOUNT))(fn.py_func)
+    fresh(*args)
+    sig = fresh.signatures[0]
+    asm = fresh.inspect_asm(sig)
+    return len(re.findall(r"\bvfn?m(?:add|sub)\w*pd\b[^\n]*%ymm", asm)), fresh.inspect_llvm(sig)
+
+
+def test_the_limb_loops_run_as_simd_lanes(robot):
+    """dynamics, gravity and regressor kernels run their four limbs as the lanes of 256-bit
+    vectors (docs/performance.md): the attribute asking for them is in the IR and, on a
+    CPU with AVX2, the limb formulas are packed FMAs (a scalar limb loop has none)."""
+    from test_lanes_model import _has_cpu_flag
+
+    from pkmctl.model.dynamics import (
+        dynamics_kernel,
+        gravity_kernel,
+        make_work,
+        regressor_kernel,
+    )
+
+    g, th, w = robot.geometry, robot.theta, make_work()
+    X, v = np.array([0.7, 0.1, -0.2]), np.array([0.1, 0.2, -0.3])
+    M, Cv, G = np.empty((3, 3)), np.empty(3), np.empty(3)
+    cases = {
+        "dynamics": (dynamics_kernel, (g, th, X, v, v, w, M, Cv, G), 100),
+        "gravity": (gravity_kernel, (g, th, X, w, G), 8),
+        "regressor": (regressor_kernel, (g, X, v, v, v, w, np.empty((3, 36))), 100),
+    }
+    for name, (fn, args, least) in cases.items():
+        packed, ir = _packed_ymm_fmas(fn, args)
+        assert '"prefer-vector-width"="256"' in ir, name
+        if _has_cpu_flag("avx2"):
+            assert packed >= least, (name, packed)
