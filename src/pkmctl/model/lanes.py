@@ -59,7 +59,7 @@ from pkmctl.model.dynamics import (
     platform_columns,
     platform_sums,
 )
-from pkmctl.model.kinematics import _LIMB_DIR, _SPR, _cx, _limb, _limb_row, platform_rates
+from pkmctl.model.kinematics import _SPR, _cx, _limb, _limb_row, platform_rates
 from pkmctl.model.simd import disjoint_arrays, wide_vectors
 from pkmctl.model.simd import stack_block as _stack_block
 
@@ -96,8 +96,7 @@ _MM = _KIN_END  # M's upper triangle m00, m01, m02, m11, m12, m22
 _CV = _MM + 6  # C v (3,)
 _GG = _CV + 3  # G (3,)
 _FF = _GG + 3  # task force f (3,)
-_JQR = _FF + 3  # the limb Jacobian of limb_jacobian_rate (4, 3), for the options
-_JDV = _JQR + 12  # Jdot Xdot (4,)
+_JDV = _FF + 3  # Jdot Xdot (4,), for the options (from the limb loop, as the scalar plant)
 _QD = _JDV + 4  # limb rates (4,)
 _TH = _QD + 4  # tanh(qdot / v_s) (4,)
 _XD = _TH + 4  # Xdot (3,), the first half of dx
@@ -339,8 +338,9 @@ def _limb_terms(geom, theta, X, Xd, v, l0, n, W, i):
         masses = (theta[lo, j], theta[up, j])
         inertias = (theta[lo + 1, j] + theta[up + 1, j], theta[lo + 2, j] + theta[up + 2, j],
                     theta[lo + 3, j] + theta[up + 3, j])  # fmt: skip
-        jr, _, s = limb_sums(geom[2 + i, j], geom[6 + i, j], masses, inertias, _lane3(Xd, j),
-                          _lane3(v, j), pm, _SPR[i], limb)  # fmt: skip
+        jr, jdv, s = limb_sums(geom[2 + i, j], geom[6 + i, j], masses, inertias, _lane3(Xd, j),
+                            _lane3(v, j), pm, _SPR[i], limb)  # fmt: skip
+        W[_ix((_JDV + i), l)] = jdv
         _add3(W, _MM, l, s[0], s[1], s[2])
         _add3(W, _MM + 3, l, s[3], s[4], s[5])
         _add3(W, _CV, l, s[6], s[7], s[8])
@@ -605,36 +605,11 @@ def _point(z, ta, zs, sec2, ca, sa, R, ox, oy, oz, zd, ad, bd, v0, v1, v2):
 
 
 @kernel(inline="always", refcount=False)
-def _limb_rate(geom, X, Xd, W, j, l, i):
-    """Limb i of :func:`~pkmctl.model.kinematics.limb_jacobian_rate` with v = Xd: its
-    row of J (to block rows _JQR), Jdot Xd and the limb rate qdot = J Xd."""
-    r_a, r_b, z = geom[0, j], geom[1, j], X[0, j]
-    zd, ad, bd = Xd[0, j], Xd[1, j], Xd[2, j]
-    ca, sa = W[_ix(_CA, l)], W[_ix(_SA, l)]
-    ta, sec2, zs = W[_ix(_TA, l)], W[_ix(_SEC2, l)], W[_ix(_ZS, l)]
-    R = _get9(W, _RB, l)
-    ox, oy = r_a * _LIMB_DIR[i, 0], r_a * _LIMB_DIR[i, 1]
-    rx, ry, rz, p02, p10, p11, p12, p21, p22, a0, a1, a2 = _point(
-        z, ta, zs, sec2, ca, sa, R, ox, oy, 0.0, zd, ad, bd, zd, ad, bd
-    )
-    d0, d1, d2 = rx - r_b * _LIMB_DIR[i, 0], -z * ta + ry - r_b * _LIMB_DIR[i, 1], z + rz
-    qi = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-    iq = 1.0 / qi
-    u0, u1, u2 = d0 * iq, d1 * iq, d2 * iq
-    j0, j1, j2 = _limb_row(u0, u1, u2, p02, p10, p11, p12, p21, p22)
-    Pd0 = p02 * bd
-    Pd1 = p10 * zd + p11 * ad + p12 * bd
-    Pd2 = zd + p21 * ad + p22 * bd
-    Pv0 = p02 * bd
-    Pv1 = p10 * zd + p11 * ad + p12 * bd
-    Pv2 = zd + p21 * ad + p22 * bd
-    qd = u0 * Pd0 + u1 * Pd1 + u2 * Pd2
-    qv = u0 * Pv0 + u1 * Pv1 + u2 * Pv2
-    jdv = (Pd0 * Pv0 + Pd1 * Pv1 + Pd2 * Pv2 - qd * qv) * iq + (u0 * a0 + u1 * a1 + u2 * a2)
-    _put3(W, _JQR + 3 * i, l, j0, j1, j2)
-    W[_ix((_JDV + i), l)] = jdv
-    # the limb rate of the friction law, from this Jacobian (as plants._machine_terms)
-    W[_ix((_QD + i), l)] = j0 * zd + j1 * ad + j2 * bd
+def _limb_rate(Xd, W, j, l, i):
+    """Limb i's rate qdot = J_i Xd for the friction law, from the row of J the limb loop
+    left in the block (as plants._machine_terms)."""
+    j0, j1, j2 = _get3(W, _JQ + 3 * i, l)
+    W[_ix((_QD + i), l)] = j0 * Xd[0, j] + j1 * Xd[1, j] + j2 * Xd[2, j]
 
 
 @kernel(inline="always", refcount=False)
@@ -642,7 +617,7 @@ def _rotor(m, W, l, i, s):
     """Limb i's reflected rotor inertia m added to s = (M's upper triangle, C v), as
     machine.add_rotor_inertia adds it: M += m J_i^T J_i, C v += m J_i^T (Jdot_i Xd)."""
     m00, m01, m02, m11, m12, m22, c0, c1, c2 = s
-    j0, j1, j2 = _get3(W, _JQR + 3 * i, l)
+    j0, j1, j2 = _get3(W, _JQ + 3 * i, l)
     jdv = W[_ix((_JDV + i), l)]
     ma = m * j0
     c0 += ma * jdv
@@ -663,7 +638,7 @@ def _rotor(m, W, l, i, s):
 def _friction(p, j, W, l, i, r):
     """r -= J_i^T f_i with limb i's friction f_i = F_c tanh(qdot / v_s) + F_v qdot
     (machine.friction_law, its tanh from the block)."""
-    j0, j1, j2 = _get3(W, _JQR + 3 * i, l)
+    j0, j1, j2 = _get3(W, _JQ + 3 * i, l)
     qd = W[_ix((_QD + i), l)]
     fr = p.f_c[i, j] * W[_ix((_TH + i), l)] + p.f_v[i, j] * qd
     return r[0] - j0 * fr, r[1] - j1 * fr, r[2] - j2 * fr
@@ -676,10 +651,10 @@ def _options(p, X, Xd, l0, n, W):
     off keep their rigid values (a select, not a multiplication by 0)."""
     for l in range(n):
         j = np.uint64(l0 + l)
-        _limb_rate(p.geom, X, Xd, W, j, l, 0)
-        _limb_rate(p.geom, X, Xd, W, j, l, 1)
-        _limb_rate(p.geom, X, Xd, W, j, l, 2)
-        _limb_rate(p.geom, X, Xd, W, j, l, 3)
+        _limb_rate(Xd, W, j, l, 0)
+        _limb_rate(Xd, W, j, l, 1)
+        _limb_rate(Xd, W, j, l, 2)
+        _limb_rate(Xd, W, j, l, 3)
     for l in range(n):  # the scalar pass: tanh (libm)
         vs = p.v_s[np.uint64(l0 + l)]
         for i in range(4):
