@@ -312,7 +312,7 @@ _HINTS = {
     "Y.shape[1]": 36,
     "Y.shape[0]": 3,
     "n": 36,
-    "q.shape[0]": 4,  # the limb loops of the dynamics kernels (the four limbs as SIMD lanes)
+    "_limbs(q)": 4,  # the limb loops of the dynamics kernels (the four limbs as SIMD lanes)
 }
 
 

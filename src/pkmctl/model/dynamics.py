@@ -122,7 +122,15 @@ _BLOCK = 4 * (_OS + 15)
 
 
 @kernel(inline="always", refcount=False)
-def _row(W, r, i):
+def _limbs(q):
+    """The limb loops' trip count: 4, read at run time from the work's q (a constant 4
+    would be unrolled into scalar code before LLVM's vectoriser saw the loop), and never
+    more than the block's rows hold."""
+    return min(q.shape[0], 4)
+
+
+@kernel(inline="always", refcount=False)
+def _row(r, i):
     """The index of limb (lane) i of block row r."""
     return np.uint64(4 * r) + i
 
@@ -168,13 +176,13 @@ def _jdv_out(W, Jdv):
 @kernel(inline="always", refcount=False)
 def _put3(W, r, i, a):
     """Rows r, r + 1, r + 2 of limb i <- a (3 values)."""
-    W[_row(W, r, i)], W[_row(W, r + 1, i)], W[_row(W, r + 2, i)] = a
+    W[_row(r, i)], W[_row(r + 1, i)], W[_row(r + 2, i)] = a
 
 
 @kernel(inline="always", refcount=False)
 def _put_limb(W, i, limb, j):
-    W[_row(W, _OQ, i)] = limb[3]
-    W[_row(W, _OJ, i)], W[_row(W, _OJ + 1, i)], W[_row(W, _OJ + 2, i)] = j
+    W[_row(_OQ, i)] = limb[3]
+    W[_row(_OJ, i)], W[_row(_OJ + 1, i)], W[_row(_OJ + 2, i)] = j
 
 
 @kernel(inline="always", refcount=False)
@@ -408,14 +416,14 @@ def dynamics_kernel(geom, theta, X, Xd, v, work, M, Cv, G):
     Jq, q = work[JQ], work[Q]
     pm = platform_motion(X, Xd, v)
     _limb_parameters(geom, theta, W)
-    for ii in range(q.shape[0]):
+    for ii in range(_limbs(q)):
         i = np.uint64(ii)
-        masses = (W[_row(W, _MLO, i)], W[_row(W, _MUP, i)])
-        inertias = (W[_row(W, _I0, i)], W[_row(W, _I1, i)], W[_row(W, _I2, i)])
+        masses = (W[_row(_MLO, i)], W[_row(_MUP, i)])
+        inertias = (W[_row(_I0, i)], W[_row(_I1, i)], W[_row(_I2, i)])
         limb = _limb_at_lane(geom, X, pm, i)
-        j, jdv, s = limb_sums(W[_row(W, _L1, i)], W[_row(W, _L2, i)], masses, inertias, Xd, v,
+        j, jdv, s = limb_sums(W[_row(_L1, i)], W[_row(_L2, i)], masses, inertias, Xd, v,
                               pm, _LIMB_SPR[i] > 0.0, limb)  # fmt: skip
-        W[_row(W, _OJDV, i)] = jdv
+        W[_row(_OJDV, i)] = jdv
         _put3(W, _OS, i, s[0:3])
         _put3(W, _OS + 3, i, s[3:6])
         _put3(W, _OS + 6, i, s[6:9])
@@ -453,11 +461,11 @@ def gravity_kernel(geom, theta, X, work, G):
     ta = sa / ca
     zs = X[0] * (1.0 / (ca * ca))  # as platform_motion rounds it
     pm = (ca, sa, cb, sb, ta, 0.0, zs)
-    for ii in range(q.shape[0]):
+    for ii in range(_limbs(q)):
         i = np.uint64(ii)
         limb = _limb_at_lane(geom, X, pm, i)
-        j, gl = limb_gravity(W[_row(W, _L1, i)], W[_row(W, _L2, i)], W[_row(W, _MLO, i)] * g,
-                             W[_row(W, _MUP, i)] * g, limb)  # fmt: skip
+        j, gl = limb_gravity(W[_row(_L1, i)], W[_row(_L2, i)], W[_row(_MLO, i)] * g,
+                             W[_row(_MUP, i)] * g, limb)  # fmt: skip
         _put3(W, _OS, i, gl)
         _put_limb(W, i, limb, j)
     g0, g1, g2 = theta[0] * g, 0.0, 0.0  # the platform: dz/dX = e_z
@@ -484,13 +492,13 @@ def regressor_kernel(geom, X, Xd, Xr_d, Xr_dd, work, Y):
     pm = platform_motion(X, Xd, Xr_d)
     _limb_lengths(geom, W)
     g = geom[10]
-    for ii in range(q.shape[0]):
+    for ii in range(_limbs(q)):
         i = np.uint64(ii)
         limb = _limb_at_lane(geom, X, pm, i)
-        j, jdv, m_lo, m_up, cols = limb_columns(W[_row(W, _L1, i)], W[_row(W, _L2, i)], g, Xd,
+        j, jdv, m_lo, m_up, cols = limb_columns(W[_row(_L1, i)], W[_row(_L2, i)], g, Xd,
                                                 Xr_d, Xr_dd, pm, _LIMB_SPR[i] > 0.0,
                                                 limb)  # fmt: skip
-        W[_row(W, _OJDV, i)] = jdv
+        W[_row(_OJDV, i)] = jdv
         _put3(W, _OS, i, m_lo)
         _put3(W, _OS + 3, i, m_up)
         _put3(W, _OS + 6, i, cols[0])
