@@ -88,6 +88,23 @@ def _save(src, dst, l):
 
 
 @kernel(inline="always", refcount=False)
+def _all_valid(x, L, pose):
+    """Whether rows 0-5 of every lane of x (6+, L) are finite and, with ``pose`` (a
+    constant), a valid pose (pose_status 0): one branch-free pass over the lanes, so that
+    the loop looks lane by lane only when a lane needs it (a stopped lane holds its
+    initial state, which is valid)."""
+    bad = 0
+    h = 0.5 * math.pi
+    for l in range(L):
+        ok = (abs(x[0, l]) < math.inf) & (abs(x[1, l]) < math.inf) & (abs(x[2, l]) < math.inf)
+        ok &= (abs(x[3, l]) < math.inf) & (abs(x[4, l]) < math.inf) & (abs(x[5, l]) < math.inf)
+        if pose:
+            ok &= (x[0, l] > 0.0) & (abs(x[1, l]) < h) & (abs(x[2, l]) < h)
+        bad += not ok
+    return bad == 0
+
+
+@kernel(inline="always", refcount=False)
 def _stop(l, st, k, status, kstop, alive, x, ss, cs, ast, fin, init, acc, accL):
     """Lane l stops at period k with status st: keep its states and metrics' accumulators,
     reset its states to the initial ones (benign numbers until the loop ends)."""
@@ -144,22 +161,26 @@ def _run_lanes(
         if running == 0:
             return 0
         k = k0 + j
-        for l in range(L):
-            if alive[l]:
-                st = pose_status(x[:, l])
-                if st != 0:
-                    _stop(l, st, k, status, kstop, alive, x, ss, cs, ast, fin, init, acc, accL)
-                    running -= 1
+        if not _all_valid(x, L, True):
+            for l in range(L):
+                if alive[l]:
+                    st = pose_status(x[:, l])
+                    if st != 0:
+                        _stop(l, st, k, status, kstop, alive, x, ss, cs, ast, fin, init, acc,
+                              accL)  # fmt: skip
+                        running -= 1
         if running == 0:
             return 0
         sensor_measure(sensor, ss, sw, x, y)
-        for l in range(L):
-            if alive[l]:
-                for i in range(6):
-                    if not math.isfinite(y[i, l]):
-                        _stop(l, 3, k, status, kstop, alive, x, ss, cs, ast, fin, init, acc, accL)
-                        running -= 1
-                        break
+        if not _all_valid(y, L, False):
+            for l in range(L):
+                if alive[l]:
+                    for i in range(6):
+                        if not math.isfinite(y[i, l]):
+                            _stop(l, 3, k, status, kstop, alive, x, ss, cs, ast, fin, init,
+                                  acc, accL)  # fmt: skip
+                            running -= 1
+                            break
         logged = k == nxt
         if logged and log_s_on:
             sensor_log(sensor, ss, row_s)
@@ -232,11 +253,14 @@ def _run_lanes(
             for i in range(n_z):
                 for l in range(L):
                     ast[i, l] += h / 6.0 * (z1[i, l] + 2.0 * z2[i, l] + 2.0 * z3[i, l] + z4[i, l])
-            for l in range(L):  # the single loop stops integrating here: keep this state
-                if alive[l] and not frozen[l] and pose_status(x[:, l]) != 0:
-                    frozen[l] = 1
-                    _save(x, fx, l)
-                    _save(ast, fz, l)
+            if not _all_valid(
+                x, L, True
+            ):  # the single loop stops integrating here: keep this state
+                for l in range(L):
+                    if alive[l] and not frozen[l] and pose_status(x[:, l]) != 0:
+                        frozen[l] = 1
+                        _save(x, fx, l)
+                        _save(ast, fz, l)
         for l in range(L):
             if frozen[l]:
                 _save(fx, x, l)
