@@ -11,9 +11,11 @@ import os
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from pkmctl.sim import simulate as S
-from pkmctl.sim.lanes import lane_count, run_lanes
+from pkmctl.sim.lanes import lane_batches, lane_count, run_lanes
 from pkmctl.sim.loop import run_parts
 
 DURATION = 0.05
@@ -82,15 +84,63 @@ def test_each_lane_is_its_single_run_and_lanes_may_differ_in_numbers():
     assert not np.array_equal(outs[0].logs["X"], outs[1].logs["X"])  # the payload
 
 
-def test_a_diverging_lane_stops_alone():
+@pytest.mark.parametrize("bad", [1, 0])
+def test_a_diverging_lane_stops_alone(bad):
+    """bad = 0: the run whose copies fill the padding lanes diverges, and so do they."""
     prep, parts, runs = _runs("afsmc", [1, 2, 3], duration=0.3)
-    p, s, w = runs[1].bundles["controller"]
-    runs[1].bundles["controller"] = (p._replace(K=_like(p.K, -40.0 * p.K)), s, w)  # unstable
+    p, s, w = runs[bad].bundles["controller"]
+    runs[bad].bundles["controller"] = (p._replace(K=_like(p.K, -40.0 * p.K)), s, w)  # unstable
     refs = [_single(parts, r, prep.scenario) for r in runs]
-    assert refs[1].status != 0 and refs[0].status == refs[2].status == 0
+    assert [ref.status != 0 for ref in refs] == [i == bad for i in range(3)]
     outs = _lanes(parts, runs, prep.scenario)
     for out, ref in zip(outs, refs, strict=True):
         _same(out, ref)
+
+
+def test_a_short_batch_runs_padded_to_the_simd_width(monkeypatch):
+    """Three runs go through a lane loop of lane_count() lanes (its vectorised code; the
+    scalar remainder code of fewer lanes is slower), and give three outputs."""
+    import pkmctl.sim.lanes as lanes_module
+
+    widths = []
+    compiled = lanes_module.lane_loop_for
+
+    def spy(parts, bundles):
+        loop = compiled(parts, bundles)
+
+        def run(*args):
+            widths.append(args[1].shape[1])  # x (nx, L)
+            return loop(*args)
+
+        return run
+
+    monkeypatch.setattr(lanes_module, "lane_loop_for", spy)
+    prep, parts, runs = _runs("afsmc", [1, 2, 3])
+    refs = [_single(parts, r, prep.scenario) for r in runs]
+    outs = _lanes(parts, runs, prep.scenario)
+    assert widths and set(widths) == {lanes_module.padded_lanes(3)}
+    assert lanes_module.padded_lanes(3) % lane_count() == 0
+    assert len(outs) == 3
+    for out, ref in zip(outs, refs, strict=True):
+        _same(out, ref)
+
+
+@given(n=st.integers(0, 200), lanes=st.integers(1, 64))
+def test_lane_batches_cover_the_runs_once(n, lanes):
+    sizes = lane_batches(n, lanes)
+    assert sum(sizes) == n
+    assert all(1 <= b <= lanes for b in sizes)
+    assert sizes.count(lanes) >= n // lanes  # every full batch is one lane loop
+    rest = [b for b in sizes if b not in (1, lanes)]
+    assert all(2 * b > lanes for b in rest) and len(rest) <= 1  # one short batch, > half
+
+
+def test_lane_batches_send_a_small_rest_one_at_a_time():
+    assert lane_batches(10, 8) == [8, 1, 1]
+    assert lane_batches(14, 8) == [8, 6]
+    assert lane_batches(5, 8) == [5]
+    assert lane_batches(4, 8) == [1, 1, 1, 1]
+    assert lane_batches(7, 1) == [1] * 7
 
 
 @pytest.mark.slow

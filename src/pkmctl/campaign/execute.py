@@ -34,7 +34,7 @@ from pkmctl.campaign.store import (
     open_store,
     record_session,
     schema,
-    task_seconds,
+    task_grouping,
     write_task,
 )
 
@@ -99,13 +99,14 @@ def run_task(spec: CampaignSpec, task: Task, lanes: int | None = None) -> pa.Tab
     """Run one task's runs; their records (:func:`pkmctl.campaign.store.schema`).
 
     The runs of a task (one cell, one controller) go ``lanes`` at a time through one lane
-    loop (default: the machine's SIMD width when the parts have lane forms, else 1). A
+    loop (default: the machine's SIMD width when the parts have lane forms, else 1); a
+    rest of half a batch or less goes one run at a time (:func:`~pkmctl.sim.lanes.lane_batches`). A
     run that diverges is a record with status ``"diverged"``, ``diverged_at`` its time
     and no metrics; any other error of a run is status ``"error"`` with its message.
     Pure: same spec and task, same records (but the timing columns).
     """
     from pkmctl.errors import SimulationDiverged
-    from pkmctl.sim.lanes import lane_count, lanes_supported
+    from pkmctl.sim.lanes import lane_batches, lane_count, lanes_supported, padded_lanes
     from pkmctl.sim.metrics import summary
     from pkmctl.sim.simulate import metrics_only, prepare, resolve_parts
 
@@ -125,9 +126,12 @@ def run_task(spec: CampaignSpec, task: Task, lanes: int | None = None) -> pa.Tab
             batches.append((runs, [(exc, math.nan)] * len(runs)))
             continue
         n = lanes if lanes is not None else lane_count() if lanes_supported(parts) else 1
-        buffers = _log_buffers(prep, parts, min(n, len(runs)))
-        for i in range(0, len(runs), n):
-            chunk = runs[i : i + n]
+        sizes = lane_batches(len(runs), n)
+        buffers = _log_buffers(prep, parts, padded_lanes(max(sizes)) if max(sizes) > 1 else 1)
+        i = 0
+        for size in sizes:
+            chunk = runs[i : i + size]
+            i += size
             out, wall = _outcomes(prep, parts, [r.seed for r in chunk], buffers)
             done = []
             for r in out:  # the metrics now: the next batch overwrites the logs
@@ -305,7 +309,7 @@ def run_campaign(
     """
     out = Path(out)
     runs_dir = open_store(out, spec, resume=resume)
-    tasks = spec.tasks(task_seconds(out))  # the grouping the folder was started with
+    tasks = spec.tasks(*task_grouping(out))  # the grouping the folder was started with
     done = completed_tasks(runs_dir)
     todo = [t for t in tasks if t.index not in done]
     before = sum(len(t.runs) for t in tasks if t.index in done)

@@ -23,6 +23,7 @@ of sums and their own cos and sin (docs/performance.md).
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 
@@ -55,9 +56,17 @@ from pkmctl.sim.loop import (
     pose_status,
 )
 
-__all__ = ["LaneMismatch", "lane_count", "lanes_supported", "run_lanes"]
+__all__ = [
+    "LaneMismatch",
+    "lane_batches",
+    "lane_count",
+    "lanes_supported",
+    "padded_lanes",
+    "run_lanes",
+]
 
 
+@functools.cache
 def lane_count() -> int:
     """Lanes a batch holds by default: the machine's double-precision SIMD width (8 with
     AVX-512, 4 with AVX2, else 2), read from /proc/cpuinfo (Linux), 4 elsewhere."""
@@ -70,6 +79,28 @@ def lane_count() -> int:
     except OSError:
         pass
     return 4
+
+
+def padded_lanes(n: int) -> int:
+    """The lanes a lane loop of n runs computes: n rounded up to a multiple of
+    :func:`lane_count`. The lane kernels' loops over the lanes are vectorised for that
+    width; fewer lanes run their scalar remainder code, which is slower than the padded
+    loop (measured: 2 lanes took 1.1-1.1x and 4 lanes 1.8x the time of 8, for PD and
+    AFSMC; docs/performance.md), so the extra lanes are copies of the first run."""
+    w = lane_count()
+    return -(-n // w) * w
+
+
+def lane_batches(n: int, lanes: int) -> list[int]:
+    """The sizes of the batches that n runs go in, at most ``lanes`` at once: full batches,
+    then the rest as one batch if it fills more than half of one, else one run at a time.
+    A batch costs a full one (:func:`padded_lanes`), and a lane loop does L runs in the
+    time of L / r single runs with r = 1.5-1.9 (docs/performance.md), so a rest of m runs
+    is faster alone for m below L / r, 4.2-5.3 of 8: "more than half" sits at that line."""
+    if lanes <= 1:
+        return [1] * n
+    full, rest = divmod(n, lanes)
+    return [lanes] * full + ([rest] if 2 * rest > lanes else [1] * rest)
 
 
 def lanes_supported(parts: dict[str, Part]) -> bool:
@@ -317,8 +348,9 @@ def run_lanes(
     inputs: list[Inputs],
     buffers: list | None = None,
 ) -> list[LoopOutput]:
-    """Run L = len(bundles) runs of ``parts`` at once; one LoopOutput per run, as
-    :func:`pkmctl.sim.loop.run_parts` gives it for that run alone. The runs must share
+    """Run len(bundles) runs of ``parts`` at once, in L = :func:`padded_lanes` lanes;
+    one LoopOutput per run, as :func:`pkmctl.sim.loop.run_parts` gives it for that run
+    alone. The runs must share
     their timing and reference (one :class:`~pkmctl.sim.loop.Inputs` chunking each, but
     their own disturbance values and metric parameters); else :class:`LaneMismatch`.
     ``buffers``: the runs log into them when they are lanes 0 .. L - 1 of one stack
@@ -328,7 +360,10 @@ def run_lanes(
     if not bundles or len(bundles) != len(inputs):
         raise ValueError(f"bundles: {len(bundles)} runs, inputs: {len(inputs)}")
     shared = _shared_inputs(inputs)
-    L = len(bundles)
+    n_runs = len(bundles)
+    L = padded_lanes(n_runs)  # lanes past n_runs: copies of run 0, their results dropped
+    bundles = list(bundles) + [bundles[0]] * (L - n_runs)
+    inputs = list(inputs) + [inputs[0]] * (L - n_runs)
     n_log = int(parts["controller"].log_size(bundles[0]["controller"][0]))
     n_slog = int(parts["sensor"].log_size(bundles[0]["sensor"][0]))
     if not _is_stack(buffers, L, shared.rows, n_log, n_slog):  # none, or not lanes of a stack
@@ -382,6 +417,7 @@ def run_lanes(
                 break
     except NumbaError as exc:
         raise compile_error(parts, exc) from exc
+    runs = runs[:n_runs]
     for kind, s, f in zip(("plant", "sensor", "controller", "actuator"), states, fin, strict=True):
         for i, run in enumerate(runs):
             run.bundles[kind][1][:] = f[:, i] if status[i] else s[:, i]
@@ -389,5 +425,5 @@ def run_lanes(
     for i, run in enumerate(runs):
         m = int(kstop[i]) if status[i] else shared.periods
         run.metrics[:] = acc[i] if status[i] else accL[:, i]
-        out.append(run.output(int(status[i]), m, dt / L))
+        out.append(run.output(int(status[i]), m, dt / n_runs))
     return out

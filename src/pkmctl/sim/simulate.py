@@ -595,7 +595,8 @@ def simulate_many(
     The scenario, its desired trajectory and desired forces are prepared once. The seeds
     go in batches of ``lanes`` runs that one compiled loop advances at once
     (:mod:`pkmctl.sim.lanes`; default: the machine's SIMD width when the parts have lane
-    forms, else 1, one run at a time); the compiled loop releases the GIL, so
+    forms, else 1, one run at a time; a rest of at most half a batch goes one run at a
+    time, :func:`~pkmctl.sim.lanes.lane_batches`); the compiled loop releases the GIL, so
     ``workers`` threads (default: the number of cores) run batches side by side. Results
     come back in the order of ``seeds``, each what :func:`simulate` gives for its seed;
     the first failing run's error is raised.
@@ -611,7 +612,7 @@ def simulate_many(
     import threading
     from concurrent.futures import ThreadPoolExecutor
 
-    from pkmctl.sim.lanes import lane_count, lanes_supported
+    from pkmctl.sim.lanes import lane_batches, lane_count, lanes_supported, padded_lanes
     from pkmctl.sim.metrics import summary
 
     if keep not in ("results", "metrics"):
@@ -639,9 +640,9 @@ def simulate_many(
         n_log = int(parts["controller"].log_size(parts["controller"].build(ctx)))
 
     def buffers(n: int) -> list[LogBuffers]:  # a thread's batches: lanes of one stack
-        if not hasattr(local, "buffers"):
-            local.buffers = LogBuffers.stacked(lanes, prep.t.size, n_log)
-        return local.buffers[:n]
+        if not hasattr(local, "buffers"):  # as many as a padded lane loop logs into
+            local.buffers = LogBuffers.stacked(padded_lanes(lanes), prep.t.size, n_log)
+        return local.buffers if n > 1 else local.buffers[:1]
 
     def batch(chunk: list) -> list:
         bufs = buffers(len(chunk)) if keep == "metrics" else None
@@ -658,7 +659,10 @@ def simulate_many(
             {"seed": int(s), **summary(r, source="loop")} for s, r in zip(chunk, out, strict=True)
         ]
 
-    chunks = [seeds[i : i + lanes] for i in range(0, len(seeds), lanes)]
+    chunks, i = [], 0
+    for size in lane_batches(len(seeds), lanes):
+        chunks.append(seeds[i : i + size])
+        i += size
     with ThreadPoolExecutor(max_workers=workers) as pool:
         return [r for rs in pool.map(batch, chunks) for r in rs]
 
