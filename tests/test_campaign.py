@@ -552,14 +552,14 @@ def test_a_question_is_answered_with_ratios_and_intervals(reference, tmp_path):
 def test_a_resume_groups_the_runs_as_the_folder_was_started(tmp_path):
     import json
 
-    from pkmctl.campaign.spec import LEGACY_TASK_SECONDS, TASK_SECONDS
-    from pkmctl.campaign.store import open_store, task_seconds
+    from pkmctl.campaign.spec import LEGACY_TASK_MULTIPLE, LEGACY_TASK_SECONDS, TASK_SECONDS
+    from pkmctl.campaign.store import open_store, task_grouping, task_seconds
 
     spec = CampaignSpec.from_toml(
         'scenario = "paper"\ncontrollers = ["fsmc"]\nseeds = 10\nduration = 0.2\n'
         'metrics = ["rmse"]\n'
     )
-    old, new = spec.tasks(LEGACY_TASK_SECONDS), spec.tasks()
+    old, new = spec.tasks(LEGACY_TASK_SECONDS, LEGACY_TASK_MULTIPLE), spec.tasks()
     assert [len(t.runs) for t in old] == [7, 3] and [len(t.runs) for t in new] == [10]
     fresh = tmp_path / "fresh"
     run_campaign(spec, fresh, workers=1)
@@ -567,11 +567,28 @@ def test_a_resume_groups_the_runs_as_the_folder_was_started(tmp_path):
     legacy = tmp_path / "legacy"  # a folder made before the task size was recorded
     open_store(legacy, spec, resume=False)
     manifest = json.loads((legacy / "campaign.json").read_text())
-    del manifest["task_seconds"]
+    del manifest["task_seconds"], manifest["task_multiple"]
     (legacy / "campaign.json").write_text(json.dumps(manifest))
-    assert task_seconds(legacy) == LEGACY_TASK_SECONDS
+    assert task_grouping(legacy) == (LEGACY_TASK_SECONDS, LEGACY_TASK_MULTIPLE)
     run_campaign(spec, legacy, workers=1, resume=True)
     assert len(list((legacy / "runs").iterdir())) == 2  # its own two tasks, not one
     a = read_records(legacy, timing=False).drop_columns(["task"])
     b = read_records(fresh, timing=False).drop_columns(["task"])
     assert a.equals(b)
+
+
+def test_tasks_hold_whole_batches_of_lanes():
+    """Seeds per task round up to TASK_MULTIPLE (whole SIMD batches), as far as a cell has
+    seeds; a folder records the multiple, and one without it groups as before (by 1)."""
+    from pkmctl.campaign.spec import TASK_MULTIPLE
+    from pkmctl.campaign.store import _manifest
+
+    spec = CampaignSpec.from_toml(
+        'scenario = "paper"\ncontrollers = ["afsmc"]\nseeds = 20\nduration = 4.2\n'
+        'metrics = ["rmse"]\n'
+    )
+    assert TASK_MULTIPLE == 8
+    assert [len(t.runs) for t in spec.tasks()] == [8, 8, 4]
+    assert [len(t.runs) for t in spec.tasks(multiple=1)] == [3] * 6 + [2]
+    assert _manifest(spec)["task_multiple"] == TASK_MULTIPLE
+    assert _manifest(spec)["tasks"] == 3

@@ -106,6 +106,12 @@ SECONDS_PER_RUN = 0.01
 #: (before it was recorded it was 0.2 s: :data:`LEGACY_TASK_SECONDS`).
 TASK_SECONDS = 1.0
 LEGACY_TASK_SECONDS = 0.2
+#: A task's seeds come in multiples of this (when the cell has that many): whole batches
+#: of SIMD lanes (:func:`pkmctl.sim.lanes.lane_batches`), 8 for AVX-512 and two of 4 for
+#: AVX2, on any machine, so that the grouping stays deterministic. Recorded in the folder
+#: too; a folder started before it was recorded grouped by 1 (:data:`LEGACY_TASK_MULTIPLE`).
+TASK_MULTIPLE = 8
+LEGACY_TASK_MULTIPLE = 1
 
 
 @dataclass(frozen=True)
@@ -409,11 +415,15 @@ class CampaignSpec:
         """Estimated seconds of one run on one core (the constants above)."""
         return SECONDS_PER_RUN + SECONDS_PER_PERIOD * self.periods()
 
-    def tasks(self, task_seconds: float = TASK_SECONDS) -> list[Task]:
-        """The runs grouped into tasks of about ``task_seconds`` of estimated work each:
-        one cell and controller per task, its seeds in chunks. Depends on the spec and
-        ``task_seconds`` only (a campaign folder records it)."""
-        per = max(1, min(len(self.seeds), math.ceil(task_seconds / self.run_seconds())))
+    def tasks(
+        self, task_seconds: float = TASK_SECONDS, multiple: int = TASK_MULTIPLE
+    ) -> list[Task]:
+        """The runs grouped into tasks of about ``task_seconds`` of estimated work each,
+        rounded up to a ``multiple`` of seeds: one cell and controller per task, its seeds
+        in chunks. Depends on the spec, ``task_seconds`` and ``multiple`` only (a campaign
+        folder records both)."""
+        per = math.ceil(task_seconds / self.run_seconds())
+        per = max(1, min(len(self.seeds), -(-per // multiple) * multiple))
         out = []
         for cell in range(len(self.cells)):
             for c in self.controllers:

@@ -25,7 +25,14 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pkmctl.campaign.spec import LEGACY_TASK_SECONDS, TASK_SECONDS, CampaignSpec, SpecError
+from pkmctl.campaign.spec import (
+    LEGACY_TASK_MULTIPLE,
+    LEGACY_TASK_SECONDS,
+    TASK_MULTIPLE,
+    TASK_SECONDS,
+    CampaignSpec,
+    SpecError,
+)
 from pkmctl.io.atomic import atomic_write
 from pkmctl.sim.metrics import RMSE_KEYS
 
@@ -40,6 +47,7 @@ __all__ = [
     "read_spec",
     "record_session",
     "schema",
+    "task_grouping",
     "task_seconds",
     "write_task",
 ]
@@ -110,8 +118,9 @@ def _manifest(spec: CampaignSpec) -> dict:
         "name": spec.name,
         "spec_hash": spec.digest,
         "runs": spec.n_runs,
-        "tasks": len(spec.tasks(TASK_SECONDS)),
+        "tasks": len(spec.tasks(TASK_SECONDS, TASK_MULTIPLE)),
         "task_seconds": TASK_SECONDS,
+        "task_multiple": TASK_MULTIPLE,
         "columns": schema(spec).names,
     }
 
@@ -152,15 +161,23 @@ def record_session(out: str | Path, where: str) -> dict:
     return entry
 
 
-def task_seconds(out: str | Path) -> float:
-    """The task size the campaign in ``out`` was started with (its tasks are
-    ``spec.tasks(task_seconds(out))``); :data:`LEGACY_TASK_SECONDS` for a folder made
-    before the size was recorded."""
+def task_grouping(out: str | Path) -> tuple[float, int]:
+    """(task seconds, seeds multiple) the campaign in ``out`` was started with: its tasks
+    are ``spec.tasks(*task_grouping(out))``. :data:`LEGACY_TASK_SECONDS` and
+    :data:`LEGACY_TASK_MULTIPLE` for a folder made before either was recorded."""
     try:
         manifest = json.loads((Path(out) / "campaign.json").read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
         raise SpecError(f"{str(out)!r}: not a readable campaign folder ({exc})") from None
-    return float(manifest.get("task_seconds", LEGACY_TASK_SECONDS))
+    return (
+        float(manifest.get("task_seconds", LEGACY_TASK_SECONDS)),
+        int(manifest.get("task_multiple", LEGACY_TASK_MULTIPLE)),
+    )
+
+
+def task_seconds(out: str | Path) -> float:
+    """The task size the campaign in ``out`` was started with (:func:`task_grouping`)."""
+    return task_grouping(out)[0]
 
 
 def open_store(out: Path, spec: CampaignSpec, *, resume: bool) -> Path:
