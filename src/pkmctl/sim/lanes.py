@@ -85,8 +85,8 @@ def padded_lanes(n: int) -> int:
     """The lanes a lane loop of n runs computes: n rounded up to a multiple of
     :func:`lane_count`. The lane kernels' loops over the lanes are vectorised for that
     width; fewer lanes run their scalar remainder code, which is slower than the padded
-    loop (measured: 2 lanes took 1.1-1.1x and 4 lanes 1.8x the time of 8, for PD and
-    AFSMC; docs/performance.md), so the extra lanes are copies of the first run."""
+    loop (measured: 2 lanes took 1.1x and 4 lanes 1.8x the time of 8, for PD and AFSMC;
+    docs/performance.md), so the extra lanes are copies of the first run."""
     w = lane_count()
     return -(-n // w) * w
 
@@ -96,7 +96,7 @@ def lane_batches(n: int, lanes: int) -> list[int]:
     then the rest as one batch if it fills more than half of one, else one run at a time.
     A batch costs a full one (:func:`padded_lanes`), and a lane loop does L runs in the
     time of L / r single runs with r = 1.5-1.9 (docs/performance.md), so a rest of m runs
-    is faster alone for m below L / r, 4.2-5.3 of 8: "more than half" sits at that line."""
+    is faster alone for m below L / r, 4.2-5.5 of 8: "more than half" sits at that line."""
     if lanes <= 1:
         return [1] * n
     full, rest = divmod(n, lanes)
