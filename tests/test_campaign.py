@@ -592,3 +592,16 @@ def test_tasks_hold_whole_batches_of_lanes():
     assert [len(t.runs) for t in spec.tasks(multiple=1)] == [3] * 6 + [2]
     assert _manifest(spec)["task_multiple"] == TASK_MULTIPLE
     assert _manifest(spec)["tasks"] == 3
+
+
+def test_a_cells_tasks_share_one_prepared_scenario_per_process():
+    from pkmctl.campaign.execute import _prepared
+
+    text = 'scenario = "paper"\ncontrollers = ["smc", "pd"]\nseeds = 3\nduration = 0.05\n'
+    text += 'metrics = ["rmse"]\n\n[factors."payload.mass"]\nvalues = [0.0, 4.0]\n'
+    spec = CampaignSpec.from_toml(text)
+    other = CampaignSpec.from_toml(text.replace("0.05", "0.06"))
+    assert _prepared(spec, 1) is _prepared(spec, 1)
+    assert _prepared(spec, 0) is not _prepared(spec, 1)
+    assert _prepared(other, 1) is not _prepared(spec, 1)  # another digest
+    assert _prepared(other, 1).periods != _prepared(spec, 1).periods

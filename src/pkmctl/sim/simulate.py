@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pkmctl._jit import kernel
+from pkmctl.control.gains import Gains
 from pkmctl.errors import InsufficientMemory, SimulationDiverged
 from pkmctl.fuzzy import FuzzySystem, MamdaniSystem
 from pkmctl.model.dynamics import (
@@ -243,6 +244,7 @@ class Prepared:
     q_des: np.ndarray
     tau_des: np.ndarray
     flc: MamdaniSystem | FuzzySystem  # the fuzzy term's system ([fuzzy])
+    gains: Gains  # the controllers' gains (a seed changes none of them)
     periods: int
     every: int
     dist_index: np.ndarray | None  # (periods,) when every == 1
@@ -310,8 +312,9 @@ def prepare(scenario: Scenario | str, duration: float | None) -> Prepared:
     # the chunk once here, not once per run or lane batch (7 ms for 1 s at 20 kHz).
     whole = _chunk(scenario, plant, 0, n) if every > 1 and n <= CHUNK_PERIODS else None
     return Prepared(
-        scenario, plant, model, t, reference, q_des, tau_des, flc, n, every, index, whole
-    )
+        scenario, plant, model, t, reference, q_des, tau_des, flc,
+        scenario.controller_gains(), n, every, index, whole,
+    )  # fmt: skip
 
 
 def metrics_only(scenario: Scenario) -> Scenario:
@@ -408,7 +411,7 @@ def _set_up(prep: Prepared, parts: dict[str, Part], seed: int | None, check_logs
     ctx = PartContext(
         plant=prep.plant,
         model=prep.model,
-        gains=scenario.controller_gains(),
+        gains=prep.gains,
         period=Tc,
         flc=prep.flc,
         scenario=scenario,
@@ -635,7 +638,7 @@ def simulate_many(
     local = threading.local()
     n_log = 0
     if keep == "metrics":
-        ctx = PartContext(prep.plant, prep.model, prep.scenario.controller_gains(),
+        ctx = PartContext(prep.plant, prep.model, prep.gains,
                           prep.scenario.timing.control_period, prep.flc, prep.scenario)  # fmt: skip
         n_log = int(parts["controller"].log_size(parts["controller"].build(ctx)))
 
