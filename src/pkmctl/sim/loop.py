@@ -206,28 +206,25 @@ def accumulate_metrics_lanes(acc, mp, k, Xd, x, qd, q, tau, work):
     for win in range(nw):
         if k >= mp[_MP_START + win, 0]:
             b = win * _PER_WINDOW
-            for i in range(7):  # one loop per row of acc, so that no store may alias a load
+            for i in range(7):
                 for l in range(L):
-                    acc[b + i, l] += e[i, l]
-                for l in range(L):
-                    acc[b + 7 + i, l] += e[i, l] * e[i, l]
-                for l in range(L):
-                    acc[b + 14 + i, l] = max(acc[b + 14 + i, l], abs(e[i, l]))
+                    v = e[i, l]
+                    acc[b + i, l] += v
+                    acc[b + 7 + i, l] += v * v
+                    acc[b + 14 + i, l] = max(acc[b + 14 + i, l], abs(v))
     t = nw * _PER_WINDOW
     if k > 0:
         for i in range(4):
             for l in range(L):
                 acc[t + _A_CHAT + i, l] += abs(tau[i, l] - acc[t + _A_PREV + i, l])
-    for i in range(4):
-        for l in range(L):
-            acc[t + _A_PREV + i, l] = tau[i, l]
-        for l in range(L):
-            acc[t + _A_PEAK + i, l] = max(acc[t + _A_PEAK + i, l], abs(tau[i, l]))
     for l in range(L):
         e[0, l] = 0.0  # 1.0 where a limb is at the force limit
     for i in range(4):
         for l in range(L):
-            e[0, l] = max(e[0, l], 1.0 if abs(tau[i, l]) >= mp[_MP_FLIM, l] else 0.0)
+            a = abs(tau[i, l])
+            acc[t + _A_PREV + i, l] = tau[i, l]
+            acc[t + _A_PEAK + i, l] = max(acc[t + _A_PEAK + i, l], a)
+            e[0, l] = max(e[0, l], 1.0 if a >= mp[_MP_FLIM, l] else 0.0)
     for l in range(L):
         acc[t + _A_AT, l] += e[0, l]
     on = False
