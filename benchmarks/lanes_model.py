@@ -1,6 +1,6 @@
 """The lane kernels against the scalar ones, per evaluation, side by side in one run.
 
-    python benchmarks/lanes_model.py [--lanes 8] [--repeats 7] [--n 200000]
+    python benchmarks/lanes_model.py [--lanes 8] [--repeats 7] [--n 200000] [--peaks]
 
 Times, from compiled loops, the rigid plant's RK4 stage derivative (the paper's rigid
 machine, and with every option of DESIGN.md §7 on) and the regressor Y: the scalar
@@ -171,12 +171,33 @@ def main() -> None:
     ap.add_argument("--lanes", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--n", type=int, default=200_000, help="scalar evaluations per repeat")
+    ap.add_argument("--peaks", action="store_true", help="flop rates against both FMA peaks")
     a = ap.parse_args()
     print(f"machine: {machine()}")
     print(f"L = {a.lanes} lanes, best of {a.repeats}, {a.n} evaluations per repeat")
     print(f"{'kernel':28s} {'scalar µs':>10s} {'lane µs/lane':>13s} {'throughput ×':>13s}")
-    for case, r in run(a.lanes, a.repeats, a.n).items():
+    res = run(a.lanes, a.repeats, a.n)
+    for case, r in res.items():
         print(f"{case:28s} {r['scalar_us']:10.3f} {r['lane_us']:13.3f} {r['ratio']:13.2f}")
+    if a.peaks:
+        peaks(res["rigid derivative"])
+
+
+def peaks(r: dict[str, float]) -> None:
+    """The rigid stage's flop rate in both forms against the measured FMA peaks: how far
+    either is from what the machine can do. The lane form is counted with the scalar
+    kernel's flops per lane (its selects' arms included: an upper bound of its own)."""
+    from benchmarks.flops import plant_stage_flops
+    from benchmarks.peak import scalar_fma_peak, vector_fma_peak
+
+    flops = plant_stage_flops()
+    scalar, vector = scalar_fma_peak(), vector_fma_peak()
+    g1, gl = flops / r["scalar_us"] / 1e3, flops / r["lane_us"] / 1e3
+    print(f"rigid stage {flops:,.0f} flops (counted): scalar kernel {g1:.1f} GFLOP/s, "
+          f"lane kernel {gl:.1f} GFLOP/s per core")  # fmt: skip
+    print(f"FMA peaks (measured): scalar {scalar:.1f} GFLOP/s, vector {vector:.1f} GFLOP/s; "
+          f"the lane kernel at {100 * gl / vector:.0f} % of the vector peak, which allows "
+          f"at most {vector / g1:.2f}x the scalar kernel")  # fmt: skip
 
 
 if __name__ == "__main__":
