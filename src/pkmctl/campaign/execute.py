@@ -123,9 +123,10 @@ def run_task(spec: CampaignSpec, task: Task, lanes: int | None = None) -> pa.Tab
 
     The runs of a task (one cell, one controller) go ``lanes`` at a time through one lane
     loop (default: the machine's SIMD width when the parts have lane forms, else 1); a
-    rest of half a batch or less goes one run at a time (:func:`~pkmctl.sim.lanes.lane_batches`). A
-    run that diverges is a record with status ``"diverged"``, ``diverged_at`` its time
-    and no metrics; any other error of a run is status ``"error"`` with its message.
+    rest of half a batch or less goes one run at a time
+    (:func:`~pkmctl.sim.lanes.lane_batches`). A run that diverges is a record with status
+    ``"diverged"``, ``diverged_at`` its time and no metrics; any other error of a run is
+    status ``"error"`` with its message.
     Pure: same spec and task, same records (but the timing columns).
     """
     from pkmctl.errors import SimulationDiverged

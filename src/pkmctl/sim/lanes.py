@@ -350,9 +350,9 @@ def run_lanes(
 ) -> list[LoopOutput]:
     """Run len(bundles) runs of ``parts`` at once, in L = :func:`padded_lanes` lanes;
     one LoopOutput per run, as :func:`pkmctl.sim.loop.run_parts` gives it for that run
-    alone. The runs must share
-    their timing and reference (one :class:`~pkmctl.sim.loop.Inputs` chunking each, but
-    their own disturbance values and metric parameters); else :class:`LaneMismatch`.
+    alone. The runs must share their timing and reference (one
+    :class:`~pkmctl.sim.loop.Inputs` chunking each, but their own disturbance values and
+    metric parameters); else :class:`LaneMismatch`.
     ``buffers``: the runs log into them when they are lanes 0 .. L - 1 of one stack
     (:meth:`~pkmctl.sim.loop.LogBuffers.stacked`), else into new ones."""
     from pkmctl.sim.loop import setup
