@@ -11,7 +11,9 @@ the ratio is throughput per core. On a machine whose speed drifts between rounds
 median of the rounds' own ratios (each round's lane loop against the single runs just
 before and just after it) is the steadier number; both are printed. Also checks that
 the two sides agree (max relative difference of X and tau over the runs). Never a
-pass/fail test: prints a table.
+pass/fail test: prints a table. A lane loop computes a multiple of the machine's SIMD
+width (``padded_lanes``), so ``--lanes 4`` on an AVX-512 machine times 4 runs in a loop
+of 8 lanes, as ``simulate_many`` would run a batch of 4 with ``lanes=4``.
 """
 
 from __future__ import annotations
