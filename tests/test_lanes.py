@@ -15,7 +15,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from pkmctl.sim import simulate as S
-from pkmctl.sim.lanes import lane_batches, lane_count, run_lanes
+from pkmctl.sim.lanes import in_batches, lane_batches, lane_count, run_lanes
 from pkmctl.sim.loop import run_parts
 
 DURATION = 0.05
@@ -118,8 +118,8 @@ def test_a_short_batch_runs_padded_to_the_simd_width(monkeypatch):
     prep, parts, runs = _runs("afsmc", [1, 2, 3])
     refs = [_single(parts, r, prep.scenario) for r in runs]
     outs = _lanes(parts, runs, prep.scenario)
-    assert widths and set(widths) == {lanes_module.padded_lanes(3)}
-    assert lanes_module.padded_lanes(3) % lane_count() == 0
+    w = lane_count()
+    assert len(set(widths)) == 1 and widths[0] % w == 0 and 3 <= widths[0] < 3 + w
     assert len(outs) == 3
     for out, ref in zip(outs, refs, strict=True):
         _same(out, ref)
@@ -133,6 +133,12 @@ def test_lane_batches_cover_the_runs_once(n, lanes):
     assert sizes.count(lanes) >= n // lanes  # every full batch is one lane loop
     rest = [b for b in sizes if b not in (1, lanes)]
     assert all(2 * b > lanes for b in rest) and len(rest) <= 1  # one short batch, > half
+
+
+def test_in_batches_cuts_the_items_in_order():
+    items = list(range(10, 24))
+    assert in_batches(items, 8) == [items[:8], items[8:]]
+    assert in_batches(items[:10], 8) == [items[:8], [18], [19]]
 
 
 def test_lane_batches_send_a_small_rest_one_at_a_time():

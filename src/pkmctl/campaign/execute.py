@@ -130,7 +130,7 @@ def run_task(spec: CampaignSpec, task: Task, lanes: int | None = None) -> pa.Tab
     Pure: same spec and task, same records (but the timing columns).
     """
     from pkmctl.errors import SimulationDiverged
-    from pkmctl.sim.lanes import lane_batches, lane_count, lanes_supported, padded_lanes
+    from pkmctl.sim.lanes import in_batches, lane_count, lanes_supported, padded_lanes
     from pkmctl.sim.metrics import summary
     from pkmctl.sim.simulate import resolve_parts
 
@@ -150,12 +150,10 @@ def run_task(spec: CampaignSpec, task: Task, lanes: int | None = None) -> pa.Tab
             batches.append((runs, [(exc, math.nan)] * len(runs)))
             continue
         n = lanes if lanes is not None else lane_count() if lanes_supported(parts) else 1
-        sizes = lane_batches(len(runs), n)
-        buffers = _log_buffers(prep, parts, padded_lanes(max(sizes)) if max(sizes) > 1 else 1)
-        i = 0
-        for size in sizes:
-            chunk = runs[i : i + size]
-            i += size
+        chunks = in_batches(runs, n)
+        widest = max(len(c) for c in chunks)
+        buffers = _log_buffers(prep, parts, padded_lanes(widest) if widest > 1 else 1)
+        for chunk in chunks:
             out, wall = _outcomes(prep, parts, [r.seed for r in chunk], buffers)
             done = []
             for r in out:  # the metrics now: the next batch overwrites the logs

@@ -58,6 +58,7 @@ from pkmctl.sim.loop import (
 
 __all__ = [
     "LaneMismatch",
+    "in_batches",
     "lane_batches",
     "lane_count",
     "lanes_supported",
@@ -101,6 +102,15 @@ def lane_batches(n: int, lanes: int) -> list[int]:
         return [1] * n
     full, rest = divmod(n, lanes)
     return [lanes] * full + ([rest] if 2 * rest > lanes else [1] * rest)
+
+
+def in_batches(items: list, lanes: int) -> list[list]:
+    """``items`` (runs, seeds) cut into the batches of :func:`lane_batches`, in order."""
+    out, i = [], 0
+    for size in lane_batches(len(items), lanes):
+        out.append(items[i : i + size])
+        i += size
+    return out
 
 
 def lanes_supported(parts: dict[str, Part]) -> bool:

@@ -615,7 +615,7 @@ def simulate_many(
     import threading
     from concurrent.futures import ThreadPoolExecutor
 
-    from pkmctl.sim.lanes import lane_batches, lane_count, lanes_supported, padded_lanes
+    from pkmctl.sim.lanes import in_batches, lane_count, lanes_supported, padded_lanes
     from pkmctl.sim.metrics import summary
 
     if keep not in ("results", "metrics"):
@@ -662,10 +662,7 @@ def simulate_many(
             {"seed": int(s), **summary(r, source="loop")} for s, r in zip(chunk, out, strict=True)
         ]
 
-    chunks, i = [], 0
-    for size in lane_batches(len(seeds), lanes):
-        chunks.append(seeds[i : i + size])
-        i += size
+    chunks = in_batches(seeds, lanes)
     with ThreadPoolExecutor(max_workers=workers) as pool:
         return [r for rs in pool.map(batch, chunks) for r in rs]
 
