@@ -349,6 +349,35 @@ def test_disjoint_arrays_spares_llvm_its_overlap_checks():
         assert ("vector.memcheck" in ir) == checked
 
 
+def test_flat_view_is_the_same_memory_without_the_reshape_helper():
+    """flat_view(a) of a C-contiguous array is a 1-D view of its elements in order: a
+    write through it lands in the array; 2-D and 3-D alike. Unlike ``a.reshape(a.size)``
+    it makes no call into Numba's reshape helper (which the lane loop's profile showed);
+    an array that is not C-contiguous is refused at compile time."""
+    from pkmctl.model.simd import flat_view
+
+    def bump(a):
+        f = flat_view(a)
+        for i in range(f.shape[0]):
+            f[i] += i
+        return f.shape[0]
+
+    def reshaped(a):
+        return a.reshape(a.size).shape[0]
+
+    fn = numba.njit(**(JIT_OPTIONS | NO_REFCOUNT))(bump)
+    for shape in ((3, 8), (2, 3, 4)):
+        a = np.zeros(shape)
+        assert fn(a) == a.size
+        np.testing.assert_array_equal(a.ravel(), np.arange(a.size, dtype=float))
+    assert "attempt_nocopy_reshape" not in fn.inspect_llvm(fn.signatures[0])
+    ref = numba.njit(**(JIT_OPTIONS | NO_REFCOUNT))(reshaped)
+    ref(np.zeros((3, 8)))
+    assert "attempt_nocopy_reshape" in ref.inspect_llvm(ref.signatures[0])  # what it avoids
+    with pytest.raises(numba.core.errors.TypingError):
+        fn(np.zeros((8, 3)).T)
+
+
 def test_sincos_lane_is_libm_within_one_ulp():
     """The lane kernels' cos and sin (no libm, so that they vectorise): within 1 ulp of
     libm over the workspace's angles and far beyond, NaN where libm gives NaN."""

@@ -34,6 +34,7 @@ from numba.core.errors import NumbaError
 from pkmctl._jit import kernel, specialise, specialised_dir
 from pkmctl.model.kinematics import limb_jacobian
 from pkmctl.model.lanes import disjoint_arrays, lane_limb_jacobian, wide_vectors
+from pkmctl.model.simd import flat_view
 from pkmctl.parts import (
     Part,
     PartError,
@@ -182,16 +183,27 @@ def accumulate_metrics(acc, mp, k, Xd, x, qd, q, tau, R, Jq, qw, e):
             acc[t + _A_OVER] += 1.0
 
 
+@kernel(inline="always", refcount=False)
+def _flat(i):
+    """A flat index as unsigned: Numba then emits no wraparound test for a negative one."""
+    return np.uint64(i)
+
+
 @kernel(refcount=False, llvm_inline=True)
 def accumulate_metrics_lanes(acc, mp, k, Xd, x, qd, q, tau, work):
     """:func:`accumulate_metrics` for L lanes at once, lane innermost: ``acc`` (n, L) and
     ``mp`` (m, L) the lanes' accumulators and parameters (the window starts equal in
     every lane), x (nx, L), q and tau (4, L), Xd and qd the shared reference row;
-    ``work`` = (lane model work, Jq (4, 3, L), q (4, L), e (7, L)). Every lane adds
-    period k (a lane that has stopped keeps adding: its caller saved its accumulators
-    when it stopped). The same sums as the scalar function, in the same order, without
-    branches across lanes; the limb speeds come from the lane limb Jacobian, which agrees
-    with the scalar one to rounding."""
+    ``work`` = (lane model work, Jq (4, 3, L), q (4, L), e (7, L)); all C-contiguous.
+    Every lane adds period k (a lane that has stopped keeps adding: its caller saved its
+    accumulators when it stopped). The same sums as the scalar function, in the same
+    order, without branches across lanes; the limb speeds come from the lane limb
+    Jacobian, which agrees with the scalar one to rounding.
+
+    A block of accumulator rows (the 7 sums of a window, ...) is one loop over its rows
+    times the lanes, on flat views: a trip count of 7 L or 4 L, which LLVM runs in its
+    vector body, where one loop per row of L = 8 lanes ran its short remainder loops
+    (docs/performance.md)."""
     wide_vectors()
     disjoint_arrays()
     w, Jq, qw, e = work
@@ -202,29 +214,37 @@ def accumulate_metrics_lanes(acc, mp, k, Xd, x, qd, q, tau, work):
     for i in range(4):
         for l in range(L):
             e[3 + i, l] = (qd[i] - q[i, l]) * mp[_MP_SCALE + 3 + i, l]
+    a, ef, tf = flat_view(acc), flat_view(e), flat_view(tau)
+    n7 = 7 * L
     nw = int(mp[0, 0])
     for win in range(nw):
         if k >= mp[_MP_START + win, 0]:
-            b = win * _PER_WINDOW
-            for i in range(7):
-                for l in range(L):
-                    v = e[i, l]
-                    acc[b + i, l] += v
-                    acc[b + 7 + i, l] += v * v
-                    acc[b + 14 + i, l] = max(acc[b + 14 + i, l], abs(v))
+            b = win * _PER_WINDOW * L
+            for m in range(n7):
+                a[_flat(b + m)] += ef[_flat(m)]
+            b += n7
+            for m in range(n7):
+                v = ef[_flat(m)]
+                a[_flat(b + m)] += v * v
+            b += n7
+            for m in range(n7):
+                a[_flat(b + m)] = max(a[_flat(b + m)], abs(ef[_flat(m)]))
     t = nw * _PER_WINDOW
+    n4 = 4 * L
+    prev, peak = (t + _A_PREV) * L, (t + _A_PEAK) * L
     if k > 0:
-        for i in range(4):
-            for l in range(L):
-                acc[t + _A_CHAT + i, l] += abs(tau[i, l] - acc[t + _A_PREV + i, l])
+        chat = (t + _A_CHAT) * L
+        for m in range(n4):
+            a[_flat(chat + m)] += abs(tf[_flat(m)] - a[_flat(prev + m)])
+    for m in range(n4):
+        a[_flat(prev + m)] = tf[_flat(m)]
+    for m in range(n4):
+        a[_flat(peak + m)] = max(a[_flat(peak + m)], abs(tf[_flat(m)]))
     for l in range(L):
         e[0, l] = 0.0  # 1.0 where a limb is at the force limit
     for i in range(4):
         for l in range(L):
-            a = abs(tau[i, l])
-            acc[t + _A_PREV + i, l] = tau[i, l]
-            acc[t + _A_PEAK + i, l] = max(acc[t + _A_PEAK + i, l], a)
-            e[0, l] = max(e[0, l], 1.0 if a >= mp[_MP_FLIM, l] else 0.0)
+            e[0, l] = max(e[0, l], 1.0 if abs(tau[i, l]) >= mp[_MP_FLIM, l] else 0.0)
     for l in range(L):
         acc[t + _A_AT, l] += e[0, l]
     on = False
