@@ -28,6 +28,7 @@ from pkmctl.model.lanes import (
     make_lane_work,
     wide_vectors,
 )
+from pkmctl.model.simd import flat_view
 from pkmctl.parts import attach_lanes
 
 __all__ = ["lane_controller_work"]
@@ -56,14 +57,15 @@ def _no_machine(p) -> bool:
 @kernel(inline="always", refcount=False)
 def _surface(lam, y, ref, s, xr_d, xr_dd):
     """s, Xr_dot, Xr_ddot (3, L) as :func:`pkmctl.control.sliding.sliding_surface`."""
-    L = s.shape[1]
-    for i in range(3):
-        for l in range(L):
-            e = ref[i, l] - y[i, l]
-            ed = ref[3 + i, l] - y[3 + i, l]
-            s[i, l] = ed + lam[i, l] * e
-            xr_d[i, l] = ref[3 + i, l] + lam[i, l] * e
-            xr_dd[i, l] = ref[6 + i, l] + lam[i, l] * ed
+    n = s.shape[0] * s.shape[1]  # the 3 rows x L lanes as one flat loop (_flat)
+    rf, yf, lf = flat_view(ref), flat_view(y), flat_view(lam)
+    sf, df, ddf = flat_view(s), flat_view(xr_d), flat_view(xr_dd)
+    for m in range(n):
+        e = rf[m] - yf[m]
+        ed = rf[n + m] - yf[n + m]
+        sf[m] = ed + lf[m] * e
+        df[m] = rf[n + m] + lf[m] * e
+        ddf[m] = rf[2 * n + m] + lf[m] * ed
 
 
 @kernel(inline="always", refcount=False)
@@ -100,10 +102,9 @@ def _model_force(p, y, ref, work, F):
 
 @kernel(inline="always", refcount=False)
 def _add_ks(K, s, F):
-    L = F.shape[1]
-    for i in range(3):
-        for l in range(L):
-            F[i, l] += K[i, l] * s[i, l]
+    Ff, Kf, sf = flat_view(F), flat_view(K), flat_view(s)
+    for m in range(Ff.shape[0]):
+        Ff[m] += Kf[m] * sf[m]
 
 
 @kernel(inline="always", refcount=False)
@@ -161,9 +162,9 @@ def lane_afsmc_step(p, state, work, y, ref, F):
     _surface(p.lam, y, ref, s, xr_d, xr_dd)
     _filter(state, s, p.Tc, p.alpha_f)
     lane_regressor(p.geom, y[0:3], y[3:6], xr_d, xr_dd, w, Y)
-    for i in range(3):
-        for l in range(L):
-            F[i, l] = 0.0
+    Ff = flat_view(F)
+    for m in range(Ff.shape[0]):
+        Ff[m] = 0.0
     # F = Y Theta^ and the projected adaptive law (pkmctl.control.adaptive.adapt) in one
     # pass over the parameters: the same sums in the same order as the scalar step's two
     # loops (the law reads neither F nor the terms added below), and one loop over the
@@ -200,14 +201,11 @@ def lane_pd_step(p, state, work, y, ref, F):
     disjoint_arrays()
     G = work[3]
     lane_gravity(p.geom, p.theta, y[0:3], work[0], G)
-    L = F.shape[1]
-    for i in range(3):
-        for l in range(L):
-            F[i, l] = (
-                p.kp[i, l] * (ref[i, l] - y[i, l])
-                + p.kd[i, l] * (ref[3 + i, l] - y[3 + i, l])
-                + G[i, l]
-            )
+    n = F.shape[0] * F.shape[1]
+    Ff, rf, yf = flat_view(F), flat_view(ref), flat_view(y)
+    kp, kd, Gf = flat_view(p.kp), flat_view(p.kd), flat_view(G)
+    for m in range(n):
+        Ff[m] = kp[m] * (rf[m] - yf[m]) + kd[m] * (rf[n + m] - yf[n + m]) + Gf[m]
 
 
 @kernel(refcount=False)
@@ -217,14 +215,11 @@ def lane_ctc_step(p, state, work, y, ref, F):
     disjoint_arrays()
     M, Cv, G, a = work[1], work[2], work[3], work[8]
     lane_dynamics(p.geom, p.theta, y[0:3], y[3:6], y[3:6], work[0], M, Cv, G)
-    L = F.shape[1]
-    for i in range(3):
-        for l in range(L):
-            a[i, l] = (
-                ref[6 + i, l]
-                + p.kd[i, l] * (ref[3 + i, l] - y[3 + i, l])
-                + p.kp[i, l] * (ref[i, l] - y[i, l])
-            )
+    n = F.shape[0] * F.shape[1]
+    af, rf, yf = flat_view(a), flat_view(ref), flat_view(y)
+    kp, kd = flat_view(p.kp), flat_view(p.kd)
+    for m in range(n):
+        af[m] = rf[2 * n + m] + kd[m] * (rf[n + m] - yf[n + m]) + kp[m] * (rf[m] - yf[m])
     _inverse(M, Cv, G, a, F)
 
 

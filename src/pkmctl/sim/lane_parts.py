@@ -20,6 +20,7 @@ from pkmctl.model.lanes import (
     lane_rigid_derivative,
     make_lane_work,
 )
+from pkmctl.model.simd import flat_view
 from pkmctl.parts import attach_lanes
 from pkmctl.sim import actuators, plants, sensors  # noqa: F401  (the parts extended here)
 
@@ -32,9 +33,9 @@ def lane_rigid_observe(p, x, tau, work, q, F):
     (:func:`pkmctl.sim.plants.rigid_observe`)."""
     Jq, qw = work[LANE_JQ], work[LANE_Q]
     L = x.shape[1]
-    for i in range(4):
-        for l in range(L):
-            q[i, l] = qw[i, l]
+    qf, qwf = flat_view(q), flat_view(qw)  # rows x lanes as one flat loop
+    for m in range(qf.shape[0]):
+        qf[m] = qwf[m]
     for i in range(3):
         for l in range(L):
             F[i, l] = (
@@ -48,10 +49,9 @@ def lane_rigid_observe(p, x, tau, work, q, F):
 @kernel(refcount=False)
 def lane_ideal_measure(p, state, work, x, y):
     """y = [X, Xdot] per lane."""
-    L = x.shape[1]
-    for i in range(6):
-        for l in range(L):
-            y[i, l] = x[i, l]
+    yf, xf = flat_view(y), flat_view(x)  # rows 0-5 of x: the first 6 L elements
+    for m in range(yf.shape[0]):
+        yf[m] = xf[m]
 
 
 @kernel(refcount=False)
@@ -77,10 +77,9 @@ def lane_ideal_command(p, state, work, y, F, cmd):
 @kernel(refcount=False)
 def lane_ideal_force(p, state, cmd, tau):
     """The command reaches the plant unchanged, per lane."""
-    L = cmd.shape[1]
-    for i in range(4):
-        for l in range(L):
-            tau[i, l] = cmd[i, l]
+    tf, cf = flat_view(tau), flat_view(cmd)
+    for m in range(tf.shape[0]):
+        tf[m] = cf[m]
 
 
 attach_lanes(
