@@ -183,20 +183,32 @@ def test_metrics_only_runs_log_t0_and_keep_every_metric(paper):
     assert metrics.summary(one) == metrics.summary(full, source="loop")
 
 
-def test_a_decimated_run_of_one_chunk_has_its_inputs_prepared_once(paper):
-    from pkmctl.sim.simulate import CHUNK_PERIODS, prepare
+def test_a_decimated_runs_chunks_of_inputs_are_prepared_once(paper):
+    """A decimated run up to CACHED_PERIODS has its chunks computed by prepare, once for
+    all its runs, bit for bit the rows of the full preparation; a longer one computes
+    them as the loop goes."""
+    from pkmctl.sim.simulate import CACHED_PERIODS, CHUNK_PERIODS, prepare
 
     sc = paper.replace(**{"timing.duration": 0.3})
     full = prepare(sc, None)
     dec = prepare(sc.replace(**{"logging.every": 7}), None)
     n = sc.timing.periods
-    assert dec.whole is not None and dec.chunk(0, n) is dec.whole  # not computed per run
-    for a, b in zip(dec.whole, full.chunk(0, n), strict=True):
+    assert list(dec.cached) == [(0, n)] and dec.chunk(0, n) is dec.cached[0, n]
+    for a, b in zip(dec.chunk(0, n), full.chunk(0, n), strict=True):
         np.testing.assert_array_equal(a, b)  # the rows of the full preparation, bit for bit
     for a, b in zip(dec.chunk(5, 99), full.chunk(5, 99), strict=True):
         np.testing.assert_array_equal(a, b)
-    long = paper.replace(**{"timing.duration": (CHUNK_PERIODS + 1) * 5e-5, "logging.every": 7})
-    assert prepare(long, None).whole is None  # several chunks: computed as the loop goes
+    # two chunks (a paper-claims run is 84,000 periods): both kept, as the loop asks them
+    two = paper.replace(**{"timing.duration": (CHUNK_PERIODS + 10) * 5e-5, "logging.every": 7})
+    p2 = prepare(two, None)
+    m = two.timing.periods
+    assert list(p2.cached) == [(0, CHUNK_PERIODS), (CHUNK_PERIODS, m)]
+    assert p2.chunk(CHUNK_PERIODS, m) is p2.cached[CHUNK_PERIODS, m]
+    ref = prepare(two.replace(**{"logging.every": 1}), None)
+    for a, b in zip(p2.chunk(CHUNK_PERIODS, m), ref.chunk(CHUNK_PERIODS, m), strict=True):
+        np.testing.assert_array_equal(a, b)
+    long = paper.replace(**{"timing.duration": (CACHED_PERIODS + 1) * 5e-5, "logging.every": 7})
+    assert prepare(long, None).cached is None  # too long to keep: computed as the loop goes
 
 
 def test_summary_of_some_groups_is_the_metrics_bit_for_bit(paper):

@@ -67,6 +67,12 @@ _LOG_COLUMNS = 3 + 3 + 6 + 3 + 4 + 4 + 3
 _CHUNK_COLUMNS = 1 + 9 + 9 + 4 + 4 + 1
 #: Periods per chunk of a decimated run's inputs (about 15 MB of arrays).
 CHUNK_PERIODS = 1 << 16
+#: A decimated run of at most this many periods (13 s at 20 kHz) has all its chunks of
+#: inputs computed once by :func:`prepare` and kept (14 doubles a period, 29 MB at most),
+#: for all its runs and lane batches; a longer one computes each chunk when it runs.
+CACHED_PERIODS = 4 * CHUNK_PERIODS
+# Per period of those kept chunks: the reference 9, q_d 4 and the disturbance index.
+_CACHED_COLUMNS = 9 + 4 + 1
 # logging.every values a refusal suggests (the smallest that fits)
 _EVERY_SUGGESTIONS = tuple(m * 10**e for e in range(7) for m in (1, 2, 5))[1:]
 
@@ -94,6 +100,8 @@ def memory_needed(
         shared = periods * (_PREPARED_COLUMNS + 1)  # + the disturbance index (int64)
     else:
         shared = rows * _PREPARED_COLUMNS + min(periods, CHUNK_PERIODS) * _CHUNK_COLUMNS
+        if periods <= CACHED_PERIODS:
+            shared += periods * _CACHED_COLUMNS
     return 8 * (shared + runs * per_run)
 
 
@@ -248,16 +256,18 @@ class Prepared:
     periods: int
     every: int
     dist_index: np.ndarray | None  # (periods,) when every == 1
-    # a decimated run of one chunk: its inputs, computed once for all its runs
-    whole: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    # a decimated run of at most CACHED_PERIODS: its chunks of inputs by (k0, k1),
+    # computed once for all its runs
+    cached: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
 
     def chunk(self, k0: int, k1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The loop's inputs for periods k0 .. k1 - 1 (:class:`pkmctl.sim.loop.Inputs`):
-        views of the prepared arrays when they hold every period, else computed."""
+        views of the prepared arrays when they hold every period, else the kept chunk, else
+        computed."""
         if self.every == 1:
             return self.reference[k0:k1], self.q_des[k0:k1], self.dist_index[k0:k1]
-        if self.whole is not None and (k0, k1) == (0, self.periods):
-            return self.whole
+        if self.cached is not None and (k0, k1) in self.cached:
+            return self.cached[k0, k1]
         return _chunk(self.scenario, self.plant, k0, k1)
 
 
@@ -308,12 +318,15 @@ def prepare(scenario: Scenario | str, duration: float | None) -> Prepared:
     index = _disturbance_index(0, n, Tc, scenario.disturbance.hold) if every == 1 else None
     model = scenario.controller_mechanism()
     flc = scenario.fuzzy_system()
-    # A decimated run that the loop reads in one chunk (e.g. a campaign's runs, metrics_only):
-    # the chunk once here, not once per run or lane batch (7 ms for 1 s at 20 kHz).
-    whole = _chunk(scenario, plant, 0, n) if every > 1 and n <= CHUNK_PERIODS else None
+    # A decimated run (e.g. a campaign's runs, metrics_only): its chunks once here, not once
+    # per run or lane batch (7 ms a second of run at 20 kHz), unless the run is too long.
+    cached = None
+    if every > 1 and n <= CACHED_PERIODS:
+        bounds = [(k0, min(n, k0 + CHUNK_PERIODS)) for k0 in range(0, n, CHUNK_PERIODS)]
+        cached = {(k0, k1): _chunk(scenario, plant, k0, k1) for k0, k1 in bounds}
     return Prepared(
         scenario, plant, model, t, reference, q_des, tau_des, flc,
-        scenario.controller_gains(), n, every, index, whole,
+        scenario.controller_gains(), n, every, index, cached,
     )  # fmt: skip
 
 
