@@ -4,7 +4,8 @@
     perf report -i lanes.data --no-children --sort sym
 
 Runs ``simulate_many`` (8 seeds of ``--seconds`` on ``paper``, ``--lanes`` at once, or 1
-for the single loop) ``--repeats`` times, then writes ``/tmp/perf-<pid>.map``, the file
+for the single loop; ``--metrics-only``: as a campaign runs them, logging only t = 0)
+``--repeats`` times, then writes ``/tmp/perf-<pid>.map``, the file
 ``perf report`` reads to name code that no ELF file describes: the address of every
 function in Numba's execution engine (read from its private attributes, so a Numba
 upgrade may need this script changed), each taken to run to the next one's address.
@@ -55,12 +56,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=0.5)
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--dump", default=None, help="write the loop's machine code here")
+    ap.add_argument(
+        "--metrics-only",
+        action="store_true",
+        help="runs as campaigns make them: keep='metrics', a log of t = 0",
+    )
     a = ap.parse_args(argv)
     for _ in range(a.repeats):
         res = simulate_many("paper", a.controller, seeds=list(range(1, 9)),
-                            duration=a.seconds, lanes=a.lanes, workers=1)  # fmt: skip
-        print(f"{a.controller}: {sum(r.info['kernel_seconds'] for r in res):.4f} s of loops",
-              file=sys.stderr)  # fmt: skip
+                            duration=a.seconds, lanes=a.lanes, workers=1,
+                            keep="metrics" if a.metrics_only else "results")  # fmt: skip
+        if not a.metrics_only:  # (metrics-only runs return their metrics alone)
+            print(f"{a.controller}: {sum(r.info['kernel_seconds'] for r in res):.4f} s of loops",
+                  file=sys.stderr)  # fmt: skip
     rows = write_map()
     print(f"wrote /tmp/perf-{os.getpid()}.map: {len(rows)} functions", file=sys.stderr)
     if a.dump:
