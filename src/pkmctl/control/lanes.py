@@ -57,7 +57,7 @@ def _no_machine(p) -> bool:
 @kernel(inline="always", refcount=False)
 def _surface(lam, y, ref, s, xr_d, xr_dd):
     """s, Xr_dot, Xr_ddot (3, L) as :func:`pkmctl.control.sliding.sliding_surface`."""
-    n = s.shape[0] * s.shape[1]  # the 3 rows x L lanes as one flat loop (_flat)
+    n = s.shape[0] * s.shape[1]  # the 3 rows x L lanes as one flat loop (flat_view)
     rf, yf, lf = flat_view(ref), flat_view(y), flat_view(lam)
     sf, df, ddf = flat_view(s), flat_view(xr_d), flat_view(xr_dd)
     for m in range(n):

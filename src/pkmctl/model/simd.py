@@ -103,8 +103,10 @@ def disjoint_arrays(typingctx):
 def flat_view(typingctx, a):
     """The elements of a C-contiguous array as a 1-D view of the same memory, without the
     call into Numba's reshape helper that ``a.reshape(a.size)`` makes each time (it showed
-    in the lane loop's profile): the lane metrics index accumulator rows times lanes as
-    one flat range. No reference is taken: use it where ``a`` outlives the view."""
+    in the lane loop's profile). The lane code loops over rows x lanes of its (rows, L)
+    arrays as one flat loop on these views: a loop per row of L = 8 lanes ran LLVM's
+    remainder code (docs/performance.md). No reference is taken: use it where ``a``
+    outlives the view. A layout other than C is a typing error."""
     if not (isinstance(a, types.Array) and a.layout == "C"):
         return None
     flat = types.Array(a.dtype, 1, "C")
