@@ -333,3 +333,18 @@ def test_lane_metrics_are_the_scalar_metrics_of_each_lane(L):
 
 def col(a: np.ndarray, l: int) -> np.ndarray:
     return np.ascontiguousarray(a[..., l])
+
+
+def test_afsmc_lanes_only_for_a_parameter_count_the_lane_update_handles():
+    """The AFSMC lane step updates Θ^ four parameters per pass: a bundle whose count is not
+    a multiple of 4 (or that has the machine model on) runs one run at a time instead."""
+    from types import SimpleNamespace
+
+    from pkmctl.control.lanes import _afsmc_lane_ok
+
+    def bundle(n, mach_on=0.0):
+        return SimpleNamespace(theta0=np.zeros(n), mach_on=mach_on)
+
+    assert _afsmc_lane_ok(bundle(36))
+    assert not _afsmc_lane_ok(bundle(37))
+    assert not _afsmc_lane_ok(bundle(36, mach_on=1.0))

@@ -54,6 +54,12 @@ def _no_machine(p) -> bool:
     return not float(p.mach_on) > 0.0
 
 
+def _afsmc_lane_ok(p) -> bool:
+    """AFSMC's lane step updates Θ^ four parameters at a time: without the machine model
+    it has 36 (9 bodies x 4); any other count runs one run at a time."""
+    return _no_machine(p) and p.theta0.shape[0] % 4 == 0
+
+
 @kernel(inline="always", refcount=False)
 def _surface(lam, y, ref, s, xr_d, xr_dd):
     """s, Xr_dot, Xr_ddot (3, L) as :func:`pkmctl.control.sliding.sliding_surface`."""
@@ -171,7 +177,7 @@ def lane_afsmc_step(p, state, work, y, ref, F):
     # loop over the lanes, so that F stays in registers between them (a loop per
     # parameter stored and reloaded it 36 times: 329 -> 251 ns per 8 lanes alone).
     k0 = 0
-    while k0 + 4 <= n:
+    while k0 + 4 <= n:  # n is a multiple of 4 (_afsmc_lane_ok)
         for l in range(L):
             f0, f1, f2 = F[0, l], F[1, l], F[2, l]
             s0, s1, s2 = s[0, l], s[1, l], s[2, l]
@@ -189,19 +195,6 @@ def lane_afsmc_step(p, state, work, y, ref, F):
                 th[k, l] = min(p.theta_max[k, l], max(p.theta_min[k, l], v))
             F[0, l], F[1, l], F[2, l] = f0, f1, f2
         k0 += 4
-    for k in range(k0, n):  # the rest (n = 36 or 48 leaves none)
-        for l in range(L):
-            t = th[k, l]
-            y0, y1, y2 = Y[0, k, l], Y[1, k, l], Y[2, k, l]
-            F[0, l] += y0 * t
-            F[1, l] += y1 * t
-            F[2, l] += y2 * t
-            upd = 0.0
-            upd += y0 * s[0, l]
-            upd += y1 * s[1, l]
-            upd += y2 * s[2, l]
-            v = t + p.Tc[l] * p.gamma_vec[k, l] * upd
-            th[k, l] = min(p.theta_max[k, l], max(p.theta_min[k, l], v))
     _add_ks(p.K, s, F)
     _fuzzy(p, work[_FLC], work[_FLC_IO], s, state, F)
 
@@ -250,7 +243,8 @@ def _attach() -> None:
         attach_lanes("controller", name, {"step": step}, lane_work=lane_controller_work, **common)
     attach_lanes(
         "controller", "afsmc", {"step": lane_afsmc_step, "log": lane_afsmc_log},
-        lane_work=lambda p, L: lane_controller_work(p, L, p.theta0.shape[0]), **common,
+        lane_work=lambda p, L: lane_controller_work(p, L, p.theta0.shape[0]),
+        lane_ok=_afsmc_lane_ok, lane_limb_jacobian=LANE_JACOBIAN,
     )  # fmt: skip
 
 
