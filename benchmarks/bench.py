@@ -276,8 +276,8 @@ def bench_batch(duration: float, runs: int) -> dict[str, float]:
         return runs * n / (time.perf_counter() - t0)
 
     campaign = timed(workers=workers, keep="metrics")
+    serial = timed(workers=1, keep="metrics")  # right after the pair it is compared with
     full = timed(workers=workers, keep="results")
-    serial = timed(workers=1, keep="metrics")
     return {
         "workers": workers,
         "runs": runs,
