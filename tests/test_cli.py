@@ -113,3 +113,30 @@ def test_console_script_installed():
         [sys.executable, "-m", "pkmctl", "scenario", "paper"], capture_output=True, text=True
     )
     assert res.returncode == 0 and 'name = "paper"' in res.stdout
+
+
+def test_console_entry_freezes_the_objects_for_a_quick_exit(monkeypatch, capsys):
+    """``pkmctl`` (pyproject's script and ``python -m pkmctl``) is ``cli.main``: the app,
+    its exit status, then ``gc.freeze()``, so that the interpreter's shutdown does not
+    collect every object again (docs/performance.md)."""
+    import gc
+    import tomllib
+    from pathlib import Path
+
+    from pkmctl import cli
+
+    root = Path(__file__).resolve().parents[1]
+    scripts = tomllib.loads((root / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts == {"pkmctl": "pkmctl.cli:main"}
+    assert "main()" in (root / "src" / "pkmctl" / "__main__.py").read_text()
+    monkeypatch.setattr(sys, "argv", ["pkmctl", "--version"])
+    gc.unfreeze()
+    try:
+        with pytest.raises(SystemExit) as exit_:
+            cli.main()
+        frozen = gc.get_freeze_count()
+    finally:
+        gc.unfreeze()
+    assert exit_.value.code in (0, None)
+    assert capsys.readouterr().out.strip() == f"pkmctl {pkmctl.__version__}"
+    assert frozen > 10_000  # every object the imports made

@@ -1,3 +1,3 @@
-from pkmctl.cli import app
+from pkmctl.cli import main
 
-app(prog_name="pkmctl")
+main()
