@@ -800,7 +800,7 @@ def main() -> None:  # pragma: no cover - console entry
     """The ``pkmctl`` command: :data:`app`, then an exit without the interpreter's final
     garbage collections. Every object dies with the process; ``gc.freeze()`` takes them
     out of the collector's sight, so that the shutdown does not traverse them again:
-    that took 0.4-0.5 s of a warm ``pkmctl reproduce`` (Numba's, matplotlib's and
+    that took about 0.45 s after a warm ``pkmctl reproduce`` (Numba's, matplotlib's and
     pydantic's objects; docs/performance.md). Objects still free when the modules are
     cleared, the standard streams are flushed, the atexit functions run."""
     import gc
