@@ -143,9 +143,10 @@ def bench_campaign(quick: bool = False) -> dict:
     from pkmctl.campaign.spec import CampaignSpec
 
     # 160 seeds (640 runs, 8 s on one worker here) is as much work as the 160 runs of 1 s
-    # were when issue 11 set the 1.8x target. With lane loops a run takes a quarter of
-    # that, and 160 runs (2 s) measured mostly each worker's first task of each
-    # controller, which loads that controller's lane loop (docs/campaigns.md).
+    # were when issue 11 set the 1.8x target. In lane loops a run takes a third of the
+    # time it took then, and in 160 runs (2 s) each worker's first task of each
+    # controller, which loads that controller's lane loop, weighed three times as much:
+    # 2 workers gave 1.68-1.77x one there (docs/campaigns.md).
     seeds = 4 if quick else 160
     spec = CampaignSpec.from_toml(SPEC.format(seeds=seeds))
     res: dict = {"runs": spec.n_runs, "tasks": len(spec.tasks()), "duration_s": 1.0}

@@ -796,13 +796,14 @@ def _import_benchmarks() -> None:
 from pkmctl import cli_identify as _cli_identify  # noqa: E402, F401  (registers excite, identify)
 
 
-def main() -> None:  # pragma: no cover - console entry
+def main() -> None:
     """The ``pkmctl`` command: :data:`app`, then an exit without the interpreter's final
     garbage collections. Every object dies with the process; ``gc.freeze()`` takes them
     out of the collector's sight, so that the shutdown does not traverse them again:
     that took about 0.45 s after a warm ``pkmctl reproduce`` (Numba's, matplotlib's and
-    pydantic's objects; docs/performance.md). Objects still free when the modules are
-    cleared, the standard streams are flushed, the atexit functions run."""
+    pydantic's objects; docs/performance.md). The shutdown still clears the modules
+    (freeing what they hold), flushes the standard streams and runs the atexit
+    functions."""
     import gc
 
     try:
