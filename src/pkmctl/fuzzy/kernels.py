@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from pkmctl._jit import kernel
+from pkmctl.model.simd import unsigned as _u  # table offsets: ten reads per output cell
 
 __all__ = ["flc_eval", "mamdani_eval"]
 
@@ -509,15 +510,6 @@ def _level(k, k0, h0, k1, h1, k2, h2, k3, h3):
     if k3 == k:
         h = max(h, h3)
     return h
-
-
-@_jit_inl
-def _u(i):
-    """An index as unsigned: Numba then emits no test for a negative (wraparound) index,
-    which it does for every signed one; at ten table reads per output cell that was a
-    compare and a conditional move each (docs/performance.md). Table offsets are never
-    negative."""
-    return np.uint64(i)
 
 
 @_jit_free

@@ -17,7 +17,14 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-__all__ = ["disjoint_arrays", "flat_view", "limb_vectors", "stack_block", "wide_vectors"]
+__all__ = [
+    "disjoint_arrays",
+    "flat_view",
+    "limb_vectors",
+    "stack_block",
+    "unsigned",
+    "wide_vectors",
+]
 
 
 @intrinsic
@@ -130,3 +137,20 @@ def flat_view(typingctx, a):
         return out._getvalue()
 
     return flat(a), codegen
+
+
+@intrinsic
+def unsigned(typingctx, i):
+    """An index as unsigned, ``np.uint64(i)``: Numba then emits no test for a negative
+    (wraparound) index, which it does for every signed one; in a hot loop that is a
+    compare and a conditional move per access, and it can keep LLVM from seeing that
+    consecutive accesses are consecutive (docs/performance.md). For indices that are
+    never negative: table offsets, flat lane indices. An intrinsic, so that Numba does
+    not copy and re-type a function's IR at each of its many call sites."""
+    if not isinstance(i, types.Integer):
+        return None
+
+    def codegen(context, builder, sig, args):
+        return context.cast(builder, args[0], sig.args[0], types.uint64)
+
+    return types.uint64(i), codegen

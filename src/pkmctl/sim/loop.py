@@ -34,7 +34,7 @@ from numba.core.errors import NumbaError
 from pkmctl._jit import kernel, specialise, specialised_dir
 from pkmctl.model.kinematics import limb_jacobian
 from pkmctl.model.lanes import disjoint_arrays, lane_limb_jacobian, wide_vectors
-from pkmctl.model.simd import flat_view
+from pkmctl.model.simd import flat_view, unsigned
 from pkmctl.parts import (
     Part,
     PartError,
@@ -183,12 +183,6 @@ def accumulate_metrics(acc, mp, k, Xd, x, qd, q, tau, R, Jq, qw, e):
             acc[t + _A_OVER] += 1.0
 
 
-@kernel(inline="always", refcount=False)
-def _flat(i):
-    """A flat index as unsigned: Numba then emits no wraparound test for a negative one."""
-    return np.uint64(i)
-
-
 @kernel(refcount=False, llvm_inline=True)
 def accumulate_metrics_lanes(acc, mp, k, Xd, x, qd, q, tau, work):
     """:func:`accumulate_metrics` for L lanes at once, lane innermost: ``acc`` (n, L) and
@@ -221,25 +215,25 @@ def accumulate_metrics_lanes(acc, mp, k, Xd, x, qd, q, tau, work):
         if k >= mp[_MP_START + win, 0]:
             b = win * _PER_WINDOW * L
             for m in range(n7):
-                a[_flat(b + m)] += ef[_flat(m)]
+                a[unsigned(b + m)] += ef[unsigned(m)]
             b += n7
             for m in range(n7):
-                v = ef[_flat(m)]
-                a[_flat(b + m)] += v * v
+                v = ef[unsigned(m)]
+                a[unsigned(b + m)] += v * v
             b += n7
             for m in range(n7):
-                a[_flat(b + m)] = max(a[_flat(b + m)], abs(ef[_flat(m)]))
+                a[unsigned(b + m)] = max(a[unsigned(b + m)], abs(ef[unsigned(m)]))
     t = nw * _PER_WINDOW
     n4 = 4 * L
     prev, peak = (t + _A_PREV) * L, (t + _A_PEAK) * L
     if k > 0:
         chat = (t + _A_CHAT) * L
         for m in range(n4):
-            a[_flat(chat + m)] += abs(tf[_flat(m)] - a[_flat(prev + m)])
+            a[unsigned(chat + m)] += abs(tf[unsigned(m)] - a[unsigned(prev + m)])
     for m in range(n4):
-        a[_flat(prev + m)] = tf[_flat(m)]
+        a[unsigned(prev + m)] = tf[unsigned(m)]
     for m in range(n4):
-        a[_flat(peak + m)] = max(a[_flat(peak + m)], abs(tf[_flat(m)]))
+        a[unsigned(peak + m)] = max(a[unsigned(peak + m)], abs(tf[unsigned(m)]))
     for l in range(L):
         e[0, l] = 0.0  # 1.0 where a limb is at the force limit
     for i in range(4):
