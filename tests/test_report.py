@@ -193,6 +193,32 @@ def test_a_failure_in_a_drawing_process_reaches_the_caller(results, tmp_path, mo
     assert multiprocessing.active_children() == []  # the drawing processes are gone
 
 
+@needs_fork
+def test_drawing_processes_see_the_parents_objects_frozen(results, tmp_path, monkeypatch):
+    """A child's full collection must not walk (and copy) the heap it was forked with;
+    the caller's collector is left as it was found."""
+    import gc
+
+    from pkmctl.report import figures
+
+    def record(spec, pairs, outdir, dpi):  # runs in the child
+        path = outdir / spec.filename
+        path.write_text(str(gc.get_freeze_count()))
+        return path
+
+    monkeypatch.setattr(figures, "_draw_one", record)
+    assert gc.get_freeze_count() == 0
+    paths = make_figures(results, tmp_path, workers=2)
+    assert gc.get_freeze_count() == 0
+    assert all(int(p.read_text()) > 1000 for p in paths)
+    gc.freeze()  # a caller that froze its objects itself keeps them frozen
+    try:
+        make_figures(results, tmp_path, workers=2)
+        assert gc.get_freeze_count() > 1000
+    finally:
+        gc.unfreeze()
+
+
 def test_make_figures_rejects_empty_input(tmp_path) -> None:
     with pytest.raises(ValueError, match="no known controller"):
         make_figures({}, tmp_path)

@@ -506,6 +506,13 @@ def start_figures(
     for stream in (sys.stdout, sys.stderr):  # a child must not print the parent's buffer
         stream.flush()
     _FORKED_PAIRS = pairs
+    import gc
+
+    # Objects the children only read stay out of their collector's sight: a full collection
+    # in a child would otherwise walk (and so copy, page by page) the parent's whole heap.
+    frozen = not gc.get_freeze_count()
+    if frozen:
+        gc.freeze()
     pool = ProcessPoolExecutor(
         min(workers, len(FIGURES)), mp_context=multiprocessing.get_context("fork"),
         initializer=_child_start, initargs=(os.getpid(),),
@@ -526,6 +533,8 @@ def start_figures(
         raise
     finally:
         _FORKED_PAIRS = []  # forked already: the children hold their copy
+        if frozen:
+            gc.unfreeze()
     return FigureJob(pool, [futures[s.number] for s in FIGURES])
 
 
