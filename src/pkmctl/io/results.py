@@ -50,8 +50,10 @@ _MEASURED = ("q1_m", "q2_m", "q3_m", "q4_m")
 
 
 def _columns(result: Result) -> tuple[list[str], list[np.ndarray]]:
-    """Column names and the columns, each contiguous (rows of one transposed copy per
-    block: half the time of a strided copy per column)."""
+    """Column names and the columns: strided views of the result's arrays, which
+    pyarrow copies into its own pool (memory reused column after column and file after
+    file; a contiguous copy per block here came from fresh pages each time, which cost
+    more than the copy: docs/performance.md)."""
     names, blocks = ["t"], [result.t.reshape(-1, 1)]
     for name, _, cols in _FIELDS:
         names += list(cols)
@@ -62,7 +64,7 @@ def _columns(result: Result) -> tuple[list[str], list[np.ndarray]]:
     if result.theta_hat is not None:
         names += [f"theta_hat{k}" for k in range(result.theta_hat.shape[1])]
         blocks.append(result.theta_hat)
-    columns = [col for b in blocks for col in np.ascontiguousarray(b.T)]
+    columns = [b[:, j] for b in blocks for j in range(b.shape[1])]
     return names, columns
 
 

@@ -797,8 +797,14 @@ class MujocoMachine:
         return 0
 
 
-def render_poses(robot: Mechanism, poses: np.ndarray, *, width: int = 640, height: int = 480):
+def render_poses(
+    robot: Mechanism, poses: np.ndarray, *, width: int = 640, height: int = 480,
+    shadow_size: int | None = None,
+):  # fmt: skip
     """Offscreen images of the machine at task poses X (k, 3).
+
+    ``shadow_size`` is the side of the shadow map; by default twice the image's larger
+    side, rounded up to a power of two (at least 1024, at most MuJoCo's 4096).
 
     Returns
     -------
@@ -817,6 +823,14 @@ def render_poses(robot: Mechanism, poses: np.ndarray, *, width: int = 640, heigh
             "(set MUJOCO_GL=egl or osmesa before MuJoCo is first imported)"
         )
     model = build_model(robot)
+    # MuJoCo's default shadow map is 4096 x 4096, which a software GL allocates, clears
+    # and draws for every image. A map twice the image's larger side draws the same
+    # shadows (640 x 480: mean pixel difference 3e-5, a few edge pixels) in 0.07 s less
+    # a call and 50 MB less memory (docs/performance.md).
+    if shadow_size is None:
+        side = 2 ** math.ceil(math.log2(2 * max(width, height)))
+        shadow_size = min(int(model.vis.quality.shadowsize), max(1024, side))
+    model.vis.quality.shadowsize = int(shadow_size)
     data = mujoco.MjData(model)
     try:
         renderer = mujoco.Renderer(model, height, width)
