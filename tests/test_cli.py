@@ -115,6 +115,19 @@ def test_console_script_installed():
     assert res.returncode == 0 and 'name = "paper"' in res.stdout
 
 
+@pytest.mark.parametrize(
+    ("command", "text"),
+    [(["identify"], "scenario [controller_model] block"), (["mujoco-model"], "The [plant] options"),
+     ([], "(Parquet by default, or CSV)")],
+)  # fmt: skip
+def test_help_shows_its_text_verbatim(command, text):
+    """Help is Markdown, not rich markup (which took "[plant]" for a style and dropped
+    it); the command list joins a docstring's lines."""
+    res = runner.invoke(app, [*command, "--help"], terminal_width=200)
+    assert res.exit_code == 0
+    assert any(text in re.sub(r"[ │]+", " ", line) for line in res.output.splitlines())
+
+
 def test_console_entry_freezes_the_objects_for_a_quick_exit(monkeypatch, capsys):
     """``pkmctl`` (pyproject's script and ``python -m pkmctl``) is ``cli.main``: the app,
     its exit status, then ``gc.freeze()``, so that the interpreter's shutdown does not

@@ -87,6 +87,9 @@ app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
     pretty_exceptions_enable=False,
+    # Help as Markdown: rich markup would eat "[plant]" in a help text, and Typer's
+    # command list keeps a docstring's line breaks in that mode.
+    rich_markup_mode="markdown",
     help="Model, control and simulate the 2RPU-2SPR parallel manipulator "
     "(SMC, FSMC, AFSMC, PD, CTC). The first run compiles the numerical kernels "
     "(minutes; cached on disk for later runs).",
@@ -590,6 +593,7 @@ def mujoco_model(
 campaign_app = typer.Typer(
     cls=TyperGroup,
     no_args_is_help=True,
+    rich_markup_mode="markdown",
     help="Robustness campaigns: many paired runs over factors of a scenario (docs/campaigns.md).",
 )
 app.add_typer(campaign_app, name="campaign")
