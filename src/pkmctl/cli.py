@@ -400,7 +400,9 @@ def simulate(
     ctx: typer.Context,
     scenario_file: Annotated[
         str,
-        typer.Argument(help=f"Scenario TOML file or built-in name ({_SCENARIO_NAMES})."),
+        typer.Argument(
+            metavar="SCENARIO", help=f"Scenario TOML file or built-in name ({_SCENARIO_NAMES})."
+        ),
     ],
     controller: Annotated[
         str, typer.Option(help=f"A registered controller (built in: {_CONTROLLERS}).")
@@ -461,7 +463,7 @@ def simulate(
 def scenario(
     ctx: typer.Context,
     name: Annotated[
-        str, typer.Argument(help=f"Built-in scenario name ({_SCENARIO_NAMES}).")
+        str, typer.Argument(metavar="NAME", help=f"Built-in scenario name ({_SCENARIO_NAMES}).")
     ] = "paper",
 ) -> None:
     """Print a built-in scenario as TOML (edit it and pass it to reproduce or simulate).
@@ -609,7 +611,10 @@ def _seconds(s: float) -> str:
 def campaign_run(
     ctx: typer.Context,
     spec_file: Annotated[
-        str, typer.Argument(help="The campaign spec (TOML), or a built-in's name: paper-claims.")
+        str,
+        typer.Argument(
+            metavar="SPEC", help="The campaign spec (TOML), or a built-in's name: paper-claims."
+        ),
     ],
     out: Annotated[
         str, typer.Option(help="Campaign folder: the spec and one Parquet file per task.")
@@ -731,7 +736,10 @@ def campaign_run(
 def campaign_show(
     ctx: typer.Context,
     spec_file: Annotated[
-        str, typer.Argument(help="The campaign spec (TOML), or a built-in's name: paper-claims.")
+        str,
+        typer.Argument(
+            metavar="SPEC", help="The campaign spec (TOML), or a built-in's name: paper-claims."
+        ),
     ],
 ) -> None:
     """Print a campaign's spec (to copy and edit) and what it expands to; runs nothing.
@@ -762,7 +770,9 @@ def campaign_show(
 @campaign_app.command("report")
 def campaign_report(
     ctx: typer.Context,
-    folder: Annotated[str, typer.Argument(help="A campaign folder (pkmctl campaign run --out).")],
+    folder: Annotated[
+        str, typer.Argument(metavar="FOLDER", help="A campaign folder (pkmctl campaign run --out).")
+    ],
 ) -> None:
     """Write a campaign's statistics: FOLDER/report/.
 

@@ -133,8 +133,9 @@ def identify(
     log: Annotated[
         Path,
         typer.Argument(
+            metavar="LOG",
             help="A run's time series: pkmctl's Parquet/CSV, or a CSV with columns t (s), "
-            "q1..q4 (m), tau1..tau4 (N, limb forces)."
+            "q1..q4 (m), tau1..tau4 (N, limb forces).",
         ),
     ],
     out: Annotated[
