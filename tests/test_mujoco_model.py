@@ -202,3 +202,8 @@ def test_the_smaller_shadow_map_draws_the_default_picture(robot):
     # measured: 63 of 307,200 pixels, mean 0.010 (a 1024 map: 119, 0.017; 256: 410, 0.063)
     assert differ.mean() < 3e-4, f"{differ.sum()} pixels differ"
     assert np.abs(ours - default).mean() < 0.014
+
+
+def test_render_poses_refuses_a_shadow_map_out_of_range(robot):
+    with pytest.raises(ValueError, match=r"shadow_size = 0: must be in \[64, 16384\]"):
+        mj.render_poses(robot, [robot.home], shadow_size=0)
