@@ -560,7 +560,7 @@ def mujoco_model(
     scenario's. Coulomb friction is refused: MuJoCo's is a constraint, not the tanh law.
     """
     from pkmctl.errors import PkmctlError
-    from pkmctl.io.atomic import atomic_write
+    from pkmctl.io.atomic import atomic_write, check_output_file
 
     try:
         from pkmctl.plants.mujoco import build_mjcf
@@ -569,6 +569,7 @@ def mujoco_model(
     if out.is_dir():
         _fail(f"--out {out}: is a folder, give a file name (FILE.xml)")
     try:
+        check_output_file(out, what="--out")
         sc = _load_scenario(scenario)
         ps = sc.plant_spec
 
