@@ -490,6 +490,7 @@ def start_figures(
     (default :func:`figure_workers`) and return at once; the runs are shared with the
     processes through the fork, not copied. With ``workers = 1`` the figures are drawn
     here, before this returns. Arguments and errors as :func:`make_figures`."""
+    import gc
     import multiprocessing
     import os
     import sys
@@ -505,18 +506,16 @@ def start_figures(
         return FigureJob(None, [], [_draw_one(spec, pairs, outdir, dpi) for spec in FIGURES])
     for stream in (sys.stdout, sys.stderr):  # a child must not print the parent's buffer
         stream.flush()
+    pool = ProcessPoolExecutor(
+        min(workers, len(FIGURES)), mp_context=multiprocessing.get_context("fork"),
+        initializer=_child_start, initargs=(os.getpid(),),
+    )  # fmt: skip
     _FORKED_PAIRS = pairs
-    import gc
-
     # Objects the children only read stay out of their collector's sight: a full collection
     # in a child would otherwise walk (and so copy, page by page) the parent's whole heap.
     frozen = not gc.get_freeze_count()
     if frozen:
         gc.freeze()
-    pool = ProcessPoolExecutor(
-        min(workers, len(FIGURES)), mp_context=multiprocessing.get_context("fork"),
-        initializer=_child_start, initargs=(os.getpid(),),
-    )  # fmt: skip
     try:
         # the box plots sort every sample and the force figures hold three panels: first
         order = sorted(FIGURES, key=lambda s: s.kind not in ("box", "force"))
