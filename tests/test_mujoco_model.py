@@ -154,7 +154,7 @@ def test_mujoco_model_command_writes_a_loadable_model(tmp_path):
     for args, match in (
         (["--out", str(tmp_path)], "is a folder"),
         (["--out", "/proc/no/such/pkm.xml"], "cannot write"),
-        (["--out", str(tmp_path / "m" / "pkm.xml" / "x.xml")], "pkm.xml' is a file, not a folder"),
+        (["--out", str(out / "x.xml")], "pkm.xml': exists and is not a folder"),  # out: a file
         (["--out", str(out), "--friction-coulomb", "30"], "frictionloss"),
         (["--out", str(out), "--scenario", "prototype"], "frictionloss"),  # the scenario's 30 N
     ):

@@ -206,10 +206,5 @@ def check_output_file(path: str | os.PathLike[str], *, what: str = "output file"
         raise OutputError(f"{what} {str(path)!r}: is a folder, not a file")
     if path.exists() and not os.access(path, os.W_OK):
         raise OutputError(f"{what} {str(path)!r}: not writable")
-    probe = path.absolute().parent
-    while not probe.exists():
-        probe = probe.parent
-    if not probe.is_dir():  # name the file that stands where a folder should
-        raise OutputError(f"{what} {str(path)!r}: {str(probe)!r} is a file, not a folder")
-    check_output_folder(path.absolute().parent, what=what)
+    check_output_folder(path.absolute().parent, what=f"{what} {str(path)!r}: its folder")
     return path
