@@ -244,7 +244,7 @@ def _attach() -> None:
     attach_lanes(
         "controller", "afsmc", {"step": lane_afsmc_step, "log": lane_afsmc_log},
         lane_work=lambda p, L: lane_controller_work(p, L, p.theta0.shape[0]),
-        lane_ok=_afsmc_lane_ok, lane_limb_jacobian=LANE_JACOBIAN,
+        **{**common, "lane_ok": _afsmc_lane_ok},
     )  # fmt: skip
 
 
