@@ -391,7 +391,7 @@ def reproduce(
         f"{ph['before']:.1f} s before the runs, {ph['runs']:.1f} s of runs (their compiled "
         f"loops {ph['loops']:.1f} s, summed), {ph['figures']:.1f} s more for the figures, "
         f"{ph['report']:.1f} s for the report"
-    ))  # fmt: skip
+    ), soft_wrap=True)  # one line, for logs and greps: the terminal wraps it  # fmt: skip
     console.print(Text(f"report: {out / 'report.md'}"))
 
 
