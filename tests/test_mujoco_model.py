@@ -155,8 +155,13 @@ def test_mujoco_model_command_writes_a_loadable_model(tmp_path):
         (["--out", str(tmp_path)], "is a folder"),
         (["--out", "/proc/no/such/pkm.xml"], "cannot write"),
         (["--out", str(out / "x.xml")], "pkm.xml': exists and is not a folder"),  # out: a file
-        (["--out", str(out), "--friction-coulomb", "30"], "frictionloss"),
-        (["--out", str(out), "--scenario", "prototype"], "frictionloss"),  # the scenario's 30 N
+        (["--out", str(out), "--friction-coulomb", "30"], "--friction-coulomb = 30.0: MuJoCo"),
+        (["--out", str(out), "--rotor-inertia", "-1"], "--rotor-inertia = -1.0: must be"),
+        (["--out", str(out), "--screw-lead", "inf"], "--screw-lead = inf: must be finite"),
+        (
+            ["--out", str(out), "--scenario", "prototype"],  # the scenario's 30 N
+            "plant.friction_coulomb = 30.0: MuJoCo's dry friction (frictionloss)",
+        ),
     ):
         res = runner.invoke(app, ["mujoco-model", *args])
         assert res.exit_code == 2, res.output

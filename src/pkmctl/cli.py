@@ -584,7 +584,16 @@ def mujoco_model(
             friction_coulomb=pick(friction_coulomb, "friction_coulomb"),
         )
     except (PkmctlError, ValueError) as exc:
-        _fail(str(exc))
+        msg = str(exc)
+        for name, given in (("rotor_inertia", rotor_inertia), ("screw_lead", screw_lead),
+                            ("friction_viscous", friction_viscous),
+                            ("friction_coulomb", friction_coulomb)):  # fmt: skip
+            if msg.startswith(f"{name} = "):  # say where the value came from
+                where = "plant." + name if given is None else "--" + name.replace("_", "-")
+                msg = where + msg[len(name) :]
+        if msg.startswith("plant.friction_coulomb"):
+            msg += " (--friction-coulomb 0 writes the model without it)"
+        _fail(msg)
     try:
         with atomic_write(out) as fh:
             fh.write(text)
