@@ -501,8 +501,10 @@ def test_paper_claims_is_a_builtin_campaign_of_the_issue_s_factors(tmp_path):
     assert res.stdout.startswith("# The built-in campaign `paper-claims`")
     assert CampaignSpec.from_toml(res.stdout).digest == spec.digest  # a copy to edit
     assert f"{spec.n_runs} runs = {len(spec.cells)} cells (one-at-a-time)" in res.stderr
-    res = runner.invoke(app, ["campaign", "show", "paper-claim"])
-    assert res.exit_code == 2 and "paper-claim" in res.stderr
+    res = runner.invoke(app, ["campaign", "show", "paper-claim"])  # a typo: the names offered
+    said = "'paper-claim': no such file, nor a built-in campaign (choose from paper-claims)"
+    assert res.exit_code == 2 and said in res.stderr, res.stderr
+    assert len(res.stderr.splitlines()) == 1, res.stderr
     # `campaign run paper-claims` finds it too (refused here before running anything: the
     # folder holds another campaign)
     out = tmp_path / "taken"

@@ -272,6 +272,11 @@ class CampaignSpec:
             path = Path(source)
             try:
                 text = path.read_text(encoding="utf-8")
+            except FileNotFoundError:
+                raise _fail(
+                    f"campaign spec {str(path)!r}: no such file, nor a built-in campaign "
+                    f"(choose from {', '.join(BUILTIN_CAMPAIGNS)})"
+                ) from None
             except (OSError, UnicodeDecodeError) as exc:
                 raise _fail(
                     f"campaign spec {str(path)!r}: {getattr(exc, 'strerror', None) or exc}"
