@@ -335,7 +335,8 @@ def test_report_states_in_words_what_the_numbers_say(reference, tmp_path):
     assert (pooled["better"] == "unclear") == (pooled["lo"] <= 0 <= pooled["hi"])
     # 2 pairs per cell are too few to name a winner in any cell
     assert all(r["better"] == "unclear" for r in paired if r["cell"] >= 0)
-    assert "cannot tell in 4 of 4 cells" in md and "No run diverged" in md
+    assert "cannot tell in 4 of 4 cells (all with fewer than the 5 pairs a verdict takes)" in md
+    assert "No run diverged" in md
     figs = sorted(p.name for p in (out / "report" / "figures").iterdir())
     assert len(figs) == 3 * 2 and "rmse_z_mm_vs_payload.mass.png" in figs
     assert all((out / "report" / "figures" / f).read_bytes()[:4] == b"\x89PNG" for f in figs)
@@ -515,6 +516,18 @@ def test_paper_claims_is_a_builtin_campaign_of_the_issue_s_factors(tmp_path):
     assert f"campaign 'paper-claims' ({spec.digest}): 1400 runs" in res.stderr
 
 
+def test_a_verdict_held_back_for_too_few_pairs_says_so():
+    from pkmctl.campaign.stats import MIN_PAIRS
+    from pkmctl.report.campaign import _words
+
+    row = {"metric": "m", "cell": -1, "a": "x", "b": "y", "mean": -1.0, "lo": -1.2, "hi": -0.8,
+           "win_rate_a": 1.0, "better": "unclear"}  # fmt: skip
+    short = _words(None, [{**row, "pairs": MIN_PAIRS - 1}], "m")[0]
+    assert short.endswith(f"too few pairs to tell (a verdict takes at least {MIN_PAIRS}).")
+    enough = _words(None, [{**row, "pairs": MIN_PAIRS, "lo": -1.0, "hi": 0.5}], "m")[0]
+    assert enough.endswith("the data cannot tell them apart.")
+
+
 def test_a_question_is_answered_with_ratios_and_intervals(reference, tmp_path):
     import shutil
 
@@ -547,6 +560,8 @@ def test_a_question_is_answered_with_ratios_and_intervals(reference, tmp_path):
     from pkmctl.report.campaign import _ratio
 
     assert f"over all cells {_ratio(pooled)}." in answer
+    # 2 pairs per cell: every cell is "cannot tell", and the answer says why
+    assert "cannot tell in 4 (all with fewer than the 5 pairs a verdict takes)" in answer
     assert answer.split("\n\n", 1)[1] in (out / "report" / "report.md").read_text()
     assert (out / "report" / "comparison.csv").read_text().startswith("question,controller")
 

@@ -107,7 +107,7 @@ def short_answer(spec: CampaignSpec, rows: list[dict], q, metrics: list[str]) ->
         pooled = next(r for r in rows if r["metric"] == m and r["cell"] == -1)
         line = (
             f"- {m}: better in {len(pays)} of {len(mine)} cells, worse in {len(hurts)}, "
-            f"cannot tell in {len(unclear)}"
+            f"cannot tell in {len(unclear)}{_few(unclear)}"
         )
         for word, group in (("better", pays), ("worse", hurts)):
             group = sorted(group, key=lambda r: r["ratio"])
@@ -182,6 +182,15 @@ def _plot(spec, table, metric: str, factor: str, path: Path) -> None:
         fh.write(buf.getvalue())
 
 
+def _few(unclear: list[dict]) -> str:
+    """Why the data cannot tell, where it is the number of pairs: '' if no cell is short."""
+    short = sum(r["pairs"] < stats.MIN_PAIRS for r in unclear)
+    if not short:
+        return ""
+    many = "all" if short == len(unclear) else f"{short} of them"
+    return f" ({many} with fewer than the {stats.MIN_PAIRS} pairs a verdict takes)"
+
+
 def _words(spec, paired: list[dict], metric: str) -> list[str]:
     out = []
     for r in (r for r in paired if r["metric"] == metric and r["cell"] == -1):
@@ -198,6 +207,8 @@ def _words(spec, paired: list[dict], metric: str) -> list[str]:
             head += f"{a} is better."
         elif r["better"] == "b":
             head += f"{b} is better."
+        elif r["pairs"] < stats.MIN_PAIRS:
+            head += f"too few pairs to tell (a verdict takes at least {stats.MIN_PAIRS})."
         else:
             head += "the data cannot tell them apart."
         out.append(head)
@@ -218,7 +229,7 @@ def _words(spec, paired: list[dict], metric: str) -> list[str]:
         unclear = [x for x in cells if x["better"] == "unclear"]
         if unclear:
             out.append(
-                f"  - cannot tell in {len(unclear)} of {len(cells)} cells: "
+                f"  - cannot tell in {len(unclear)} of {len(cells)} cells{_few(unclear)}: "
                 + "; ".join(_cell_name(spec, x["cell"]) for x in unclear)
             )
     return out
