@@ -94,8 +94,9 @@ app = typer.Typer(
     "(SMC, FSMC, AFSMC, PD, CTC). The first run compiles the numerical kernels "
     "(minutes; cached on disk for later runs).",
 )
-# Tables need ~100 columns; a pipe or a CI log would otherwise get rich's 80.
-console = Console(width=max(Console().width, 110))
+# Tables need ~100 columns; a pipe or a CI log would otherwise get rich's 80. Lines of
+# text are not wrapped (soft_wrap): a command to copy or a line to grep stays whole.
+console = Console(width=max(Console().width, 110), soft_wrap=True)
 err_console = Console(stderr=True)
 
 
@@ -391,7 +392,7 @@ def reproduce(
         f"{ph['before']:.1f} s before the runs, {ph['runs']:.1f} s of runs (their compiled "
         f"loops {ph['loops']:.1f} s, summed), {ph['figures']:.1f} s more for the figures, "
         f"{ph['report']:.1f} s for the report"
-    ), soft_wrap=True)  # one line, for logs and greps: the terminal wraps it  # fmt: skip
+    ))  # fmt: skip
     console.print(Text(f"report: {out / 'report.md'}"))
 
 
