@@ -213,3 +213,26 @@ def test_the_smaller_shadow_map_draws_the_default_picture(robot):
 def test_render_poses_refuses_a_shadow_map_out_of_range(robot):
     with pytest.raises(ValueError, match=r"shadow_size = 0: must be in \[64, 16384\]"):
         mj.render_poses(robot, [robot.home], shadow_size=0)
+
+
+def test_every_option_mujoco_models_is_the_closed_form_plants(robot):
+    """Rotor inertia, viscous friction and a payload off the platform's centre, all at once:
+    MuJoCo's constrained acceleration against the rigid plant's own M, C v, G and friction
+    (pkmctl.sim.plants.machine_dynamics, the code its derivative runs)."""
+    from pkmctl.sim.plants import machine_dynamics, rigid_plant
+
+    options = {"rotor_inertia": 2.77e-5, "screw_lead": 0.01, "friction_viscous": 300.0,
+               "payload_mass": 5.0, "payload_offset": (0.06, -0.04, 0.03)}  # fmt: skip
+    model = mj.build_model(robot, **options)
+    plant = rigid_plant(robot, **options)
+    assert plant.machine == 1.0 and plant.payload == 5.0
+    assert np.isclose(model.body_mass.sum(), robot.theta[0::4].sum() + 5.0, rtol=1e-14)
+    data = mujoco.MjData(model)
+    for X, Xdot, tau in _states(robot, 50, seed=6):
+        _set(model, data, robot, X, Xdot, tau)
+        M, Cv, G, friction = machine_dynamics(plant, X, Xdot, Xdot)
+        xdd = np.linalg.solve(M, robot.jacobian(X).T @ tau - Cv - G - friction)
+        err = np.max(np.abs(mj.task_acceleration(model, data) - xdd)) / np.max(np.abs(xdd))
+        assert err <= 1e-9, err
+    with pytest.raises(ValueError, match=r"payload_offset = .*: must be 3 finite numbers"):
+        mj.build_mjcf(robot, payload_mass=1.0, payload_offset=(0.0, np.nan, 0.0))

@@ -557,41 +557,32 @@ def mujoco_model(
     """Write the scenario's machine as a MuJoCo model (MJCF), e.g. for MuJoCo's viewer.
 
     The [plant] options of the scenario (rotor inertia, viscous and Coulomb friction) are
-    mapped to MuJoCo's armature and damping; an option given here overrides the
-    scenario's. Coulomb friction is refused: MuJoCo's is a constraint, not the tanh law.
+    mapped to MuJoCo's armature and damping, its payload to the platform's mass and
+    inertia; an option given here overrides the scenario's. Coulomb friction is refused:
+    MuJoCo's is a constraint, not the tanh law.
     """
     from pkmctl.errors import PkmctlError
     from pkmctl.io.atomic import atomic_write, check_output_file
 
     try:
-        from pkmctl.plants.mujoco import build_mjcf
+        from pkmctl.plants.mujoco import build_mjcf, scenario_error, scenario_options
     except ImportError as exc:
         _fail(str(exc))
     if out.is_dir():
         _fail(f"--out {out}: is a folder, give a file name (FILE.xml)")
+    given = {
+        k: v
+        for k, v in (("rotor_inertia", rotor_inertia), ("screw_lead", screw_lead),
+                     ("friction_viscous", friction_viscous),
+                     ("friction_coulomb", friction_coulomb))
+        if v is not None
+    }  # fmt: skip
     try:
         check_output_file(out, what="--out")
         sc = _load_scenario(scenario)
-        ps = sc.plant_spec
-
-        def pick(given: float | None, name: str) -> float:
-            return float(getattr(ps, name)) if given is None else given
-
-        text = build_mjcf(
-            sc.plant(),
-            rotor_inertia=pick(rotor_inertia, "rotor_inertia"),
-            screw_lead=pick(screw_lead, "screw_lead"),
-            friction_viscous=pick(friction_viscous, "friction_viscous"),
-            friction_coulomb=pick(friction_coulomb, "friction_coulomb"),
-        )
+        text = build_mjcf(sc.plant(), **{**scenario_options(sc), **given})
     except (PkmctlError, ValueError) as exc:
-        msg = str(exc)
-        for name, given in (("rotor_inertia", rotor_inertia), ("screw_lead", screw_lead),
-                            ("friction_viscous", friction_viscous),
-                            ("friction_coulomb", friction_coulomb)):  # fmt: skip
-            if msg.startswith(f"{name} = "):  # say where the value came from
-                where = "plant." + name if given is None else "--" + name.replace("_", "-")
-                msg = where + msg[len(name) :]
+        msg = scenario_error(str(exc), {k: "--" + k.replace("_", "-") for k in given})
         if msg.startswith("plant.friction_coulomb"):
             msg += " (--friction-coulomb 0 writes the model without it)"
         _fail(msg)

@@ -15,7 +15,8 @@ Model
 -----
 - Platform: a body with a free joint (6 dofs; none of the closed form's reduction to 3 is
   built in, the closures remove the other 3). Its frame is R, the centre of mass is at its
-  origin p, the inertia diagonal in that frame.
+  origin p, the inertia diagonal in that frame; a payload (§7) is merged into its mass,
+  centre of mass and (full) inertia.
 - Limb bodies: each MuJoCo body frame is the limb frame R_i = [x_i, u_i x x_i, u_i] of
   DESIGN.md §1, so both limb inertias are ``diaginertia`` (no ``fullinertia`` needed) at
   ``(0, 0, l1)`` from the base joint (lower) and ``(0, 0, -l2)`` from the platform joint
@@ -75,6 +76,7 @@ from pkmctl.model.mechanism import Mechanism
 STEPPER_BLEW_UP = 4
 
 __all__ = [
+    "SCENARIO_FIELDS",
     "MujocoMachine",
     "agreement",
     "build_mjcf",
@@ -86,6 +88,8 @@ __all__ = [
     "platform_pose",
     "platform_rate",
     "platform_task_acceleration",
+    "scenario_error",
+    "scenario_options",
     "task_acceleration",
 ]
 
@@ -152,6 +156,24 @@ def _inertial(theta_b: np.ndarray, com_z: float) -> str:
     return f'<inertial pos="0 0 {_f(com_z)}" mass="{_f(m)}" diaginertia="{_f(ixx, iyy, izz)}"/>'
 
 
+def _platform_inertial(theta_0: np.ndarray, mass: float, offset: np.ndarray) -> str:
+    """The platform's inertial element, with a point mass ``mass`` at ``offset`` (platform
+    frame) merged in: the joint centre of mass c and the inertia about it (parallel axes)."""
+    m0, ixx, iyy, izz = theta_0
+    if mass == 0.0:
+        return f'<inertial pos="0 0 0" mass="{_f(m0)}" diaginertia="{_f(ixx, iyy, izz)}"/>'
+    total = m0 + mass
+    c = mass * offset / total
+
+    def point(m: float, r: np.ndarray) -> np.ndarray:  # a point mass's inertia about 0
+        return m * (np.dot(r, r) * np.eye(3) - np.outer(r, r))
+
+    inertia = np.diag([ixx, iyy, izz]) + point(m0, -c) + point(mass, offset - c)
+    full = (inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2],
+            inertia[1, 2])  # fmt: skip
+    return f'<inertial pos="{_f(*c)}" mass="{_f(total)}" fullinertia="{_f(*full)}"/>'
+
+
 def _rod(kind: str, length: float, radius: float) -> str:
     """A visual rod along the body's z axis from its origin (no mass, no contact)."""
     rgba = "0.75 0.45 0.2 1" if kind == "cylinder" else "0.6 0.6 0.65 1"
@@ -175,6 +197,8 @@ def build_mjcf(
     screw_lead: float = 0.01,
     friction_viscous: float = 0.0,
     friction_coulomb: float = 0.0,
+    payload_mass: float = 0.0,
+    payload_offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
     integrator: str = "RK4",
 ) -> str:
     """An MJCF model of ``robot``; the module docstring says how each joint is built.
@@ -206,6 +230,10 @@ def build_mjcf(
         of the state; MuJoCo's ``frictionloss`` is a soft constraint solved with the
         closures (no v_s, its own regulariser), so the two machines would differ by model,
         not by error: it is refused rather than mapped.
+    payload_mass, payload_offset : float, (3,) floats
+        A point mass (kg) at ``payload_offset`` (m, platform frame), as §7's payload: added
+        to the platform's own mass, centre of mass and inertia (its ``fullinertia`` about
+        the joint centre of mass), so the platform stays one body.
 
     Returns
     -------
@@ -234,6 +262,11 @@ def build_mjcf(
             raise ValueError(f"{name} = {v!r}: must be finite and >= 0")
     if not (np.isfinite(screw_lead) and screw_lead > 0.0):
         raise ValueError(f"screw_lead = {screw_lead!r}: must be finite and > 0")
+    if not (np.isfinite(payload_mass) and payload_mass >= 0.0):
+        raise ValueError(f"payload_mass = {payload_mass!r}: must be finite and >= 0")
+    offset = np.asarray(payload_offset, dtype=float)
+    if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+        raise ValueError(f"payload_offset = {payload_offset!r}: must be 3 finite numbers (m)")
     armature = rotor_inertia * (2.0 * np.pi / screw_lead) ** 2
     slide_options = f' armature="{_f(armature)}" damping="{_f(friction_viscous)}"'
     home = robot.home
@@ -308,7 +341,7 @@ def build_mjcf(
           rgba="0.5 0.5 0.5 1" {_VISUAL}/>
     <body name="platform" pos="{_f(*p)}" quat="{_quat(R)}">
       <freejoint name="platform"/>
-      <inertial pos="0 0 0" mass="{_f(m0[0])}" diaginertia="{_f(*m0[1:])}"/>
+      {_platform_inertial(m0, payload_mass, offset)}
       <geom type="cylinder" size="{_f(robot.r_a, 0.01)}" rgba="0.3 0.5 0.8 1" {_VISUAL}/>
       {block(platform, 6)}
     </body>
@@ -322,6 +355,41 @@ def build_mjcf(
   </actuator>
 </mujoco>
 """
+
+
+#: :func:`build_mjcf`'s machine options and the scenario fields they are read from.
+SCENARIO_FIELDS = {
+    "rotor_inertia": "plant.rotor_inertia",
+    "screw_lead": "plant.screw_lead",
+    "friction_viscous": "plant.friction_viscous",
+    "friction_coulomb": "plant.friction_coulomb",
+    "payload_mass": "payload.mass",
+    "payload_offset": "payload.offset",
+}
+
+
+def scenario_options(scenario) -> dict:
+    """:func:`build_mjcf`'s machine options from a :class:`~pkmctl.Scenario`: its
+    ``[plant]`` options and ``[payload]`` (DESIGN.md §7), keyed as :data:`SCENARIO_FIELDS`."""
+    ps, pl = scenario.plant_spec, scenario.payload
+    return {
+        "rotor_inertia": float(ps.rotor_inertia),
+        "screw_lead": float(ps.screw_lead),
+        "friction_viscous": float(ps.friction_viscous),
+        "friction_coulomb": float(ps.friction_coulomb),
+        "payload_mass": float(pl.mass),
+        "payload_offset": tuple(float(v) for v in pl.offset),
+    }
+
+
+def scenario_error(message: str, given: dict | None = None) -> str:
+    """``message`` of :func:`build_mjcf` with its leading option named as the user gave it:
+    ``--rotor-inertia`` if in ``given`` (an option name to the flag), else the scenario
+    field (``plant.friction_coulomb``)."""
+    for name, field in SCENARIO_FIELDS.items():
+        if message.startswith(f"{name} = "):
+            return (given or {}).get(name, field) + message[len(name) :]
+    return message
 
 
 def build_model(robot: Mechanism, **kwargs) -> mujoco.MjModel:
@@ -729,9 +797,11 @@ class MujocoMachine:
     Notes
     -----
     The limb forces are MuJoCo's ``ctrl`` and the task-space disturbance tau_d' (3,) an
-    ``xfrc_applied`` at the platform's centre of mass p: force (0, 0, d_z) and torque
+    ``xfrc_applied`` at the platform's centre p: force (0, 0, d_z) and torque
     d_alpha e_x + d_beta w, w = R_x(alpha) e_y, whose virtual work on dX is d . dX
-    (dp/dalpha and dp/dbeta have no z part; the rotation's are e_x and w). Both are held
+    (dp/dalpha and dp/dbeta have no z part; the rotation's are e_x and w). MuJoCo applies
+    it at the body's centre of mass, which a payload moves to p + r: the torque is then
+    less r x (0, 0, d_z), the same wrench about p. Both are held
     over each RK4 step (MuJoCo holds its inputs over a step); the closed-form loop holds
     the limb forces of an ideal actuator too, and evaluates the disturbance's map at each
     stage, which differs by O(h alpha_dot) of a force held within 1 % of its size.
@@ -750,6 +820,10 @@ class MujocoMachine:
         d = self.data  # views, valid for the life of d (efc_* are reallocated every step)
         self._qpos, self._qvel, self._ctrl = d.qpos, d.qvel, d.ctrl
         self._xfrc = d.xfrc_applied[body]
+        # the centre of mass in the platform frame: off p only with a payload
+        self._com = (
+            self.model.body_ipos[body].tolist() if self.model.body_ipos[body].any() else None
+        )
         self._warnings = d.warning.number
         self._fatal = np.array([int(w) for w in _FATAL_WARNINGS])
 
@@ -767,7 +841,16 @@ class MujocoMachine:
         # w = R e_y = (0, cos a, sin a), from the platform's quaternion
         qw, qx, qy, qz = self._qpos[self._qadr + 3 : self._qadr + 7].tolist()
         wy, wz = 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz + qw * qx)
-        self._xfrc[2:6] = (dist[0], dist[1], dist[2] * wy, dist[2] * wz)
+        if self._com is None:
+            self._xfrc[2:6] = (dist[0], dist[1], dist[2] * wy, dist[2] * wz)
+        else:  # MuJoCo applies the wrench at the centre of mass r = R c from p: move it there
+            cx, cy, cz = self._com
+            rx = (1.0 - 2.0 * (qy * qy + qz * qz)) * cx + 2.0 * (qx * qy - qw * qz) * cy
+            rx += 2.0 * (qx * qz + qw * qy) * cz
+            ry = 2.0 * (qx * qy + qw * qz) * cx + (1.0 - 2.0 * (qx * qx + qz * qz)) * cy
+            ry += 2.0 * (qy * qz - qw * qx) * cz
+            fz = dist[0]
+            self._xfrc[2:6] = (fz, dist[1] - ry * fz, dist[2] * wy + rx * fz, dist[2] * wz)
         mujoco.mj_step(self.model, self.data)
 
     def read(self, x: np.ndarray, q: np.ndarray) -> int:

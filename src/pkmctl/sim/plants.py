@@ -202,12 +202,17 @@ def mujoco_observe(p, x, tau, work, q, F):
 
 
 def _mujoco_stepper(p: MujocoPlant, ctx: PartContext, h: float):
-    """A :class:`pkmctl.plants.mujoco.MujocoMachine` of the true plant at RK4 step h (s)."""
+    """A :class:`pkmctl.plants.mujoco.MujocoMachine` of the true plant at RK4 step h (s), with
+    the scenario's [plant] options and payload (DESIGN.md §7, §10)."""
     try:
-        from pkmctl.plants.mujoco import MujocoMachine
+        from pkmctl.plants.mujoco import MujocoMachine, scenario_error, scenario_options
     except ImportError as exc:
         raise PartError(f"plant 'mujoco': {exc}") from None
-    return MujocoMachine(ctx.plant, timestep=h)
+    options = {} if ctx.scenario is None else scenario_options(ctx.scenario)
+    try:
+        return MujocoMachine(ctx.plant, timestep=h, **options)
+    except ValueError as exc:  # the option MuJoCo cannot model, named as the scenario's field
+        raise PartError(f"plant 'mujoco': {scenario_error(str(exc))}") from None
 
 
 builtin_part(
