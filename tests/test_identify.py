@@ -307,6 +307,31 @@ def test_command_errors_are_one_line_exit_2(tmp_path, args, words):
     assert not (tmp_path / "o").exists() and not (tmp_path / "o.toml").exists()
 
 
+def test_a_run_on_the_mujoco_plant_gives_back_its_armature_and_damping(exciting, tmp_path):
+    """MuJoCo as the oracle of the whole chain: the exciting trajectory run by PD on the
+    MuJoCo plant (its slides' armature and damping are the prototype's rotor inertia and
+    viscous friction; Coulomb friction 0, which MuJoCo cannot model as §7 does), the
+    encoder's log saved and identified. The reflected rotor masses (10.94 kg), the viscous
+    friction (300 N s/m) and the absent dry friction come back."""
+    pytest.importorskip("mujoco", reason="MuJoCo is not installed (pkmctl[mujoco])")
+    from pkmctl.ident.identify import read_log
+    from pkmctl.io.results import save_result
+
+    _, sc = exciting
+    sc = sc.replace(**{"plant.kind": "mujoco", "plant.friction_coulomb": 0.0})
+    run = pkmctl.simulate(sc, controller="pd")
+    assert run.parts["plant"] == "mujoco"
+    table, _ = save_result(run, tmp_path)
+    idn = identify(read_log(table), sc)
+    est = dict(zip(idn.base.names, idn.wls.beta, strict=True))
+    m_r = sc.plant_spec.rotor_inertia * (2 * np.pi / sc.plant_spec.screw_lead) ** 2
+    for i in range(1, 5):
+        assert abs(est[f"m_r{i}"] / m_r - 1) <= 0.05, (i, est[f"m_r{i}"], m_r)
+        assert abs(est[f"Fv{i}"] / 300.0 - 1) <= 0.005, (i, est[f"Fv{i}"])
+        assert abs(est[f"Fc{i}"]) <= 0.2, (i, est[f"Fc{i}"])  # the prototype's is 30 N
+    assert idn.wls.relative_error < 1e-3
+
+
 def test_pkmctl_time_series_carry_the_measured_lengths(tmp_path, proto):
     from pkmctl.ident.identify import read_log
     from pkmctl.io.results import load_result, save_result
