@@ -379,6 +379,29 @@ def test_a_diverged_run_is_a_record_with_its_time(tmp_path):
     assert said in md and md.count("did not end ok") == 1
 
 
+def test_a_run_that_errs_says_why_in_the_command_and_the_report(tmp_path):
+    """A cell whose machine the plant cannot model (Coulomb friction on the MuJoCo plant) is
+    a record with status "error"; `campaign run` prints its message, the report names it."""
+    pytest.importorskip("mujoco", reason="MuJoCo is not installed (pkmctl[mujoco])")
+    base = pkmctl.Scenario.builtin("paper").replace(**{"plant.kind": "mujoco"})
+    (tmp_path / "mj.toml").write_text(base.to_toml())
+    (tmp_path / "spec.toml").write_text(
+        'scenario = "mj.toml"\ncontrollers = ["pd"]\nseeds = [1]\nduration = 0.01\n'
+        '[factors."plant.friction_coulomb"]\nvalues = [0.0, 5.0]\n'
+    )
+    out = tmp_path / "c"
+    res = runner.invoke(app, ["campaign", "run", str(tmp_path / "spec.toml"), "--out", str(out),
+                              "--workers", "1"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    why = "PartError: plant 'mujoco': plant.friction_coulomb = 5.0: MuJoCo's dry friction"
+    assert f"1 run failed: {why}" in res.stderr, res.stderr
+    assert [r["status"] for r in read_records(out).to_pylist()] == ["ok", "error"]
+    res = runner.invoke(app, ["campaign", "report", str(out)])
+    assert res.exit_code == 0, res.output
+    md = (out / "report" / "report.md").read_text()
+    assert f"at plant.friction_coulomb = 5; 1 error: {why}" in md, md
+
+
 def test_the_docs_spec_is_valid():
     import re
 

@@ -732,6 +732,15 @@ def campaign_run(
             f"{done.failures} diverged or failed; records in {out}/runs"
         )
     )
+    if done.failures:  # why, in the words of the errors (a divergence is the metrics' part)
+        from pkmctl.campaign.stats import error_messages
+        from pkmctl.campaign.store import read_records
+
+        why = error_messages(read_records(out, timing=False))
+        for msg, n in why[:3]:
+            _say(f"{n} run{'s' if n > 1 else ''} failed: {msg}")
+        if len(why) > 3:
+            _say(f"and {len(why) - 3} other errors: pkmctl campaign report {out} lists them")
 
 
 @campaign_app.command("show")

@@ -299,3 +299,15 @@ def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: s
                 }
             )
     return rows
+
+
+def error_messages(table: pa.Table, cell: int | None = None, controller: str | None = None):
+    """The distinct messages of the runs that failed with an error (status ``"error"``, not
+    a divergence), most frequent first, as ``[(message, runs)]``; only those of ``cell`` and
+    ``controller`` where given."""
+    counts: dict[str, int] = {}
+    cols = [table.column(k).to_pylist() for k in ("cell", "controller", "status", "message")]
+    for c, ctrl, status, msg in zip(*cols, strict=True):
+        if status == "error" and cell in (None, c) and controller in (None, ctrl):
+            counts[msg] = counts.get(msg, 0) + 1
+    return sorted(counts.items(), key=lambda kv: -kv[1])

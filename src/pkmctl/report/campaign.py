@@ -295,9 +295,11 @@ def write_report(out: str | Path) -> list[Path]:
     else:
         for r in div:
             if r["n"] > r["ok"]:
+                why = stats.error_messages(table, r["cell"], r["controller"])
                 lines.append(
                     f"- {r['controller']}: {r['n'] - r['ok']} of {r['n']} runs did not end ok "
                     f"({r['diverged']} diverged) at {_cell_name(spec, r['cell'])}"
+                    + "".join(f"; {n} error: {m}" for m, n in why)
                 )
     lines += ["", "## Per cell and controller", ""]
     cols = ["controller", "n", "ok", "mean", "median", "95 % interval"]
