@@ -245,6 +245,15 @@ def test_render_report_links_every_figure_and_contains_the_table(results, figure
     assert "continuous time" in text
     assert "unbounded" in text
     assert "not directly comparable" in text  # 0.3 s against the paper's 10 s
+    said = "Plant `rigid`: the closed-form rigid machine of DESIGN.md §2 (options of §7); "
+    assert said + "sensor `ideal`, actuator `ideal`." in text  # which machine ran
+
+
+def test_render_report_says_which_plant_ran(results) -> None:
+    on_mujoco = {c: dataclasses.replace(r, parts={**r.parts, "plant": "mujoco"})
+                 for c, r in results.items()}  # fmt: skip
+    text = render_report(on_mujoco, figures=[], scenario_name="paper")
+    assert "Plant `mujoco`: the same machine in MuJoCo" in text
 
 
 def test_render_report_accepts_relative_paths(results) -> None:

@@ -348,6 +348,14 @@ def render_report(
         f"actuators {'unbounded' if limit is None else f'limited to ±{limit:g} N'}; "
         f"controllers {_words([controller_label(c) for c, _ in pairs])}."
     )
+    used = pairs[0][1].parts
+    if used.get("plant"):  # which machine ran: the closed form or MuJoCo's, and what fed it
+        from pkmctl.parts import get_part
+
+        run += (
+            f" Plant `{used['plant']}`: {get_part('plant', used['plant']).description}; "
+            f"sensor `{used.get('sensor', 'ideal')}`, actuator `{used.get('actuator', 'ideal')}`."
+        )
     if wall_time_s is not None:
         run += f" Wall time {wall_time_s:.1f} s."
     lines += [run, ""]
