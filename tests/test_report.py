@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import io
+import math
 import os
 import subprocess
 import sys
@@ -247,6 +248,19 @@ def test_render_report_links_every_figure_and_contains_the_table(results, figure
     assert "not directly comparable" in text  # 0.3 s against the paper's 10 s
     said = "Plant `rigid`: the closed-form rigid machine of DESIGN.md §2 (options of §7); "
     assert said + "sensor `ideal`, actuator `ideal`." in text  # which machine ran
+
+
+def test_render_report_gives_a_drives_force_limit() -> None:
+    """The prototype's drive limits the force to its peak torque through the screw
+    (2 pi 0.9 3.82 / 0.01 = 2160.2 N) though its scenario has no actuators.force_limit."""
+    sc = pkmctl.Scenario.builtin("prototype")
+    assert sc.actuators.kind == "drive" and sc.actuators.force_limit is None
+    runs = {"pd": pkmctl.simulate(sc, controller="pd", duration=0.02)}
+    text = render_report(runs, figures=[], scenario_name="prototype")
+    limit = 2 * math.pi * 0.9 * 3.82 / 0.01
+    assert f"actuators limited to ±{round(limit, 1):g} N;" in text
+    assert f"the actuators are limited to ±{round(limit, 1):g} N in this scenario" in text
+    assert "unbounded" not in text
 
 
 def test_render_report_says_which_plant_ran(results) -> None:

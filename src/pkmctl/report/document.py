@@ -211,9 +211,18 @@ def _after_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
     return [line]
 
 
+def _force_limit(result: Result) -> float | None:
+    """The actuators' force limit (N) the loop applied: a ``force_limit`` of the ideal
+    actuator or a drive's peak torque through its screw; None if unbounded."""
+    lm = getattr(result, "loop_metrics", None)
+    if lm is not None and math.isfinite(lm.force_limit):
+        return float(lm.force_limit)
+    return result.scenario.actuators.force_limit if lm is None else None
+
+
 def _force_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
     ref = pairs[0][1]
-    limit = ref.scenario.actuators.force_limit
+    limit = _force_limit(ref)
     peaks = []
     for c, r in pairs:
         p = peak_forces(r)
@@ -226,7 +235,7 @@ def _force_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
     bound = (
         "unbounded, as in the paper (which gives no limits)"
         if limit is None
-        else f"limited to ±{limit:g} N in this scenario"
+        else f"limited to ±{round(limit, 1):g} N in this scenario"
     )
     chat = [
         f"{float(np.mean(chattering_index(r))):.3g} N/s ({controller_label(c)})" for c, r in pairs
@@ -341,11 +350,11 @@ def render_report(
     lines = [f"# pkmctl — the paper's experiment, scenario “{scenario_name}”", ""]
     if sc.description:
         lines += [sc.description, ""]
-    limit = sc.actuators.force_limit
+    limit = _force_limit(pairs[0][1])
     run = (
         f"Scenario **{scenario_name}**: T_c = {_seconds(sc.timing.control_period)}, "
         f"duration {sc.timing.duration:g} s, disturbance seed {sc.disturbance.seed}, "
-        f"actuators {'unbounded' if limit is None else f'limited to ±{limit:g} N'}; "
+        f"actuators {'unbounded' if limit is None else f'limited to ±{round(limit, 1):g} N'}; "
         f"controllers {_words([controller_label(c) for c, _ in pairs])}."
     )
     used = pairs[0][1].parts
