@@ -261,6 +261,8 @@ def test_render_report_gives_a_drives_force_limit() -> None:
     assert f"actuators limited to ±{round(limit, 1):g} N;" in text
     assert f"the actuators are limited to ±{round(limit, 1):g} N in this scenario" in text
     assert "unbounded" not in text
+    assert "every T_c = 1 ms from the `encoder` sensor's measurement and its force " in text
+    assert "applied through the `drive` actuator's own dynamics" in text
 
 
 def test_render_report_says_which_plant_ran(results) -> None:

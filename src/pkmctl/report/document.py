@@ -249,11 +249,20 @@ def _force_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
 
 def _sampling_sentence(pairs: list[tuple[str, Result]]) -> list[str]:
     timing = pairs[0][1].scenario.timing
+    used = pairs[0][1].parts
+    sensor, actuator = used.get("sensor", "ideal"), used.get("actuator", "ideal")
+    held = (
+        "its actuator forces are held over the period (zero-order hold)"
+        if actuator == "ideal"
+        else f"its force commands are held over the period and applied through the "
+        f"`{actuator}` actuator's own dynamics"
+    )
+    sees = "" if sensor == "ideal" else f" from the `{sensor}` sensor's measurement"
     return [
         f"- **Sampling**: the paper's study is continuous time; here the controller runs "
-        f"every T_c = {_seconds(timing.control_period)} and its actuator forces are held "
-        f"over the period (zero-order hold), with the plant integrated by RK4 "
-        f"({timing.substeps} sub-step{'s' if timing.substeps != 1 else ''} per period)."
+        f"every T_c = {_seconds(timing.control_period)}{sees} and {held}, with the plant "
+        f"integrated by RK4 ({timing.substeps} sub-step{'s' if timing.substeps != 1 else ''} "
+        f"per period)."
     ]
 
 
