@@ -61,7 +61,10 @@ def reference(spec_file, tmp_path_factory):
 @pytest.mark.parametrize(
     ("change", "expected"),
     [
-        ('[factors."payload.mas"]\nvalues = [1.0]\n', "payload.mas: unknown field"),
+        (
+            '[factors."payload.mas"]\nvalues = [1.0]\n',
+            "payload.mas: unknown field (payload: mass, offset)",
+        ),
         ('[factors."payload.mass"]\nvalues = [-1.0]\n', "payload.mass = -1.0: must be"),
         ('[factors."timing.control_period"]\nvalues = []\n', "must be a non-empty list"),
         ("seeds = 0\n", "seeds = 0: must be >= 1 (zero runs)"),

@@ -603,6 +603,9 @@ class Scenario(_Model):
             for p in path:
                 node = node.get(p) if isinstance(node, dict) else None
             if not isinstance(node, dict) or last not in node:
+                if isinstance(node, dict) and path:  # a known section: name its fields
+                    fields = ", ".join(k for k in node if not isinstance(node[k], dict))
+                    raise ScenarioError(f"{key}: unknown field ({'.'.join(path)}: {fields})")
                 sections = ", ".join(k for k, v in data.items() if isinstance(v, dict))
                 raise ScenarioError(f"{key}: unknown field (sections: {sections})")
             node[last] = value
