@@ -9,6 +9,7 @@ compiling (a fresh, empty kernel cache).
 import errno
 import os
 import queue
+import re
 import signal
 import stat
 import subprocess
@@ -294,6 +295,28 @@ def test_bad_scenario_files_one_line_with_the_name(tmp_path, content, match):
     path.write_bytes(content)
     line = one_line(runner.invoke(app, ["reproduce", "--scenario", str(path)]), 2)
     assert match in line and "[my].toml" in line
+
+
+@pytest.mark.parametrize(
+    ("section", "typo", "said"),
+    [
+        (
+            "plant",
+            "friction_visc",
+            "plant.friction_visc: unknown field (plant: kind, rotor_inertia",
+        ),
+        ("timing", "dt", "timing.dt: unknown field (timing: control_period, substeps, duration)"),
+        ("trajectory", "amp", "trajectory.amp: unknown field (trajectory: kind, offset, amplitude"),
+    ],
+)
+def test_a_misspelt_field_lists_its_sections_fields(tmp_path, section, typo, said):
+    text = pkmctl.Scenario.builtin("paper").to_toml()
+    text = text.replace(f"[{section}]\n", f"[{section}]\n{typo} = 1\n")
+    (tmp_path / "s.toml").write_text(text)
+    line = one_line(runner.invoke(app, ["simulate", str(tmp_path / "s.toml")]), 2)
+    assert said in line, line
+    with pytest.raises(ScenarioError, match=re.escape(said)):
+        pkmctl.Scenario.builtin("paper").replace(**{f"{section}.{typo}": 1})
 
 
 def test_library_errors_are_one_line():

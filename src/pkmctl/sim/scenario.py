@@ -16,6 +16,7 @@ import functools
 import math
 import os
 import tomllib
+import typing
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -633,6 +634,38 @@ class Scenario(_Model):
         return self.fuzzy.build()
 
 
+def _field_names(loc: tuple) -> str:
+    """The fields (their TOML names) of the model at ``loc`` in a Scenario, or '' if ``loc``
+    does not lead to a model (a trajectory's tag is a step of ``loc``, as pydantic says)."""
+    cls: Any = Scenario
+    for step in loc:
+        models = _models(cls)
+        tagged = [m for m in models if _tag(m) == step]
+        if tagged:  # a tagged union's member
+            cls = tagged[0]
+            continue
+        fields = {f.alias or n: f for m in models[:1] for n, f in m.model_fields.items()}
+        if step not in fields:
+            return ""
+        cls = fields[step].annotation
+    models = _models(cls)
+    if len(models) != 1:
+        return ""
+    return ", ".join(f.alias or n for n, f in models[0].model_fields.items())
+
+
+def _models(annotation: Any) -> list[type]:
+    """The pydantic models an annotation is or holds (a union's members, None dropped)."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return [annotation]
+    return [m for a in typing.get_args(annotation) for m in _models(a)]
+
+
+def _tag(model: type) -> Any:
+    field = model.model_fields.get("kind")
+    return None if field is None else field.default
+
+
 def _one_line(exc: ValidationError) -> str:
     err = exc.errors()[0]
     # the trajectory's kind tag ("sinusoid", "fourier") is pydantic's, not a field
@@ -645,6 +678,10 @@ def _one_line(exc: ValidationError) -> str:
             f"{str(ctx.get('expected_tags', '')).replace(chr(39), '')}"
         )
     msg = err["msg"].removeprefix("Value error, ")
+    if err["type"] == "extra_forbidden":  # a typo: the fields the section has
+        allowed = _field_names(err["loc"][:-1])
+        where = ".".join(str(p) for p in parts[:-1]) or "scenario"
+        return f"{loc}: unknown field" + (f" ({where}: {allowed})" if allowed else "")
     if err["type"] in ("value_error", "assertion_error"):
         if msg.startswith("= "):  # a range check that shows the value: "field = v: ..."
             return f"{loc} {msg}"
