@@ -405,6 +405,16 @@ def test_a_run_that_errs_says_why_in_the_command_and_the_report(tmp_path):
     assert f"at plant.friction_coulomb = 5; 1 error: {why}" in md, md
 
 
+def test_a_scheduler_that_cannot_be_reached_leaves_nothing(spec_file, tmp_path):
+    out = tmp_path / "c"
+    args = ["campaign", "run", str(spec_file), "--out", str(out), "--scheduler", "nonsense"]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 2, res.output
+    said = "error: --scheduler 'nonsense': cannot connect (missing port number in address"
+    assert said in res.stderr and res.stderr.rstrip().endswith("nothing written"), res.stderr
+    assert not out.exists()  # a campaign folder would need --resume to be used again
+
+
 def test_the_docs_spec_is_valid():
     import re
 

@@ -37,6 +37,7 @@ from pkmctl.campaign.store import (
     task_grouping,
     write_task,
 )
+from pkmctl.errors import PkmctlError
 
 __all__ = ["CampaignRun", "dashboard_link", "run_campaign", "run_task"]
 
@@ -266,7 +267,25 @@ def dashboard_link(client) -> str | None:
         return None
 
 
-def _dask_results(spec: CampaignSpec, tasks: list[Task], address: str, on_client=None) -> Iterable:
+class SchedulerError(PkmctlError, OSError):
+    """The Dask scheduler given cannot be reached (one line: the address and why)."""
+
+
+def _connect(address: str):
+    """A Dask client of the scheduler at ``address``, before anything is written: an address
+    that is malformed or does not answer within 10 s is a :class:`SchedulerError`."""
+    from distributed import Client
+
+    try:
+        return Client(address, timeout="10s")
+    except (OSError, TimeoutError, ValueError, TypeError) as exc:
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise SchedulerError(
+            f"--scheduler {address!r}: cannot connect ({why}); nothing written"
+        ) from None
+
+
+def _dask_results(spec: CampaignSpec, tasks: list[Task], client, on_client=None) -> Iterable:
     """(task, table) as tasks finish on the Dask cluster at ``address``.
 
     A task lost with its worker is run again by the scheduler on another worker; the
@@ -275,9 +294,9 @@ def _dask_results(spec: CampaignSpec, tasks: list[Task], address: str, on_client
     records a run's own errors, so that is the worker's trouble: memory, a broken
     import). Keys are the spec hash and task number, so a task is never run twice for
     one client, and its table is written once, as it arrives."""
-    from distributed import Client, as_completed
+    from distributed import as_completed
 
-    with Client(address, timeout="10s") as client:
+    with client:
         if on_client is not None:
             on_client(client)
         spec_f = client.scatter(spec, broadcast=True)
@@ -330,21 +349,32 @@ def run_campaign(
         Stop after this many tasks (a deliberate interruption, for tests).
     """
     out = Path(out)
+    workers = (os.cpu_count() or 1) if workers is None else int(workers)
+    if workers < 1:
+        raise ValueError(f"--workers = {workers}: must be >= 1")
+    client = _connect(scheduler) if scheduler is not None else None
+    try:  # the client is closed however this ends, also with no task left to send
+        return _run(spec, out, client, scheduler, workers, resume, progress, on_client,
+                    stop_after)  # fmt: skip
+    finally:
+        if client is not None:
+            client.close()
+
+
+def _run(spec, out, client, scheduler, workers, resume, progress, on_client, stop_after):
+    """:func:`run_campaign` once connected (``client``: a Dask client, or None: local)."""
     runs_dir = open_store(out, spec, resume=resume)
     tasks = spec.tasks(*task_grouping(out))  # the grouping the folder was started with
     done = completed_tasks(runs_dir)
     todo = [t for t in tasks if t.index not in done]
     before = sum(len(t.runs) for t in tasks if t.index in done)
-    workers = (os.cpu_count() or 1) if workers is None else int(workers)
-    if workers < 1:
-        raise ValueError(f"--workers = {workers}: must be >= 1")
     record_session(out, f"dask {scheduler}" if scheduler else f"{workers} local workers")
     t0 = time.perf_counter()
     report = _Progress(progress)
     now = failures = n_tasks = 0
     report(done=before, failures=0, total=spec.n_runs, rate=0.0)
-    if scheduler is not None:
-        stream = _dask_results(spec, todo, scheduler, on_client)
+    if client is not None:
+        stream = _dask_results(spec, todo, client, on_client)
     else:
         stream = _local_results(spec, todo, min(workers, max(1, len(todo))))
     try:
