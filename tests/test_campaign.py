@@ -415,6 +415,17 @@ def test_a_scheduler_that_cannot_be_reached_leaves_nothing(spec_file, tmp_path):
     assert not out.exists()  # a campaign folder would need --resume to be used again
 
 
+def test_a_report_of_no_runs_is_refused(spec_file, tmp_path):
+    from pkmctl.campaign.store import open_store
+
+    out = tmp_path / "c"
+    open_store(out, CampaignSpec.from_toml(spec_file), resume=False)  # started, nothing run
+    res = runner.invoke(app, ["campaign", "report", str(out)])
+    assert res.exit_code == 2, res.output
+    assert "no run recorded yet (0 of 16)" in res.stderr, res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1 and not (out / "report").exists()
+
+
 def test_the_docs_spec_is_valid():
     import re
 

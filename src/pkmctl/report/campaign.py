@@ -16,7 +16,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from pkmctl.campaign import stats
-from pkmctl.campaign.spec import CampaignSpec
+from pkmctl.campaign.spec import CampaignSpec, SpecError
 from pkmctl.campaign.store import factor_column, read_records, read_spec
 from pkmctl.io.atomic import atomic_write, staged_folder
 
@@ -256,6 +256,11 @@ def write_report(out: str | Path) -> list[Path]:
     out = Path(out)
     spec = read_spec(out)
     table = read_records(out)
+    if table.num_rows == 0:  # nothing to say, and empty figures would say it badly
+        raise SpecError(
+            f"{str(out)!r}: no run recorded yet (0 of {spec.n_runs}); pkmctl campaign run "
+            f"SPEC --out {out} --resume runs them; nothing written"
+        )
     metrics = stats.headline_metrics(spec, table)
     summary = stats.cell_stats(spec, table, metrics)
     paired = stats.paired_differences(spec, table, metrics)
