@@ -294,3 +294,23 @@ def test_cli_refuses_a_bad_fis_with_exit_2_before_running(tmp_path):
     lines = [ln for ln in res.output.splitlines() if ln.strip()]
     assert len(lines) == 1 and f"{fis}:" in lines[0] and "custommf" in lines[0], res.output
     assert not out.exists()
+
+
+def test_each_kernel_refuses_the_other_engines_tables_at_compile_time():
+    """FISTables and SystemTables differ in layout: flc_eval read a FuzzySystem's tables as
+    a MamdaniSystem's and returned a wrong number (5.0 for the tipper at (3, 7), whose
+    output is 12.2) without an error. Now each kernel refuses the other's tables."""
+    from numba.core.errors import TypingError
+
+    from pkmctl.fuzzy import flc_eval, mamdani_eval
+
+    fast = FLC().compiled()
+    general = FuzzySystem.from_mamdani(FLC()).compiled()
+    assert isinstance(general, SystemTables)
+    assert flc_eval(fast, 0.3, -2.0) == FLC()(0.3, -2.0)
+    with pytest.raises(TypingError, match="these kernels take FISTables, not SystemTables"):
+        flc_eval(general, 0.3, -2.0)
+    with pytest.raises(TypingError, match="these kernels take FISTables, not SystemTables"):
+        mamdani_eval(general, np.array([0.3, -2.0]))
+    with pytest.raises(TypingError, match="these kernels take SystemTables, not FISTables"):
+        fis_eval2(fast, new_work(general.ints), 0.3, -2.0)

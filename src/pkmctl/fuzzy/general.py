@@ -29,6 +29,7 @@ import math
 import numpy as np
 
 from pkmctl._jit import kernel
+from pkmctl.fuzzy.kernels import systemtables_only
 from pkmctl.fuzzy.mf import mf_value
 
 __all__ = ["eval_batch", "fis_eval", "fis_eval2", "fis_eval_into", "new_work"]
@@ -552,6 +553,7 @@ def fis_eval_into(tables, work, x, out):
     int
         Number of outputs whose aggregate had zero area although rules fired.
     """
+    systemtables_only(tables)
     return _eval_point(tables[0], tables[1], x, out, work)
 
 
@@ -559,6 +561,7 @@ def fis_eval_into(tables, work, x, out):
 def fis_eval2(tables, work, x1, x2):
     """The first output of a compiled system with two inputs, at (x1, x2), without
     allocating (the fuzzy term of FSMC/AFSMC; ``work`` from :func:`new_work`)."""
+    systemtables_only(tables)
     x = work[_W_X]
     out = work[_W_OUT]
     x[0] = x1
@@ -587,6 +590,7 @@ def fis_eval(tables, x, out):
     int
         Number of outputs whose aggregate had zero area although rules fired.
     """
+    systemtables_only(tables)
     return _eval_point(tables[0], tables[1], x, out, new_work(tables[0]))
 
 

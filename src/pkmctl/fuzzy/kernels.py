@@ -11,8 +11,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba.core.errors import TypingError
+from numba.extending import overload
 
-from pkmctl._jit import kernel
+from pkmctl._jit import JIT_OPTIONS, NO_REFCOUNT, kernel
 from pkmctl.model.simd import unsigned as _u  # table offsets: ten reads per output cell
 
 __all__ = ["flc_eval", "mamdani_eval"]
@@ -652,6 +654,43 @@ def _general_eval(ints, reals, x):
     return _general_eval_flag(ints, reals, x)[0]
 
 
+def _tables_check(name: str):
+    """A function of ``tables`` that does nothing at run time and, in compiled code,
+    refuses at compile time a named tuple of another class than ``name``: FISTables and
+    SystemTables have different layouts, and one read as the other gives wrong numbers,
+    not an error."""
+
+    def check(tables) -> None:
+        pass
+
+    @overload(check, jit_options=JIT_OPTIONS | NO_REFCOUNT, strict=False, inline="always")
+    def _typed(tables):
+        cls = getattr(tables, "instance_class", None)
+        if cls is not None and cls.__name__ != name:
+            use = {"FISTables": "flc_eval or mamdani_eval (a MamdaniSystem's)",
+                   "SystemTables": "pkmctl.fuzzy.general.fis_eval2 or fis_eval_into (a "
+                                   "FuzzySystem's)"}  # fmt: skip
+            raise TypingError(
+                f"these kernels take {name}, not {cls.__name__}: {cls.__name__} go to "
+                f"{use.get(cls.__name__, 'their own kernels')}; pkmctl.fuzzy.term.term_eval "
+                "takes either"
+            )
+
+        def nothing(tables):
+            return None
+
+        return nothing
+
+    check.__name__ = check.__qualname__ = f"{name.lower()}_only"
+    return check
+
+
+#: Compile-time checks of the tables the kernels of this module and of
+#: :mod:`pkmctl.fuzzy.general` are given (no run-time cost).
+fistables_only = _tables_check("FISTables")
+systemtables_only = _tables_check("SystemTables")
+
+
 @_jit_free
 def flc_eval(tables, s, sdot):
     """Evaluate a compiled two-input Mamdani system at one point, from compiled code.
@@ -668,6 +707,7 @@ def flc_eval(tables, s, sdot):
     float
         The centroid output, equal to ``system(s, sdot)``; NaN if an input is NaN.
     """
+    fistables_only(tables)
     ints, reals = tables
     if ints[_FAST] == 1:
         return _grid_eval2(ints, reals, s, sdot)
@@ -708,6 +748,7 @@ def mamdani_eval(tables, x):
     float
         The centroid output; NaN if an input is NaN.
     """
+    fistables_only(tables)
     ints, reals = tables
     if ints[_FAST] == 1:
         return _grid_eval2(ints, reals, x[0], x[1])
