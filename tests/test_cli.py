@@ -155,3 +155,11 @@ def test_console_entry_freezes_the_objects_for_a_quick_exit(monkeypatch, capsys)
     assert exit_.value.code in (0, None)
     assert capsys.readouterr().out.strip() == f"pkmctl {pkmctl.__version__}"
     assert frozen > 10_000  # every object the imports made
+
+
+def test_scenario_help_describes_every_built_in():
+    from pkmctl.cli import scenario
+    from pkmctl.sim.scenario import BUILTINS
+
+    described = scenario.__doc__.split("Built-in scenarios:", 1)[1]
+    assert all(f"**{name}**" in described for name in BUILTINS), described

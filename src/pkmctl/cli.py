@@ -469,7 +469,11 @@ def scenario(
 ) -> None:
     """Print a built-in scenario as TOML (edit it and pass it to reproduce or simulate).
 
-    Built-in scenarios: paper (T_c = 50 us), paper-1khz (T_c = 1 ms).
+    Built-in scenarios: **paper** (the paper's experiment at T_c = 50 us), **paper-1khz**
+    (the same at 1 ms), **prototype** (the machine as built: 1 kHz, servo drives, rotor
+    inertia, friction, encoders), **prototype-model** (its controllers also know the
+    rotors and the friction), **prototype-tuned** (that, with beta gains for 1 kHz and a
+    start on the trajectory). Each file's description says more.
     """
     from pkmctl.sim.scenario import Scenario
 
