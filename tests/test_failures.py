@@ -124,8 +124,10 @@ def test_unwritable_out_is_refused_whoever_runs(tmp_path, monkeypatch):
     assert "is not writable" in line and str(tmp_path) in line
 
 
-@pytest.mark.parametrize("target", ["", "."])
+@pytest.mark.parametrize("target", ["", ".", "/proc/no/such/bench.json"])
 def test_bench_json_checked_before_running(tmp_path, monkeypatch, target):
+    """Before the bench's minutes of work: an empty name, a folder, or a place where no
+    folder can be made (/proc, where os.access says yes to root)."""
     monkeypatch.chdir(tmp_path)
     t0 = time.perf_counter()
     line = one_line(runner.invoke(app, ["bench", "--quick", "--json", target]), 2)

@@ -153,7 +153,7 @@ def test_mujoco_model_command_writes_a_loadable_model(tmp_path):
     assert [p.name for p in tmp_path.joinpath("m").iterdir()] == ["pkm.xml"]  # no temp left
     for args, match in (
         (["--out", str(tmp_path)], "is a folder"),
-        (["--out", "/proc/no/such/pkm.xml"], "cannot write"),
+        (["--out", "/proc/no/such/pkm.xml"], "'/proc' is not writable"),
         (["--out", str(out / "x.xml")], "pkm.xml': exists and is not a folder"),  # out: a file
         (["--out", str(out), "--friction-coulomb", "30"], "--friction-coulomb = 30.0: MuJoCo"),
         (["--out", str(out), "--rotor-inertia", "-1"], "--rotor-inertia = -1.0: must be"),

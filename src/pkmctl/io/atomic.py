@@ -107,6 +107,11 @@ def check_output_folder(path: str | os.PathLike[str], *, what: str = "output fol
         raise OutputError(f"{what} {shown}: {str(probe)!r} is a file, not a folder")
     if not os.access(probe, os.W_OK | os.X_OK):
         raise OutputError(f"{what} {shown}: {str(probe)!r} is not writable")
+    try:  # and try it: access() says yes to root, also where nothing can be made (/proc)
+        os.rmdir(tempfile.mkdtemp(prefix=".pkmctl-probe-", dir=probe))
+    except OSError as exc:
+        why = exc.strerror or type(exc).__name__
+        raise OutputError(f"{what} {shown}: {str(probe)!r} is not writable ({why})") from None
     return path
 
 
