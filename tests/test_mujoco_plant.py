@@ -59,7 +59,7 @@ def test_coulomb_friction_on_the_mujoco_plant_is_refused_naming_the_field():
         match=r"^plant 'mujoco': plant\.friction_coulomb = "
         r"30\.0: MuJoCo's dry friction \(frictionloss\) is a soft constraint",
     ):
-        pkmctl.simulate(sc, "pd", duration=0.01)  # fmt: skip
+        pkmctl.simulate(sc, "pd", duration=0.01)
 
 
 class _Kick(NamedTuple):

@@ -603,10 +603,8 @@ class Scenario(_Model):
             node = data
             for p in path:
                 node = node.get(p) if isinstance(node, dict) else None
-            if not isinstance(node, dict) or last not in node:
-                if isinstance(node, dict) and path:  # a known section: name its fields
-                    fields = ", ".join(k for k in node if not isinstance(node[k], dict))
-                    raise ScenarioError(f"{key}: unknown field ({'.'.join(path)}: {fields})")
+            # a new name in a known section is left to validation, which lists its fields
+            if not isinstance(node, dict) or (last not in node and not path):
                 sections = ", ".join(k for k, v in data.items() if isinstance(v, dict))
                 raise ScenarioError(f"{key}: unknown field (sections: {sections})")
             node[last] = value
