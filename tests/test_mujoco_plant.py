@@ -105,3 +105,18 @@ def test_simulate_many_with_lanes_runs_a_stepped_plant_one_at_a_time():
     for a, b in zip(many, one, strict=True):
         assert a.parts["plant"] == "mujoco"
         np.testing.assert_array_equal(a.X, b.X)
+
+
+def test_a_run_on_the_mujoco_plant_leaves_its_compiled_marker():
+    """reproduce's precompile skips what has run: for a stepped plant the compiled code is
+    the stepped loop's period (it used to spawn two compiling processes on every run,
+    3.5 s of a warm reproduce on MuJoCo)."""
+    from pkmctl.sim.loop import is_compiled
+    from pkmctl.sim.simulate import precompile, resolve_parts
+
+    sc = _on_mujoco(pkmctl.Scenario.builtin("paper"))
+    pkmctl.simulate(sc, "smc", duration=0.001)
+    assert is_compiled(resolve_parts(sc, "smc"))
+    assert precompile(sc, ["smc"]) == []
+    # the closed-form plant's loop is another function, with its own marker
+    assert resolve_parts(sc, "smc")["plant"].stepper is not None

@@ -387,10 +387,16 @@ def reproduce(
         bar.update(task, completed=len(steps), description="done")
     console.print(_rmse_table(output.results, f"RMSE, scenario {sc.name!r}"))
     ph = output.phases
+    from pkmctl.parts import get_part
+
+    # a plant stepped outside compiled code (MuJoCo) is stepped from Python each period
+    stepped = any(get_part("plant", r.scenario.plant_spec.kind).stepper is not None
+                  for r in output.results.values())  # fmt: skip
+    loops = "loops, stepped from Python," if stepped else "compiled loops"
     console.print(Text(
         f"wrote {len(output.files)} files to {out}/ in {output.wall_time_s:.1f} s: "
-        f"{ph['before']:.1f} s before the runs, {ph['runs']:.1f} s of runs (their compiled "
-        f"loops {ph['loops']:.1f} s, summed), {ph['figures']:.1f} s more for the figures, "
+        f"{ph['before']:.1f} s before the runs, {ph['runs']:.1f} s of runs (their "
+        f"{loops} {ph['loops']:.1f} s, summed), {ph['figures']:.1f} s more for the figures, "
         f"{ph['report']:.1f} s for the report"
     ))  # fmt: skip
     console.print(Text(f"report: {out / 'report.md'}"))

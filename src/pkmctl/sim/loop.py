@@ -482,12 +482,19 @@ _MARKER = "compiled"
 
 def is_compiled(parts: dict[str, Part]) -> bool:
     """Whether this combination's loop has run on this machine with the current sources
-    (a marker in its cache folder, written after its first successful run)."""
+    (a marker in its cache folder, written after its first successful run). For a
+    stepped plant, the loop is :mod:`pkmctl.sim.stepped`'s compiled period."""
+    if parts["plant"].stepper is not None:
+        from pkmctl.sim.stepped import _period as compiled
+    else:
+        compiled = _run_loop
     key, sources = _key(parts)
-    return (specialised_dir(_run_loop, key, sources) / _MARKER).exists()
+    return (specialised_dir(compiled, key, sources) / _MARKER).exists()
 
 
 def _mark_compiled(loop) -> None:
+    if not loop.signatures:  # never called (a run that stopped before its first period)
+        return
     folder = Path(loop._cache.cache_path)
     if not (folder / _MARKER).exists():
         with contextlib.suppress(OSError):

@@ -41,6 +41,8 @@ from pkmctl.sim.loop import (
     Inputs,
     LogBuffers,
     LoopOutput,
+    _key,
+    _mark_compiled,
     accumulate_metrics,
     compile_error,
     pose_status,
@@ -117,8 +119,7 @@ def _period(
 
 def period_for(parts: dict[str, Part]):
     """The compiled period of this combination of parts (one per process, cached on disk)."""
-    key = tuple(parts[k].params for k in ("plant", "sensor", "controller", "actuator"))
-    sources = [s for p in parts.values() if not p.builtin for s in p.sources]
+    key, sources = _key(parts)
     return specialise(_period, key, sources, refcount=False)
 
 
@@ -177,4 +178,5 @@ def run_stepped(
     except NumbaError as exc:
         raise compile_error(parts, exc) from exc
     dt = time.perf_counter() - t0
+    _mark_compiled(step)
     return run.output(status, m, dt)
