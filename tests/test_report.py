@@ -147,6 +147,8 @@ def test_figure_specs_follow_the_paper_numbering() -> None:
         "force"
     ] * 4
     assert all(s.title.startswith(f"Fig. {s.number} — ") for s in FIGURES)
+    # a figure draws every controller that ran (reproduce: five), so no caption counts them
+    assert not [s.caption for s in FIGURES if "three" in s.caption]
 
 
 def test_make_figures_leaves_no_temporary_file_on_failure(results, tmp_path, monkeypatch) -> None:

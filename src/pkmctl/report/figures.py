@@ -126,7 +126,7 @@ def _specs() -> tuple[FigureSpec, ...]:
                 "tracking",
                 x,
                 f"Fig. {n} — {_NAME[x]} tracking",
-                f"Tracking of {_NAME[x]}: desired and the three controllers.",
+                f"Tracking of {_NAME[x]}: desired and each controller that ran.",
             )
         )
     for i in range(1, 5):
@@ -137,7 +137,7 @@ def _specs() -> tuple[FigureSpec, ...]:
                 "tracking",
                 f"q{i}",
                 f"Fig. {n} — limb length q{i}",
-                f"Length of limb {i}: desired and the three controllers.",
+                f"Length of limb {i}: desired and each controller that ran.",
             )
         )
     for n, x in zip((17, 18, 19), ("z", "alpha", "beta"), strict=True):
@@ -170,7 +170,7 @@ def _specs() -> tuple[FigureSpec, ...]:
                 "force",
                 f"tau{i}",
                 f"Fig. {n} — actuator force τ{i}",
-                f"Force of actuator {i} for the three controllers against the desired "
+                f"Force of actuator {i} for each controller that ran, against the desired "
                 f"driving force.",
             )
         )
