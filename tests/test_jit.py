@@ -166,3 +166,85 @@ def test_compilations_are_announced_with_their_time():
         assert fresh(1.5) == 3.0  # compiled already: says nothing more
     assert [e for e, _, _ in heard] == ["start", "end"]
     assert heard[0][1] == "the model kernels" and heard[1][2] > 0.0
+
+
+_HELPER = """
+from numba import njit
+
+
+@njit(cache=False)
+def scale():
+    return {factor!r}
+"""
+
+_LAW = """
+from typing import NamedTuple
+
+import numpy as np
+
+import pkmctl
+from helper import scale  # the step calls a compiled function of another user file
+
+
+class Law(NamedTuple):
+    kp: np.ndarray
+    kd: np.ndarray
+
+    @classmethod
+    def from_context(cls, ctx):
+        return cls(ctx.gains.pd_kp, ctx.gains.pd_kd)
+
+
+@pkmctl.register_controller("helped-law", params=Law)
+def helped_law(p, state, work, y, ref, F):
+    s = scale()
+    for i in range(3):
+        F[i] = s * (p.kp[i] * (ref[i] - y[i]) + p.kd[i] * (ref[3 + i] - y[3 + i]))
+"""
+
+_RUN_LAW = """
+    import numpy as np
+    import pkmctl
+    import law
+    from pkmctl._jit import cache_dir
+    from pkmctl.parts import get_part
+    r = pkmctl.simulate("paper", controller="helped-law", duration=0.002)
+    print(cache_dir(get_part("controller", "helped-law").sources), repr(float(np.sum(r.tau))))
+"""
+
+
+def test_a_users_part_is_never_run_stale_when_a_module_it_imports_changes(tmp_path):
+    """The loop's cache key covers every file of the user's own code the step reaches,
+    not only the step's file: here ``from helper import scale`` (it used to keep running
+    the first compiled ``scale`` after helper.py changed)."""
+    from pkmctl.parts import user_sources
+
+    rng = np.random.default_rng()
+    factors = [
+        float(0.5 + rng.integers(1, 10**9) * 1e-12),
+        float(0.25 + rng.integers(1, 10**9) * 1e-12),
+    ]
+    (tmp_path / "law.py").write_text(_LAW)
+    outputs = []
+    try:
+        for factor in factors:
+            (tmp_path / "helper.py").write_text(_HELPER.format(factor=factor))
+            outputs.append(_run(_RUN_LAW, path=tmp_path).split())
+        assert outputs[0][0] != outputs[1][0]  # another cache folder ...
+        assert float(outputs[1][1]) != float(outputs[0][1])  # ... and the new code ran
+    finally:
+        for folder, _ in outputs:
+            shutil.rmtree(folder, ignore_errors=True)
+    # in this process: what the walk finds, and what it leaves to pkmctl's own hash
+    sys.path.insert(0, str(tmp_path))
+    try:
+        import law  # noqa: F401
+
+        found = {Path(f).name for f in get_part("controller", "helped-law").sources}
+        assert found == {"law.py", "helper.py"}
+        # a function's own file counts; pkmctl's other files are its own hash's business
+        assert {Path(f).name for f in user_sources(dynamics_kernel)} == {"dynamics.py"}
+    finally:
+        sys.path.remove(str(tmp_path))
+        for name in ("law", "helper"):
+            sys.modules.pop(name, None)

@@ -67,10 +67,15 @@ name. A user adds one from their own module with a decorator
 
 from __future__ import annotations
 
+import functools
 import inspect
+import os
+import site
 import sys
+import sysconfig
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from types import ModuleType
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -345,9 +350,8 @@ def _register(
             py.__pkmctl_llvm_inline__ = True
             compiled[role] = fn
         functions[role] = py
-        src = inspect.getsourcefile(py)
-        if src:
-            sources.add(src)
+        sources |= {inspect.getsourcefile(py) or ""} if builtin else user_sources(py)
+    sources.discard("")
     if continuous and "derivative" not in functions:
         raise PartError(f"{kind} {name!r}: continuous = {continuous} needs a derivative function")
     part = Part(
@@ -382,6 +386,66 @@ def _register(
     return part
 
 
+def user_sources(fn: Callable) -> set[str]:
+    """The source files a user's step function can reach, for the cache key of its loop:
+    its own file and, through its globals and closure, the file of every module of the
+    user's own code it uses, transitively (``from helper import scale`` as well as
+    ``import helper``). Python's, installed libraries' and pkmctl's files are left out
+    (pkmctl's own hash covers its kernels). Numba compiles whatever these reach, so an
+    edit to any of them must compile the loop anew."""
+    skip = _library_folders()
+    found: set[str] = set()
+    seen: set[int] = set()
+
+    def module_of(obj: Any) -> Any:
+        if isinstance(obj, ModuleType):
+            return obj
+        obj = getattr(obj, "py_func", obj)  # a Numba dispatcher: its Python function
+        if not (inspect.isfunction(obj) or inspect.isclass(obj)):
+            return None
+        return sys.modules.get(getattr(obj, "__module__", None) or "")
+
+    def visit(namespace: dict[str, Any], file: str | None) -> None:
+        if not file or not file.endswith(".py") or file in found:
+            return
+        path = os.path.realpath(file)
+        if any(path.startswith(folder) for folder in skip):
+            return
+        found.add(file)
+        for value in list(namespace.values()):
+            mod = module_of(value)
+            if mod is not None and id(mod) not in seen:
+                seen.add(id(mod))
+                visit(vars(mod), getattr(mod, "__file__", None))
+
+    py = getattr(fn, "py_func", fn)
+    cells = {f"cell{i}": c.cell_contents for i, c in enumerate(py.__closure__ or ())
+             if _filled(c)}  # fmt: skip
+    file = inspect.getsourcefile(py)
+    visit({**py.__globals__, **cells}, file)
+    if file and file not in found:  # the function's own file, even if a library's
+        found.add(file)
+    return found
+
+
+def _filled(cell: Any) -> bool:
+    try:
+        cell.cell_contents  # noqa: B018
+    except ValueError:  # an empty cell
+        return False
+    return True
+
+
+@functools.cache
+def _library_folders() -> tuple[str, ...]:
+    """Folders whose files are not the user's: Python's, installed packages', pkmctl's."""
+    paths = sysconfig.get_paths()
+    folders = {paths[k] for k in ("stdlib", "platstdlib", "purelib", "platlib") if k in paths}
+    folders |= set(site.getsitepackages()) | {site.getusersitepackages()}
+    folders.add(os.path.dirname(os.path.abspath(__file__)))  # pkmctl
+    return tuple(os.path.join(os.path.realpath(f), "") for f in folders if f)
+
+
 def attach_lanes(
     kind: str,
     name: str,
@@ -409,9 +473,8 @@ def attach_lanes(
             py.__pkmctl_llvm_inline__ = True
             compiled["lane_" + role] = fn
         fns[role] = py
-        src = inspect.getsourcefile(py)
-        if src and not part.builtin:
-            sources.add(src)
+        if not part.builtin:
+            sources |= user_sources(py)
     if not callable(lane_work):
         raise PartError(f"{kind} {name!r}: lane functions need lane_work(lane_bundle, lanes)")
     from dataclasses import replace
