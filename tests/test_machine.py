@@ -292,3 +292,36 @@ def test_bad_machine_input_is_one_line(field, value, message):
         pkmctl.Scenario.builtin("paper").replace(**{field: value})
     text = str(exc.value)
     assert text.startswith(message) and "\n" not in text
+
+
+@pytest.mark.parametrize(
+    ("base", "field", "value", "message"),
+    [
+        ("prototype", "actuators.force_limit", 100.0,
+         "actuators.force_limit = 100.0: actuators.kind = 'drive' does not use it (only "
+         "actuators.kind = 'ideal' does); remove it"),
+        ("paper", "actuators.delay_periods", 1, "actuators.delay_periods = 1: actuators.kind "
+         "= 'ideal' does not use it (only actuators.kind = 'drive' does); remove it or set "
+         "it to 0"),
+        ("paper", "actuators.lag", 1e-3, "actuators.lag = 0.001: actuators.kind = 'ideal'"),
+        ("paper", "sensor.noise", 1e-6, "sensor.noise = 1e-06: sensor.kind = 'ideal' does "
+         "not use it (only sensor.kind = 'encoder' does)"),
+        ("paper", "sensor.counts_per_rev", 4096, "sensor.counts_per_rev = 4096: sensor.kind"),
+        ("paper", "sensor.delay_periods", 1, "sensor.delay_periods = 1: sensor.kind = 'ideal'"),
+    ],
+)  # fmt: skip
+def test_a_setting_the_parts_kind_does_not_use_is_refused(base, field, value, message):
+    """It used to be ignored without a word: a drive with force_limit = 100 N ran as if
+    unlimited, an ideal sensor with noise measured exactly."""
+    with pytest.raises(pkmctl.ScenarioError) as exc:
+        pkmctl.Scenario.builtin(base).replace(**{field: value})
+    assert str(exc.value).startswith(message) and "\n" not in str(exc.value)
+    # the same numbers at their defaults, or on the kind that reads them, are fine
+    sc = pkmctl.Scenario.builtin(base)
+    section, name = field.split(".")
+    sc.replace(**{field: type(getattr(sc, section)).model_fields[name].default})
+    kind = {"actuators": "drive", "sensor": "encoder"}[section]
+    if field == "actuators.force_limit":
+        kind = "ideal"
+    other = {"actuators.delay_periods": 0} if kind == "ideal" else {}
+    sc.replace(**{f"{section}.kind": kind, **other, field: value})

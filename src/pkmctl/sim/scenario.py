@@ -429,6 +429,29 @@ class PayloadSpec(_Model):
         return v
 
 
+def _unused_fields(spec: _Model, section: str, used: dict[str, frozenset[str]]) -> None:
+    """Refuse a field the part's kind never reads, set away from its default: it would be
+    ignored without a word (``actuators.force_limit`` on a drive, a noise on the ideal
+    sensor). ``used``: the fields each built-in kind reads; a registered kind may read any."""
+    reads = used.get(spec.kind)
+    if reads is None:
+        return
+    for name, field in type(spec).model_fields.items():
+        if name == "kind" or name in reads:
+            continue
+        value = getattr(spec, name)
+        if value != field.default:
+            readers = [k for k, f in used.items() if name in f]
+            by = " or ".join(f"{section}.kind = {k!r}" for k in readers)
+            fix = "remove it" + (
+                "" if field.default is None else f" or set it to {field.default!r}"
+            )
+            raise ValueError(
+                f".{name} = {value!r}: {section}.kind = {spec.kind!r} does not use it "
+                f"(only {by} does); {fix}"
+            )
+
+
 class SensorSpec(_Model):
     """The sensor part: ``ideal`` (exact X, Xdot at the sample), ``encoder`` (DESIGN.md §7:
     limb lengths quantised to screw_lead / counts_per_rev, optional Gaussian ``noise`` (m),
@@ -447,6 +470,13 @@ class SensorSpec(_Model):
     @classmethod
     def _kind(cls, v: str) -> str:
         return _check_kind("sensor", v)
+
+    @model_validator(mode="after")
+    def _used(self) -> SensorSpec:
+        # the seed is harmless without noise: a built-in scenario's file keeps it
+        every = frozenset({"counts_per_rev", "noise", "delay_periods", "velocity_filter"})
+        _unused_fields(self, "sensor", {"ideal": frozenset({"seed"}), "encoder": every | {"seed"}})
+        return self
 
 
 class ActuatorSpec(_Model):
@@ -468,6 +498,12 @@ class ActuatorSpec(_Model):
     @classmethod
     def _kind(cls, v: str) -> str:
         return _check_kind("actuator", v)
+
+    @model_validator(mode="after")
+    def _used(self) -> ActuatorSpec:
+        drive = frozenset({"peak_torque", "efficiency", "lag", "max_speed", "delay_periods"})
+        _unused_fields(self, "actuators", {"ideal": frozenset({"force_limit"}), "drive": drive})
+        return self
 
 
 class Scenario(_Model):
@@ -683,6 +719,8 @@ def _one_line(exc: ValidationError) -> str:
     if err["type"] in ("value_error", "assertion_error"):
         if msg.startswith("= "):  # a range check that shows the value: "field = v: ..."
             return f"{loc} {msg}"
+        if msg.startswith("."):  # a section's check naming one of its fields: ".f = v: ..."
+            return f"{loc}{msg}"
         return f"{loc}: {msg}" if loc != "scenario" else msg
     if err["type"] == "finite_number":  # nan, inf: the same words as the range checks
         msg = "must be a finite number"
