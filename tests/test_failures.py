@@ -74,11 +74,30 @@ def scenario_file(tmp_path, name="s.toml", **changes) -> Path:
 
 
 # ---------------------------------------------------------------- output locations
-def test_empty_out_is_refused_and_writes_nothing(tmp_path, monkeypatch):
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["reproduce", "--duration", "0.05"],
+        ["simulate", "paper", "--duration", "0.05"],  # typer's Path('') was '.': it wrote here
+        ["excite"],
+        ["identify", "log.csv"],
+        ["mujoco-model"],
+    ],
+)
+def test_empty_out_is_refused_and_writes_nothing(tmp_path, monkeypatch, args):
     monkeypatch.chdir(tmp_path)
-    line = one_line(runner.invoke(app, ["reproduce", "--out", "", "--duration", "0.05"]), 2)
+    line = one_line(runner.invoke(app, [*args, "--out", ""]), 2)
     assert "--out = ''" in line and "empty" in line
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_failed_run_leaves_no_folder_of_its_output_path(tmp_path, monkeypatch):
+    """ "OUT was not created": nor the folders above it that the run made."""
+    monkeypatch.chdir(tmp_path)
+    diverging = scenario_file(tmp_path, "blow.toml", **{"disturbance.amplitude": [1e6] * 3})
+    res = runner.invoke(app, ["simulate", str(diverging), "--out", "deep/a/b/c"])
+    assert res.exit_code == 1 and "not created" in res.output, res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blow.toml"]
 
 
 @pytest.mark.parametrize("command", ["reproduce", "simulate"])

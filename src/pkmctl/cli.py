@@ -414,8 +414,8 @@ def simulate(
     controller: Annotated[
         str, typer.Option(help=f"A registered controller (built in: {_CONTROLLERS}).")
     ] = "afsmc",
-    out: Annotated[Path, typer.Option(help="Output folder for the time series (created).")] = Path(
-        "pkmctl-out"
+    out: Annotated[str, typer.Option(help="Output folder for the time series (created).")] = (
+        "pkmctl-out"  # a str: typer would make --out '' the Path '.', the current folder
     ),
     fmt: Annotated[
         str,
@@ -544,7 +544,7 @@ def bench(
 
 @app.command("mujoco-model")
 def mujoco_model(
-    out: Annotated[Path, typer.Option(help="The MJCF file to write (FILE.xml).")],
+    out: Annotated[str, typer.Option(help="The MJCF file to write (FILE.xml).")],
     scenario: Annotated[
         str, typer.Option(help="Built-in scenario name or TOML file: its true plant.")
     ] = "paper",
@@ -578,7 +578,7 @@ def mujoco_model(
         from pkmctl.plants.mujoco import build_mjcf, scenario_error, scenario_options
     except ImportError as exc:
         _fail(str(exc))
-    if out.is_dir():
+    if Path(out).is_dir() and out.strip():
         _fail(f"--out {out}: is a folder, give a file name (FILE.xml)")
     given = {
         k: v
@@ -588,7 +588,7 @@ def mujoco_model(
         if v is not None
     }  # fmt: skip
     try:
-        check_output_file(out, what="--out")
+        out = check_output_file(out, what="--out")
         sc = _load_scenario(scenario)
         text = build_mjcf(sc.plant(), **{**scenario_options(sc), **given})
     except (PkmctlError, ValueError) as exc:

@@ -55,8 +55,8 @@ def excite(
         str, typer.Option(help=f"The machine: a built-in ({_SCENARIO_NAMES}) or a TOML file.")
     ] = "prototype",
     out: Annotated[
-        Path, typer.Option(help="The scenario file to write (TOML), with the trajectory.")
-    ] = Path("excite.toml"),
+        str, typer.Option(help="The scenario file to write (TOML), with the trajectory.")
+    ] = "excite.toml",
     harmonics: Annotated[int, typer.Option(help="Harmonics per coordinate (3-20).")] = 5,
     base_frequency: Annotated[
         float, typer.Option(help="Base frequency (Hz); the trajectory repeats at 1/F s.")
@@ -139,8 +139,8 @@ def identify(
         ),
     ],
     out: Annotated[
-        Path, typer.Option(help="Output folder: report.md, figures, the estimate.")
-    ] = Path("pkmctl-identify"),
+        str, typer.Option(help="Output folder: report.md, figures, the estimate.")
+    ] = "pkmctl-identify",
     scenario: Annotated[
         str | None,
         typer.Option(

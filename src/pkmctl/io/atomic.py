@@ -133,6 +133,7 @@ def staged_folder(dest: str | os.PathLike[str]) -> Iterator[Path]:
     """
     dest = check_output_folder(dest)
     parent = _stage_parent(dest)
+    made = [f for f in (parent, *parent.parents) if not f.exists()]  # to remove on failure
     try:
         parent.mkdir(parents=True, exist_ok=True)
         stage = Path(tempfile.mkdtemp(prefix=_STAGE_PREFIX, suffix=".tmp", dir=parent))
@@ -140,13 +141,25 @@ def staged_folder(dest: str | os.PathLike[str]) -> Iterator[Path]:
     except OSError as exc:
         from pkmctl.errors import OutputError
 
+        _remove_empty(made)
         raise OutputError(f"output folder {str(dest)!r}: {exc.strerror}") from None
     try:
         yield stage
         publish(stage, dest)
     except BaseException:
         discard(stage)
+        _remove_empty(made)
         raise
+
+
+def _remove_empty(folders: list[Path]) -> None:
+    """Remove the folders a failed run made above its output, deepest first, as long as
+    they are empty (never raises): "OUT was not created" leaves nothing of its path."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:
+            return
 
 
 def discard(stage: Path) -> None:
