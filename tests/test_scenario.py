@@ -93,3 +93,45 @@ def test_bad_toml_and_unknown_builtin(tmp_path):
     with pytest.raises(ScenarioError, match="unknown field"):
         Scenario.builtin("paper").replace(**{"timing.nope": 1})
     assert isinstance(ScenarioError("x"), pkmctl.PkmctlError)
+
+
+def _late_exit() -> dict:
+    """A file whose beta reaches pi/2 at t = 5.93 s, valid over its first 5 s."""
+    data = Scenario.builtin("paper").model_dump(by_alias=True, exclude_none=True)
+    data["trajectory"].update(offset=[0.7, 0.0, 1.2], amplitude=[0.02, 0.5, 0.4],
+                              omega=[2.0, 2.0, 0.2], phase=[0.0, 0.0, 0.0])  # fmt: skip
+    return data
+
+
+def test_changes_are_made_before_the_file_is_validated(tmp_path):
+    """`simulate FILE --duration 0.5` checks the trajectory over 0.5 s, not the file's 10 s
+    (it used to refuse a file whose trajectory leaves the workspace only after 5 s)."""
+    import tomli_w
+
+    path = tmp_path / "late.toml"
+    path.write_text(tomli_w.dumps(_late_exit()))
+    with pytest.raises(ScenarioError, match=r"leaves the valid workspace at t = 5\.93"):
+        Scenario.from_toml(path)
+    sc = Scenario.from_toml(path, {"timing.duration": 0.5, "disturbance.seed": 3})
+    assert sc.timing.duration == 0.5 and sc.disturbance.seed == 3
+    short = Scenario.builtin("paper", changes={"timing.duration": 0.5, "payload.mass": 1.0})
+    assert short == Scenario.builtin("paper").replace(
+        **{"timing.duration": 0.5, "payload.mass": 1.0}
+    )
+    with pytest.raises(ScenarioError, match=r"^nope\.x: unknown field \(sections: "):
+        Scenario.from_toml(path, {"nope.x": 1})
+
+
+def test_the_reference_is_checked_at_every_control_period():
+    """beta grazing pi/2 between the scenario's 1 ms samples: refused as the trajectory's
+    fault, naming the time, before the run (it used to run and end as "simulation diverged
+    ... the pose left the valid set", as if the controller had failed)."""
+    sc = Scenario.builtin("paper").replace(
+        **{"trajectory.offset": [0.7, 0.0, 0.0], "trajectory.amplitude": [0.02, 0.0, 1.5707964268],
+           "trajectory.omega": [2.0, 2.0, 2.0], "trajectory.phase": [0.0, 0.0, 0.0],
+           "timing.duration": 1.0}
+    )  # fmt: skip
+    with pytest.raises(
+        ScenarioError, match=r"^trajectory: leaves the valid workspace at t = 0\.785"
+    ):
+        pkmctl.simulate(sc, "pd")

@@ -222,24 +222,26 @@ def _main(
     ctx.obj = {"debug": debug}
 
 
-def _load_scenario(spec: str):
+def _load_scenario(spec: str, changes: dict | None = None):
+    """The scenario ``spec`` names, with ``changes`` made before it is validated (a
+    file's trajectory is checked over the duration that will run, not the file's)."""
     from pkmctl.sim.scenario import BUILTINS, Scenario
 
     if spec in BUILTINS:
-        return Scenario.builtin(spec)
+        return Scenario.builtin(spec, changes=changes)
     path = Path(spec)
     if path.suffix.lower() == ".toml" or path.exists():
-        return Scenario.from_toml(path)
+        return Scenario.from_toml(path, changes)
     return Scenario.builtin(spec)  # raises: unknown built-in, with the list
 
 
-def _with_overrides(sc, seed: int | None, duration: float | None):
+def _overrides(seed: int | None, duration: float | None) -> dict:
     changes = {}
     if duration is not None:
         changes["timing.duration"] = duration
     if seed is not None:
         changes["disturbance.seed"] = seed
-    return sc.replace(**changes) if changes else sc
+    return changes
 
 
 def _scenario(ctx: typer.Context, spec: str, seed, duration, kept: str):
@@ -249,7 +251,7 @@ def _scenario(ctx: typer.Context, spec: str, seed, duration, kept: str):
     try:
         with compiles.listen():
             return _interruptible(
-                lambda: _with_overrides(_load_scenario(spec), seed, duration),
+                lambda: _load_scenario(spec, _overrides(seed, duration)),
                 lambda: kept + compiles.kept(),
             )
     except Exception as exc:

@@ -42,7 +42,7 @@ from pkmctl.fuzzy.term import term_system
 from pkmctl.model.mechanism import PAPER_TABLE2, Mechanism
 from pkmctl.sim.trajectory import TRAJECTORIES, Fourier, Sinusoid, paper_trajectory
 
-__all__ = ["BUILTINS", "Scenario", "ScenarioError"]
+__all__ = ["BUILTINS", "Scenario", "ScenarioError", "reference_outside"]
 
 #: A trajectory whose J has a condition number above this is "near a singularity".
 MAX_TRAJECTORY_CONDITION = 100.0
@@ -506,6 +506,51 @@ class ActuatorSpec(_Model):
         return self
 
 
+def reference_outside(t: np.ndarray, X: np.ndarray) -> str:
+    """'' if every desired pose X (N, 3) at times t (N,) lies in the valid box (finite,
+    z > 0, |alpha|, |beta| < pi/2), else the message naming the first time that does not.
+    Cheap (no kinematics): the loop's inputs check it at every control period, where the
+    scenario's own check (with the condition number of J) samples every 1 ms at most."""
+    bad = (
+        ~np.isfinite(X).all(axis=1)
+        | (X[:, 0] <= 0.0)
+        | (np.abs(X[:, 1:3]) >= np.pi / 2).any(axis=1)
+    )
+    if not bad.any():
+        return ""
+    n = int(np.argmax(bad))
+    z, a, b = (float(v) for v in X[n])
+    return (
+        f"trajectory: leaves the valid workspace at t = {t[n]:.6g} s (z = {z:.10g} m, "
+        f"alpha = {a:.10g}, beta = {b:.10g} rad; the valid range is z > 0, "
+        f"|alpha|, |beta| < pi/2)"
+    )
+
+
+def _changed(data: dict[str, Any], changes: dict[str, Any], known: dict | None = None) -> dict:
+    """``data`` (a scenario's fields, nested) with the dotted ``changes`` made. A section
+    absent from ``data`` is made if ``known`` (the defaults) has it; an unknown section or
+    a field of no section is refused here, a new name in a known section is left to
+    validation, which lists the section's fields."""
+    for key, value in changes.items():
+        *path, last = key.split(".")
+        node = data
+        for i, p in enumerate(path):
+            if isinstance(node, dict) and p not in node and known is not None:
+                ref = known
+                for q in path[: i + 1]:
+                    ref = ref.get(q) if isinstance(ref, dict) else None
+                if isinstance(ref, dict):
+                    node[p] = {}
+            node = node.get(p) if isinstance(node, dict) else None
+        if not isinstance(node, dict) or (last not in node and not path):
+            sections = known if known is not None else data
+            names = ", ".join(k for k, v in sections.items() if isinstance(v, dict))
+            raise ScenarioError(f"{key}: unknown field (sections: {names})")
+        node[last] = value
+    return data
+
+
 class Scenario(_Model):
     """Every number of one experiment (DESIGN.md §4). Build with :meth:`builtin` or TOML."""
 
@@ -553,6 +598,9 @@ class Scenario(_Model):
         # The whole desired trajectory must stay in the workspace, away from singularities.
         ts = np.linspace(0.0, t.duration, int(min(20001, max(2, t.duration / 1e-3))))
         Xd, _, _ = self.trajectory.build().evaluate(ts)
+        outside = reference_outside(ts, Xd)
+        if outside:
+            raise ValueError(outside)
         try:
             cond = plant.checked_condition_numbers(Xd)
         except InvalidPoseError as exc:
@@ -568,9 +616,13 @@ class Scenario(_Model):
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def builtin(cls, name: str, duration: float | None = None) -> Scenario:
+    def builtin(
+        cls, name: str, duration: float | None = None, changes: dict[str, Any] | None = None
+    ) -> Scenario:
         """A built-in scenario (:data:`BUILTINS`), with ``duration`` (s) instead of its own
-        if given: validated once, where ``builtin(name).replace(...)`` validates twice."""
+        if given, and ``changes`` (dotted fields, as :meth:`replace`): validated once, where
+        ``builtin(name).replace(...)`` validates twice (and the first time with the
+        built-in's own duration)."""
         try:
             data = BUILTINS[name]
         except KeyError:
@@ -579,6 +631,11 @@ class Scenario(_Model):
             ) from None
         if duration is not None:
             data = {**data, "timing": {**data.get("timing", {}), "duration": duration}}
+        if changes:
+            import copy
+
+            known = cls().model_dump(by_alias=True)
+            data = _changed(copy.deepcopy(data), changes, known=known)
         return cls.from_dict(data)
 
     @classmethod
@@ -589,8 +646,11 @@ class Scenario(_Model):
             raise ScenarioError(_one_line(exc)) from None
 
     @classmethod
-    def from_toml(cls, source: str | Path) -> Scenario:
-        """Read a scenario from a TOML file path (or TOML text if it contains a newline)."""
+    def from_toml(cls, source: str | Path, changes: dict[str, Any] | None = None) -> Scenario:
+        """Read a scenario from a TOML file path (or TOML text if it contains a newline),
+        with ``changes`` (dotted fields, as :meth:`replace`) made before it is validated:
+        a file whose trajectory leaves the workspace after 5 s is valid with a duration
+        of 1 s."""
         if isinstance(source, Path) or "\n" not in str(source):
             path = Path(source)
             where = f"scenario file {str(path)!r}"
@@ -621,6 +681,8 @@ class Scenario(_Model):
             # a .fis file named by a scenario file is relative to that file's folder
             if not Path(fis).expanduser().is_absolute():
                 data["fuzzy"] = fuzzy | {"fis": str(Path(source).parent / fis)}
+        if changes:
+            data = _changed(data, changes, known=cls().model_dump(by_alias=True))
         return cls.from_dict(data)
 
     def to_toml(self) -> str:
@@ -633,18 +695,7 @@ class Scenario(_Model):
 
         ``scenario.replace(**{"timing.duration": 2.0, "disturbance.seed": 7})``
         """
-        data = self.model_dump(by_alias=True)
-        for key, value in changes.items():
-            *path, last = key.split(".")
-            node = data
-            for p in path:
-                node = node.get(p) if isinstance(node, dict) else None
-            # a new name in a known section is left to validation, which lists its fields
-            if not isinstance(node, dict) or (last not in node and not path):
-                sections = ", ".join(k for k, v in data.items() if isinstance(v, dict))
-                raise ScenarioError(f"{key}: unknown field (sections: {sections})")
-            node[last] = value
-        return Scenario.from_dict(data)
+        return Scenario.from_dict(_changed(self.model_dump(by_alias=True), changes))
 
     # ------------------------------------------------------------------ derived objects
     def plant(self) -> Mechanism:

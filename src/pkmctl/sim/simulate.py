@@ -40,7 +40,7 @@ from pkmctl.sim.loop import (
     run_parts,
 )
 from pkmctl.sim.result import Result
-from pkmctl.sim.scenario import Scenario, ScenarioError
+from pkmctl.sim.scenario import Scenario, ScenarioError, reference_outside
 from pkmctl.sim.stepped import run_stepped
 
 __all__ = [
@@ -230,6 +230,9 @@ def _desired(scenario: Scenario, plant: Mechanism, periods: np.ndarray, forces: 
     same bits, a test checks)."""
     t = periods * scenario.timing.control_period
     Xdes, Xddes, Xdddes = scenario.trajectory.build().evaluate(t)
+    outside = reference_outside(t, Xdes)  # the scenario's check sampled it every 1 ms at most
+    if outside:
+        raise ScenarioError(outside)
     if forces:
         q_des, tau_des = desired_forces(plant, Xdes, Xddes, Xdddes)
     else:
