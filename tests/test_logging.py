@@ -235,6 +235,26 @@ def test_one_hour_paper_run_fits_in_a_few_hundred_mb(monkeypatch):
     assert r.t.size == 50 and r.info["steps"] == 10_000
 
 
+def test_simulates_memory_check_counts_its_controllers_log(monkeypatch):
+    """An hour of AFSMC logs its 36 Theta^ every period: 48 GiB, not the 29 GiB of the
+    shared arrays alone; the offered logging.every must fit with them (it offered 2,
+    which needs 24 GiB, on a machine with 22.9)."""
+    from pkmctl.sim.simulate import log_columns, resolve_parts
+
+    hour = _scenario(**{"timing.duration": 3600.0})
+    assert log_columns(hour, resolve_parts(hour, "afsmc")) == 36
+    assert log_columns(hour, resolve_parts(hour, "pd")) == 0
+    n, holds = hour.timing.periods, sim.disturbance_count(hour)
+    have = sim.memory_needed(n, 36, every=2, disturbance_values=holds) - 2**20
+    assert sim.memory_needed(n, every=2, disturbance_values=holds) < have  # without the log
+    monkeypatch.setattr(sim, "_available_memory", lambda: have)
+    with pytest.raises(pkmctl.errors.InsufficientMemory) as exc:
+        pkmctl.simulate(hour, "afsmc")
+    assert "logging.every = 5 needs" in str(exc.value), str(exc.value)
+    with pytest.raises(pkmctl.errors.InsufficientMemory, match=r"logging\.every = 2 needs"):
+        pkmctl.simulate(hour, "pd")
+
+
 def test_the_encoders_noise_is_counted_before_it_is_drawn(monkeypatch):
     """The encoder draws its noise for the whole run up front, (periods, 4): an hour at
     1 kHz is 115 MB of it, whatever the log keeps."""

@@ -295,10 +295,11 @@ def _resolve(scenario: Scenario | str, duration: float | None) -> Scenario:
     return scenario
 
 
-def prepare(scenario: Scenario | str, duration: float | None) -> Prepared:
+def prepare(scenario: Scenario | str, duration: float | None, log_columns: int = 0) -> Prepared:
     """Everything the runs of ``scenario`` share (for runs of many seeds or controllers
     on one scenario: :func:`run_prepared`); its memory is checked before anything is
-    allocated."""
+    allocated, with ``log_columns`` more columns in the log of one run (its controller's
+    and sensor's, :func:`log_columns`)."""
     scenario = _resolve(scenario, duration)
     plant = scenario.plant()
     Tc = scenario.timing.control_period
@@ -309,10 +310,10 @@ def prepare(scenario: Scenario | str, duration: float | None) -> Prepared:
     holds, parts = disturbance_count(scenario), part_memory(scenario)
     # Refuse what cannot fit before allocating any of it (a 1 h run at 20 kHz: ~27 GiB).
     check_memory(
-        memory_needed(n, every=every, disturbance_values=holds, part_values=parts),
+        memory_needed(n, log_columns, every=every, disturbance_values=holds, part_values=parts),
         f"a {n * Tc:g} s run at T_c = {Tc:g} s" + (f" logged every {every}" if every > 1 else ""),
         decimated=lambda e: memory_needed(
-            n, every=e, disturbance_values=holds, part_values=parts
+            n, log_columns, every=e, disturbance_values=holds, part_values=parts
         ),  # fmt: skip
         every=every,
         periods=n,
@@ -388,8 +389,32 @@ def simulate(
     :class:`~pkmctl.SimulationDiverged` (with the partial result) if the state becomes
     non-finite or the pose leaves the valid set.
     """
-    prep = prepare(scenario, duration)
-    return run_prepared(prep, resolve_parts(prep.scenario, controller), seed)
+    scenario = _resolve(scenario, duration)
+    parts = resolve_parts(scenario, controller)
+    prep = prepare(scenario, None, log_columns(scenario, parts))
+    return run_prepared(prep, parts, seed)
+
+
+def log_columns(scenario: Scenario, parts: dict[str, Part]) -> int:
+    """Columns the controller's and the sensor's logs add to a run's log (the AFSMC's 36
+    of Theta^, the encoder's 4 lengths): a constant size is read as it is, else from the
+    part's parameter bundle (built, not its state or work)."""
+    ctx = None
+    n = 0
+    for kind in ("controller", "sensor"):
+        part = parts[kind]
+        try:
+            n += int(part.log_size(None))
+            continue
+        except Exception:  # a size that reads the bundle
+            pass
+        if ctx is None:
+            ctx = PartContext(plant=scenario.plant(), model=scenario.controller_mechanism(),
+                              gains=scenario.controller_gains(),
+                              period=scenario.timing.control_period,
+                              flc=scenario.fuzzy_system(), scenario=scenario)  # fmt: skip
+        n += int(part.log_size(part.build(ctx)))
+    return n
 
 
 def _build(parts: dict[str, Part], ctx: PartContext, plant_state: np.ndarray) -> dict:
