@@ -61,6 +61,8 @@ BAD = [
     ({"gains": {"theta_bounds": [2.0, 3.0]}}, "theta_bounds"),
     ({"disturbance": {"seed": -1}}, "disturbance.seed = -1"),
     ({"disturbance": {"hold": 0.0}}, "disturbance.hold = 0.0"),
+    # one value is held over each period: a shorter hold drew values no period read
+    ({"disturbance": {"hold": 1e-300}}, "disturbance.hold = 1e-300: must be >= timing.contr"),
     ({"mechanism": {"r_a": 0.5}}, "need 0 < r_a < r_b"),
     ({"mechanism": {"theta": [1.0] * 35}}, "mechanism.theta"),
     ({"controller_model": {"theta_scale": 0.0}}, "controller_model.theta_scale = 0.0"),

@@ -589,6 +589,12 @@ class Scenario(_Model):
             raise ValueError(
                 f"timing.duration = {t.duration}: must be >= control_period ({t.control_period})"
             )
+        if self.disturbance.hold < t.control_period * (1 - 1e-9):
+            raise ValueError(
+                f"disturbance.hold = {self.disturbance.hold:g}: must be >= "
+                f"timing.control_period ({t.control_period:g} s): the loop holds one value "
+                "over each control period"
+            )
         every = self.logging.every
         if not (isinstance(every, int) and not isinstance(every, bool) and 1 <= every <= t.periods):
             raise ValueError(
