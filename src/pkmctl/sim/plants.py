@@ -21,8 +21,10 @@ from pkmctl.model.dynamics import (
     JDV,
     JQ,
     Q,
+    actuator_forces_kernel,
     dynamics_kernel,
     forward_dynamics,
+    inverse_dynamics,
     make_work,
     task_force,
 )
@@ -156,6 +158,27 @@ def _machine_dynamics(p, X, Xd, v):
 def _rigid_work_jit():
     e = np.empty
     return make_work(), e((3, 3)), e(3), e(3), e(3), e((3, 3))
+
+
+@kernel
+def desired_machine_forces(p, Xd, Xdd, Xddd, q_out, tau_out):
+    """q_d (N, 4) and the minimum-norm limb forces tau_d (N, 4) that drive the plant ``p``,
+    every option of §7 included, along X_d (N, 3) with its rates: J^T tau_d = M Xddot_d +
+    C Xdot_d + G - f, f = -J^T (F_c tanh(qdot_d / v_s) + F_v qdot_d) as the plant's
+    derivative adds it (its inverse, by the same code: tests/test_machine.py)."""
+    work = _rigid_work_jit()
+    M, Cv, G, f = work[1], work[2], work[3], work[4]
+    F = np.empty(3)
+    for k in range(Xd.shape[0]):
+        dynamics_kernel(p.geom, p.theta, Xd[k], Xdd[k], Xdd[k], work[0], M, Cv, G)
+        f[:] = 0.0
+        if p.machine > 0.0:
+            _machine_terms(p, Xd[k], Xdd[k], Xdd[k], work, M, Cv, G, f)
+        inverse_dynamics(M, Cv, G, Xddd[k], F)
+        for i in range(3):
+            F[i] -= f[i]
+        actuator_forces_kernel(work[0][JQ], F, tau_out[k])
+        q_out[k, :] = work[0][Q]
 
 
 def machine_dynamics(p: RigidPlant, X, Xdot, v) -> tuple[np.ndarray, ...]:

@@ -167,15 +167,29 @@ def check_memory(need: int, what: str, *, decimated=None, every: int = 1, period
     )
 
 
-def desired_forces(plant: Mechanism, Xd, Xdd, Xddd) -> tuple[np.ndarray, np.ndarray]:
+def desired_forces(
+    plant: Mechanism, Xd, Xdd, Xddd, scenario: Scenario | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """q_d (N, 4) and tau_a,d = J (J^T J)^-1 [M Xddot_d + C Xdot_d + G](X_d) (N, 4).
 
     The desired limb lengths and driving forces of Figures 13-16 and 23-26, from the
-    true model, along a trajectory (N, 3) that the scenario has already validated.
+    true model, along a trajectory (N, 3) that the scenario has already validated; with
+    ``scenario``, the true machine's: its rotor inertia, friction and payload (§7) too
+    (the prototype's limbs need ~90 N more than the rigid model's while tracking).
     """
+    from pkmctl.sim.plants import RigidPlant, desired_machine_forces
+
     Xd, Xdd, Xddd = (np.ascontiguousarray(a, dtype=float) for a in (Xd, Xdd, Xddd))
     q_des, tau_des = np.empty((Xd.shape[0], 4)), np.empty((Xd.shape[0], 4))
-    _desired_kernel(plant.geometry, plant.theta, Xd, Xdd, Xddd, q_des, tau_des)
+    machine = None
+    if scenario is not None:
+        ctx = PartContext(plant=plant, model=plant, gains=None, period=0.0, flc=None,
+                          scenario=scenario)  # fmt: skip
+        machine = RigidPlant.from_context(ctx)
+    if machine is not None and machine.machine > 0.0:
+        desired_machine_forces(machine, Xd, Xdd, Xddd, q_des, tau_des)
+    else:  # the rigid model: the arithmetic of the paper's runs, bit for bit
+        _desired_kernel(plant.geometry, plant.theta, Xd, Xdd, Xddd, q_des, tau_des)
     return q_des, tau_des
 
 
@@ -234,7 +248,7 @@ def _desired(scenario: Scenario, plant: Mechanism, periods: np.ndarray, forces: 
     if outside:
         raise ScenarioError(outside)
     if forces:
-        q_des, tau_des = desired_forces(plant, Xdes, Xddes, Xdddes)
+        q_des, tau_des = desired_forces(plant, Xdes, Xddes, Xdddes, scenario)
     else:
         q_des, tau_des = desired_limb_lengths(plant, Xdes), None
     reference = np.ascontiguousarray(np.hstack([Xdes, Xddes, Xdddes]))
