@@ -155,6 +155,12 @@ def test_a_step_that_does_not_compile_names_the_part():
     with pytest.raises(PartError, match=r"the parts controller 'x-bad' do not compile: ") as info:
         pkmctl.simulate("paper", controller="x-bad", duration=0.001)
     assert "\n" not in str(info.value)
+    # the cause and where, not "No implementation of function controller_step found"
+    line = getattr(bad, "py_func", bad).__code__.co_firstlineno + 1
+    assert str(info.value).endswith(
+        "Unknown attribute 'no_such_field' of type Bad(float64 x 1) "
+        f"(test_parts.py, line {line}: F[0] = p.no_such_field)"
+    ), str(info.value)
 
 
 def test_scenario_names_unknown_parts_in_one_line():

@@ -455,15 +455,43 @@ def _describe(parts: dict[str, Part]) -> str:
 
 
 def _reason(exc: Exception) -> str:
-    """The first informative line of a Numba error (its report runs to 50 lines)."""
+    """The cause of a Numba error in one line (its report runs to 50 lines): the innermost
+    error (a part's step is typed inside the loop's call to it, so the outer lines only
+    say that no implementation of ``controller_step`` matched) and where in the part's
+    own file, e.g. "Unknown attribute 'kq' of type Law(...) (law.py, line 15:
+    F[i] = p.kq[i] * (ref[i] - y[i]))"."""
     import re
 
     text = re.sub(r"\x1b\[[0-9;]*m", "", str(exc))
-    for line in text.splitlines():
-        line = line.strip()
-        if line and not line.startswith(("Failed in", "During:", "File", "^")):
-            return line[:200]
-    return type(exc).__name__
+    lines = [line.strip() for line in text.splitlines()]
+    rejected = [i for i, line in enumerate(lines) if line.startswith("Rejected as the impl")]
+    start = rejected[-1] + 1 if rejected else 0
+    skip = ("During:", "File", "^", "raised from", "<source elided>", "Rejected as", ">>>",
+            "There are", "- Of which", "Overload in function", "With argument")  # fmt: skip
+
+    def informative(line: str) -> bool:
+        return bool(line) and not line.startswith(skip) and "nopython mode pipeline" not in line
+
+    at = next((i for i in range(start, len(lines)) if informative(lines[i])), None)
+    cause = "" if at is None else lines[at]
+    if cause.startswith("No implementation of function"):  # say which call: its signature
+        sig = next((x for x in lines[at + 1 : at + 4] if x.startswith(">>>")), "")
+        cause = f"no implementation of {sig[3:].strip()}" if sig else cause
+    if not cause:
+        cause = next((x for x in lines if x and not x.startswith(skip[:3])), "")
+    if "returning of array" in cause:  # Numba's words for an allocation without refcounts
+        cause += " (a step must not allocate: make its arrays in its work)"
+    where = ""
+    for i in range(start, len(lines)):
+        m = re.match(r'File "([^"]+)", line (\d+):', lines[i])
+        if m and "pkmctl" not in m.group(1) and "numba" not in m.group(1):
+            source = next((lines[j - 1] for j in range(i + 1, min(i + 12, len(lines)))
+                           if lines[j].startswith("^")), "")  # fmt: skip
+            where = f" ({Path(m.group(1)).name}, line {m.group(2)}" + (
+                f": {source})" if source else ")"
+            )
+            break
+    return ((cause or type(exc).__name__)[:240] + where)[:400]
 
 
 def _key(parts: dict[str, Part]) -> tuple[tuple, list[str]]:
