@@ -1,6 +1,7 @@
 """The loop of parts: users' own parts (docs/parts.md, run as written), registration errors,
 final states, and the baselines PD and CTC against the model's own terms."""
 
+import inspect
 import re
 import sys
 from pathlib import Path
@@ -156,7 +157,8 @@ def test_a_step_that_does_not_compile_names_the_part():
         pkmctl.simulate("paper", controller="x-bad", duration=0.001)
     assert "\n" not in str(info.value)
     # the cause and where, not "No implementation of function controller_step found"
-    line = getattr(bad, "py_func", bad).__code__.co_firstlineno + 1
+    source, first = inspect.getsourcelines(getattr(bad, "py_func", bad))
+    line = first + next(i for i, text in enumerate(source) if "= p.no_such_field" in text)
     assert str(info.value).endswith(
         "Unknown attribute 'no_such_field' of type Bad(float64 x 1) "
         f"(test_parts.py, line {line}: F[0] = p.no_such_field)"
