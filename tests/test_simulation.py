@@ -1,6 +1,7 @@
 """The closed loop: determinism, convergence in the sub-step, physics of the logged run, errors."""
 
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -118,6 +119,58 @@ def test_save_and_load_round_trip(paper, tmp_path, fmt):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([f"afsmc.{fmt}", "afsmc.json"])
     with pytest.raises(ValueError, match="fmt = 'xlsx'"):
         save_result(r, tmp_path, fmt="xlsx")
+
+
+def _strict_json(path):
+    """The file parsed as standard JSON: NaN and Infinity are not numbers there."""
+    import json
+
+    def refuse(name):
+        raise ValueError(f"{path.name}: {name} is not JSON")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+def test_the_json_is_standard_and_round_trips_what_null_stands_for(paper, tmp_path):
+    """An unbounded actuator's force limit was written as Infinity, a limb speed not
+    measured as NaN: JavaScript's JSON.parse refuses both, jq changes them."""
+    r = pkmctl.simulate(paper, controller="pd", duration=0.01)
+    assert r.loop_metrics.force_limit == np.inf
+    _, json_path = save_result(r, tmp_path)
+    meta = _strict_json(json_path)
+    assert meta["loop_metrics"]["force_limit"] is None
+    back = load_result(json_path)
+    assert back.loop_metrics.force_limit == np.inf and back.loop_metrics.speed_limit == np.inf
+    np.testing.assert_array_equal(back.loop_metrics.peak_limb_speed, r.loop_metrics.peak_limb_speed)
+
+
+def test_a_run_logging_one_row_keeps_its_metrics(paper, tmp_path):
+    r = pkmctl.simulate(paper.replace(**{"logging.every": 10_000}), "pd", duration=0.5)
+    assert r.t.size == 1
+    meta = _strict_json(save_result(r, tmp_path)[1])
+    assert meta["metrics"]["rmse"] == pytest.approx(r.rmse(), rel=0, abs=0)
+
+
+def test_a_result_reads_back_after_its_fis_moved_or_changed(tmp_path):
+    """The JSON carries the .fis text: the result of a run with a scenario's own .fis
+    reads back with the system it ran, wherever the file went."""
+    from pkmctl.fuzzy.fis import read_fis
+
+    fis = tmp_path / "my.fis"
+    paper_fis = Path(pkmctl.__file__).parent / "fuzzy" / "data" / "paper_flc.fis"
+    fis.write_text(paper_fis.read_text())
+    sc = pkmctl.Scenario.builtin("paper").replace(**{"fuzzy.fis": str(fis)})
+    r = pkmctl.simulate(sc, "fsmc", duration=0.01)
+    out = tmp_path / "out"
+    _, json_path = save_result(r, out)
+    original = fis.read_text()
+    fis.write_text(original.replace("Range=[-1 1]", "Range=[-2 2]", 1))  # changed ...
+    changed = load_result(json_path)
+    fis.unlink()  # ... and gone
+    gone = load_result(json_path)
+    for back in (changed, gone):
+        assert read_fis(back.scenario.fuzzy.fis) == read_fis(paper_fis)
+        np.testing.assert_array_equal(back.X, r.X)
 
 
 def test_unknown_controller(paper):

@@ -9,6 +9,12 @@ table's file name). ``load_result`` reads them back into a :class:`~pkmctl.Resul
 for bit; a decimated run's metrics (``logging.every`` > 1) come back from the
 accumulators, not from the rows it logged.
 
+The JSON is standard JSON (any parser reads it): a number that is not finite is written
+as ``null`` (an unbounded actuator's ``force_limit``, a limb speed not measured), and read
+back as what it stood for. A scenario whose fuzzy term is a ``.fis`` file carries the
+file's text (``fis_text``): the result reads back after the file moved or changed, with
+the system the run used.
+
 Parquet is the default: a 10 s run at 20 kHz has 200,000 rows and up to 83 columns,
 which takes ~8 s to print as CSV with round-trip precision and ~0.2 s as Parquet
 (any dataframe library or DuckDB reads it; columns are stored byte-stream-split and
@@ -118,13 +124,62 @@ def save_result(
         "samples": int(result.t.size),
         "columns": names,
         "table": table_path.name,
-        "metrics": metrics.summary(result) if result.t.size > 1 else None,
+        # one logged row still has the loop's metrics over every period
+        "metrics": metrics.summary(result)
+        if result.t.size > 1 or result.loop_metrics is not None
+        else None,
         "loop_metrics": None if result.loop_metrics is None else result.loop_metrics.to_dict(),
         "scenario_toml": result.scenario.to_toml(),
     }
+    fis = result.scenario.fuzzy.fis
+    if fis is not None:
+        try:
+            meta["fis_text"] = Path(fis).read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError):
+            pass  # gone since the run: the result names it, as before
     with atomic_write(json_path) as fh:
-        json.dump(meta, fh, indent=2)
+        json.dump(_finite(meta), fh, indent=2, allow_nan=False)
     return table_path, json_path
+
+
+def _finite(value):
+    """``value`` with every float that is not finite replaced by None (standard JSON)."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def _scenario(meta: dict) -> Scenario:
+    """The run's scenario; its ``.fis`` from the copy the JSON carries when the file is
+    gone or has changed since (kept in pkmctl's cache folder, named by its content)."""
+    text = meta["scenario_toml"]
+    fis_text = meta.get("fis_text")
+    if fis_text is not None:
+        import hashlib
+        import tomllib
+
+        from pkmctl._jit import cache_root
+
+        data = tomllib.loads(text)
+        path = Path(data["fuzzy"]["fis"])
+        try:
+            same = path.read_text(encoding="utf-8") == fis_text
+        except (OSError, UnicodeDecodeError):
+            same = False
+        if not same:
+            digest = hashlib.sha256(fis_text.encode()).hexdigest()[:16]
+            copy = cache_root() / "fis" / f"{digest}-{path.name}"
+            if not copy.exists():
+                copy.parent.mkdir(parents=True, exist_ok=True)
+                with atomic_write(copy) as fh:
+                    fh.write(fis_text)
+            data["fuzzy"]["fis"] = str(copy)
+            return Scenario.from_dict(data)
+    return Scenario.from_toml(text)
 
 
 def load_result(json_path: Path) -> Result:
@@ -155,7 +210,7 @@ def load_result(json_path: Path) -> Result:
     lm = meta.get("loop_metrics")
     return Result(
         loop_metrics=None if lm is None else metrics.LoopMetrics.from_dict(lm),
-        scenario=Scenario.from_toml(meta["scenario_toml"]),
+        scenario=_scenario(meta),
         controller=meta["controller"],
         theta_hat=theta,
         success=meta["success"],

@@ -20,6 +20,7 @@ decimated log any other ``t_from`` raises ``ValueError``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -129,6 +130,9 @@ class LoopMetrics:
         arrays = ("sum_error", "sum_squared_error", "max_abs_error", "chattering_sum",
                   "peak_force", "peak_limb_speed")  # fmt: skip
         kw = {k: (np.array(v, dtype=float) if k in arrays else v) for k, v in d.items()}
+        for k in ("force_limit", "speed_limit"):  # null in the JSON: no limit
+            if kw.get(k) is None:
+                kw[k] = math.inf
         kw["windows"], kw["starts"] = tuple(kw["windows"]), tuple(kw["starts"])
         return cls(**kw)
 
