@@ -163,3 +163,72 @@ def test_scenario_help_describes_every_built_in():
 
     described = scenario.__doc__.split("Built-in scenarios:", 1)[1]
     assert all(f"**{name}**" in described for name in BUILTINS), described
+
+
+_PLUGIN = """
+from typing import NamedTuple
+
+import numpy as np
+
+import pkmctl
+
+
+class HalfPD(NamedTuple):
+    kp: np.ndarray
+    kd: np.ndarray
+
+    @classmethod
+    def from_context(cls, ctx):
+        return cls(0.5 * ctx.gains.pd_kp, ctx.gains.pd_kd)
+
+
+@pkmctl.register_controller("plugin-half-pd", params=HalfPD)
+def half_pd(p, state, work, y, ref, F):
+    for i in range(3):
+        F[i] = p.kp[i] * (ref[i] - y[i]) + p.kd[i] * (ref[3 + i] - y[3 + i])
+"""
+
+
+def _names_in_worker() -> list[str]:
+    from pkmctl.parts import names
+
+    return list(names("controller"))
+
+
+def test_plugin_registers_a_users_part_for_the_command_and_its_workers(tmp_path, monkeypatch):
+    """`pkmctl --plugin FILE.py` imports the user's file first: its controller runs from the
+    command line (it could not: parts.md's "import the module first" had no CLI form),
+    and the worker processes pkmctl starts import it too."""
+    (tmp_path / "half_pd.py").write_text(_PLUGIN)
+    done = subprocess.run(
+        [sys.executable, "-m", "pkmctl", "--plugin", str(tmp_path / "half_pd.py"), "simulate",
+         "paper", "--controller", "plugin-half-pd", "--duration", "0.01", "--out",
+         str(tmp_path / "out")],
+        capture_output=True, text=True, timeout=600, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    back = load_result(tmp_path / "out" / "plugin-half-pd.json")
+    assert back.controller == "plugin-half-pd" and back.t.size == 200
+    # a worker of this machine imports what PKMCTL_PLUGINS lists
+    from pkmctl.plugins import ENV
+    from pkmctl.sim.workers import spawn_pool
+
+    monkeypatch.setenv(ENV, str(tmp_path / "half_pd.py"))
+    with spawn_pool(1) as pool:
+        assert "plugin-half-pd" in pool.submit(_names_in_worker).result(timeout=300)
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (None, "--plugin {path}: no such file"),
+        ("raise RuntimeError('boom')", "--plugin {path}: RuntimeError: boom"),
+    ],
+)
+def test_a_plugin_that_fails_is_one_line(tmp_path, content, message):
+    path = tmp_path / "bad_plugin.py"
+    if content is not None:
+        path.write_text(content)
+    res = runner.invoke(app, ["--plugin", str(path), "simulate", "paper"])
+    assert res.exit_code == 2, res.output
+    assert res.output.strip() == "error: " + message.format(path=path)

@@ -218,8 +218,23 @@ def _main(
     debug: Annotated[
         bool, typer.Option("--debug", help="Show the traceback of an error (before COMMAND).")
     ] = False,
+    plugin: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--plugin",
+            help="A Python file or module that registers your own parts (docs/parts.md), "
+            "imported first; repeat for several (before COMMAND).",
+        ),
+    ] = None,
 ) -> None:
     ctx.obj = {"debug": debug}
+    if plugin:
+        from pkmctl.plugins import load_plugins
+
+        try:
+            load_plugins(plugin)
+        except Exception as exc:
+            _handle(ctx, exc)
 
 
 def _load_scenario(spec: str, changes: dict | None = None):
@@ -437,6 +452,7 @@ def simulate(
     if controller not in _part_names("controller"):
         _fail(
             f"--controller = {controller!r}: must be one of {', '.join(_part_names('controller'))}"
+            " (your own: pkmctl --plugin FILE.py simulate ...)"
         )
     try:
         out = check_output_folder(out, what="--out")

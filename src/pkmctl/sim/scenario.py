@@ -336,7 +336,10 @@ def _check_kind(kind: str, name: str) -> str:
 
     known = names(kind)
     if name not in known:
-        raise ValueError(f"{name!r}: unknown {kind} (registered: {', '.join(known)})")
+        raise ValueError(
+            f"{name!r}: unknown {kind} (registered: {', '.join(known)}; a part of your own "
+            "is registered by importing its module: pkmctl --plugin FILE.py COMMAND)"
+        )
     return name
 
 

@@ -61,6 +61,16 @@ def spawn_pool(workers: int) -> ProcessPoolExecutor:
     return ProcessPoolExecutor(
         workers,
         mp_context=multiprocessing.get_context("spawn"),
-        initializer=die_with_parent,
+        initializer=_start,
         initargs=(os.getpid(),),
     )
+
+
+def _start(parent: int) -> None:
+    """A worker's start: it dies with ``parent``, and imports the user's plugins
+    (``pkmctl --plugin``), whose parts its runs may use."""
+    die_with_parent(parent)
+    if os.environ.get("PKMCTL_PLUGINS"):
+        from pkmctl.plugins import load_from_env
+
+        load_from_env()

@@ -1,0 +1,85 @@
+"""Users' own parts for the command line: ``pkmctl --plugin my_law.py simulate ...``.
+
+A plugin is a Python file or an importable module that registers parts when it is
+imported (``@pkmctl.register_controller(...)``, docs/parts.md). :func:`load_plugins`
+imports each one and records them in the environment (``PKMCTL_PLUGINS``), so that the
+worker processes pkmctl starts on this machine (a local campaign's) import them too
+(:func:`load_from_env`, their initializer). A Dask cluster's workers do not see this
+machine's environment: install the module there (e.g. as a package they import).
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import os
+import sys
+from pathlib import Path
+
+from pkmctl.errors import PkmctlError
+
+__all__ = ["ENV", "PluginError", "load_from_env", "load_plugins"]
+
+#: The environment variable that lists the plugins (``os.pathsep``-separated).
+ENV = "PKMCTL_PLUGINS"
+
+
+class PluginError(PkmctlError, ValueError):
+    """A plugin that cannot be found or imported (one line: which, and why)."""
+
+
+def _import(spec: str) -> str:
+    """Import one plugin; returns how it is recorded (a file's absolute path, or the
+    module name)."""
+    path = Path(spec).expanduser()
+    if spec.endswith(".py") or path.is_file():
+        if not path.is_file():
+            raise PluginError(f"--plugin {spec}: no such file")
+        path = path.resolve()
+        name = path.stem
+        if not name.isidentifier():
+            raise PluginError(f"--plugin {spec}: {name!r} is not a Python module name")
+        module = sys.modules.get(name)
+        if module is not None and Path(getattr(module, "__file__", "") or "").resolve() == path:
+            return str(path)  # imported already (by this process, or an earlier plugin)
+        if module is not None:
+            raise PluginError(
+                f"--plugin {spec}: a module named {name!r} is imported already "
+                f"({getattr(module, '__file__', None) or 'built in'}); rename the file"
+            )
+        # its folder on the path, as for a script: `from helper import x` beside it works
+        folder = str(path.parent)
+        if folder not in sys.path:
+            sys.path.insert(0, folder)
+        loader = importlib.util.spec_from_file_location(name, path)
+        if loader is None or loader.loader is None:
+            raise PluginError(f"--plugin {spec}: cannot be imported as Python")
+        module = importlib.util.module_from_spec(loader)
+        sys.modules[name] = module
+        try:
+            loader.loader.exec_module(module)
+        except Exception as exc:
+            del sys.modules[name]
+            raise PluginError(f"--plugin {spec}: {type(exc).__name__}: {exc}") from exc
+        return str(path)
+    try:
+        importlib.import_module(spec)
+    except Exception as exc:
+        raise PluginError(f"--plugin {spec}: {type(exc).__name__}: {exc}") from exc
+    return spec
+
+
+def load_plugins(specs: list[str]) -> list[str]:
+    """Import each plugin (a ``.py`` file or a module name) and add it to ``PKMCTL_PLUGINS``
+    for the worker processes started later; returns the recorded names."""
+    done = [_import(s) for s in specs]
+    known = [p for p in os.environ.get(ENV, "").split(os.pathsep) if p]
+    os.environ[ENV] = os.pathsep.join(dict.fromkeys(known + done))
+    return done
+
+
+def load_from_env() -> None:
+    """Import the plugins ``PKMCTL_PLUGINS`` lists (in a worker process)."""
+    for spec in os.environ.get(ENV, "").split(os.pathsep):
+        if spec:
+            _import(spec)
