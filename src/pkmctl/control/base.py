@@ -17,6 +17,7 @@ Contract of a :class:`Controller` (like SciPy's ``OdeSolver``):
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -122,10 +123,13 @@ class Controller:
         period: float,
         flc: MamdaniSystem | FuzzySystem | None = None,
         name: str | None = None,
+        scenario=None,
     ) -> None:
         if not isinstance(model, Mechanism):
             raise TypeError("model: expected a pkmctl.Mechanism (the controller's own model)")
-        if not (isinstance(period, int | float) and 0 < period < math.inf):
+        if isinstance(period, bool) or not isinstance(period, numbers.Real):
+            raise ValueError(f"period = {period!r}: must be a number > 0 (s)")
+        if not 0 < float(period) < math.inf:
             raise ValueError(f"period = {period!r}: must be > 0 (s)")
         self.name = name or type(self).name
         self.part = get_part("controller", self.name)
@@ -134,12 +138,39 @@ class Controller:
         self.period = float(period)
         # the fuzzy term's system (two inputs, one output), as the loop compiles it
         self.flc = FLC() if flc is None else term_system(flc)
-        ctx = PartContext(model, model, self.gains, self.period, self.flc)
+        # with a scenario, what the loop gives: its [controller_model] terms (rotor
+        # inertia, friction) reach the controller's feed-forward
+        plant = model if scenario is None else scenario.plant()
+        ctx = PartContext(plant, model, self.gains, self.period, self.flc, scenario)
         self.params, self._initial, self._work = self.part.make(ctx)
         self._state = self._initial.copy()
         self._steps = 0
         self._new_buffers()
         self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False)
+
+    @classmethod
+    def from_scenario(cls, scenario, name: str = "afsmc") -> Controller:
+        """Controller ``name`` exactly as a simulation of ``scenario`` builds it: the
+        controllers' model (``[controller_model]``, with its rotor inertia and friction
+        feed-forward), gains, control period and fuzzy system. For a hardware loop on
+        the machine the scenario describes (e.g. ``prototype-tuned``), where
+        ``make_controller(name, scenario.controller_mechanism(), ...)`` would leave out
+        the feed-forward."""
+        from pkmctl.sim.scenario import Scenario
+
+        if isinstance(scenario, str):
+            scenario = Scenario.builtin(scenario)
+        if not isinstance(scenario, Scenario):
+            raise TypeError(
+                f"scenario: expected a pkmctl.Scenario or a built-in name, got {scenario!r}"
+            )
+        if not isinstance(name, str) or name not in names("controller"):
+            raise ValueError(f"controller = {name!r}: must be one of {names('controller')}")
+        key = name.lower() if name.lower() in CONTROLLERS else name
+        kind = CONTROLLERS.get(key, Controller) if cls is Controller else cls
+        return kind(scenario.controller_mechanism(), scenario.controller_gains(),
+                    period=scenario.timing.control_period, flc=scenario.fuzzy_system(),
+                    name=key, scenario=scenario)  # fmt: skip
 
     def _new_buffers(self) -> None:
         # One buffer [y | ref], so a message can name the first non-finite input.
@@ -159,7 +190,8 @@ class Controller:
     @property
     def state(self) -> ControllerState:
         st = self._state
-        sliding = st.shape[0] >= SLIDING_STATE and self.name in ("smc", "fsmc", "afsmc")
+        sliding = st.shape[0] >= SLIDING_STATE and self.name in ("smc", "fsmc", "afsmc",
+                                                                  "afsmc-ext")  # fmt: skip
         return ControllerState(
             s_prev=st[:3].copy() if sliding else None,
             sdot=st[3:6].copy() if sliding else None,
