@@ -157,7 +157,12 @@ def test_mujoco_model_command_writes_a_loadable_model(tmp_path):
         (["--out", str(out / "x.xml")], "pkm.xml': exists and is not a folder"),  # out: a file
         (["--out", str(out), "--friction-coulomb", "30"], "--friction-coulomb = 30.0: MuJoCo"),
         (["--out", str(out), "--rotor-inertia", "-1"], "--rotor-inertia = -1.0: must be"),
-        (["--out", str(out), "--screw-lead", "inf"], "--screw-lead = inf: must be finite"),
+        (["--out", str(out), "--screw-lead", "inf"], "--screw-lead = inf: must be a finite"),
+        # the scenario's ranges, not only build_mjcf's signs (it wrote armature = 3.9e28)
+        (
+            ["--out", str(out), "--rotor-inertia", "1e9"],
+            "--rotor-inertia = 1000000000.0: must be a finite number in [0, 1] (kg m^2)",
+        ),  # fmt: skip
         (
             ["--out", str(out), "--scenario", "prototype"],  # the scenario's 30 N
             "plant.friction_coulomb = 30.0: MuJoCo's dry friction (frictionloss)",

@@ -607,10 +607,15 @@ def mujoco_model(
     }  # fmt: skip
     try:
         out = check_output_file(out, what="--out")
-        sc = _load_scenario(scenario)
-        text = build_mjcf(sc.plant(), **{**scenario_options(sc), **given})
+        # the options as scenario fields, so the scenario's ranges check them too
+        sc = _load_scenario(scenario, {f"plant.{k}": v for k, v in given.items()})
+        text = build_mjcf(sc.plant(), **scenario_options(sc))
     except (PkmctlError, ValueError) as exc:
-        msg = scenario_error(str(exc), {k: "--" + k.replace("_", "-") for k in given})
+        flags = {k: "--" + k.replace("_", "-") for k in given}
+        msg = scenario_error(str(exc), flags)
+        for k, flag in flags.items():
+            if msg.startswith(f"plant.{k} = "):
+                msg = flag + msg[len(f"plant.{k}") :]
         if msg.startswith("plant.friction_coulomb"):
             msg += " (--friction-coulomb 0 writes the model without it)"
         _fail(msg)
