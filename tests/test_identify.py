@@ -3,6 +3,7 @@ estimate on noise-free and noisy data, honest intervals, bad logs, the two comma
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -14,7 +15,7 @@ import pytest
 import pkmctl
 from pkmctl.ident.base import base_parameters, random_states
 from pkmctl.ident.excite import MAX_ANGLE, Z_RANGE, _machine, design_excitation
-from pkmctl.ident.identify import IdentificationError, Log, identify, predict
+from pkmctl.ident.identify import IdentificationError, Log, identify, predict, read_log
 from pkmctl.ident.synthetic import limb_accelerations, synthetic_log
 
 FULL = os.environ.get("PKMCTL_FULL") == "1"
@@ -225,7 +226,11 @@ def _set(a, idx, v):
         ({"t": lambda t: _set(t, 500, t[499])}, "time is not increasing at data row 501"),
         ({"t": lambda t: np.concatenate([t[:300], t[300:] + 0.05])}, "uneven sampling at t"),
         ({"t": lambda t: t[:15], "q": lambda q: q[:15], "tau": lambda x: x[:15]}, "too few"),
-        ({"q": lambda q: -q}, "limb lengths q must be > 0"),
+        (
+            {"q": lambda q: _set(q, (50, 1), -0.1)},
+            r"column q2 at data row 51 \(t = 0.05 s\) is -0.1: limb lengths must be > 0 m",
+        ),
+        ({"tau": lambda x: 0.0 * x}, "tau1..tau4 are all zero: the forces carry no information"),
         ({"q": lambda q: q * 3.0}, "forward kinematics failed"),
     ],
 )
@@ -250,6 +255,120 @@ def test_short_and_unexciting_logs_are_refused(exciting, proto):
         identify(synthetic_log(still, duration=10.0), still)
 
 
+def test_lengths_that_fit_no_pose_of_the_geometry_are_refused(exciting):
+    """Forward kinematics is least squares: swapped q columns or another machine's lengths
+    still give poses, with residuals far above what quantisation and noise leave (3e-8 m,
+    2.4 x the noise's std). Refused, naming the row, the residual and the scenario; the
+    validation log too. Genuine noisy encoder logs pass."""
+    from pkmctl.ident.identify import MAX_FK_RESIDUAL
+
+    _, sc = exciting
+    swapped = _with(_clean(sc), q=lambda q: q[:, [1, 0, 2, 3]])
+    with pytest.raises(IdentificationError, match="do not fit the geometry of scenario") as info:
+        identify(swapped, sc)
+    msg = str(info.value)
+    assert "residual 0." in msg and "at data row" in msg and "\n" not in msg
+    other = sc.replace(**{"mechanism.r_b": sc.mechanism.r_b + 0.01})  # another machine
+    with pytest.raises(IdentificationError, match="do not fit the geometry"):
+        identify(_clean(other), sc)
+    for noise in (1e-6, 5e-6):  # genuine: quantised and noisy (worst 2.4 x noise)
+        noisy = synthetic_log(sc, duration=10.0, quantise=True, q_noise=noise, seed=4)
+        idn = identify(noisy, sc, physical=False)
+        assert 2.0 * noise < idn.observation.fk_residual < MAX_FK_RESIDUAL
+    with pytest.raises(IdentificationError, match="^--validate 'bad.csv': the lengths do not"):
+        predict(idn, Log(swapped.t, swapped.q, swapped.tau, "bad.csv", what="--validate"), sc)
+
+
+def test_sample_rate_cutoff_and_length_are_checked_first(exciting):
+    _, sc = exciting
+    log = _clean(sc)
+    with pytest.raises(IdentificationError, match=r"cutoff = 150 Hz, which must be in \(0, 20\]"):
+        identify(log, sc, cutoff=150.0)
+    slow = synthetic_log(sc, rate=200.0, duration=10.0)  # pose filter at 20 Hz: biased
+    with pytest.raises(IdentificationError, match="sampled at 200 Hz, too slowly") as info:
+        identify(slow, sc)
+    assert "sampled at >= 500 Hz" in str(info.value)
+    # a tiny cutoff is a huge FIR: the log's length is checked before it is built
+    with pytest.raises(IdentificationError, match="too short for cutoff = 0.001 Hz"):
+        identify(log, sc, cutoff=1e-3)
+    with pytest.raises(IdentificationError, match="too short for cutoff = 10 Hz: it needs >= 6"):
+        identify(synthetic_log(sc, duration=5.0), sc)
+    # a median interval a hair over 1 ms is 1 kHz: decimation by 40 at 10 Hz, not 39
+    late = _with(log, t=lambda t: t * (1 + 1e-7))
+    obs = identify(late, sc, physical=False).observation
+    assert obs.sample_rate == 1000.0 and obs.decimation == 40
+
+
+def test_force_lead_auto_finds_several_samples_and_refuses_the_edge(exciting):
+    _, sc = exciting
+    log = _clean(sc)
+    late = _with(log, tau=lambda x: np.vstack([np.repeat(x[:1], 5, 0), x[:-5]]))  # 5 ms late
+    idn = identify(late, sc, force_lead=None, physical=False)
+    assert abs(idn.observation.force_lead + 0.005) < 5e-5, idn.observation.force_lead
+    later = _with(log, tau=lambda x: np.vstack([np.repeat(x[:1], 15, 0), x[:-15]]))
+    with pytest.raises(IdentificationError, match="at the edge of the searched"):
+        identify(later, sc, force_lead=None, physical=False)
+
+
+def test_notes_name_base_parameters_in_full_and_bounds_only_where_active(exciting):
+    """Coulomb friction of -30 N (the log's forces minus twice the true 30 N): the bound
+    F_c >= 0 is active, and the note says so for those parameters and no others."""
+    _, sc = exciting
+    log = _clean(sc)
+    X, Xd, _ = sc.trajectory.build().evaluate(log.t)
+    qd = np.einsum("nij,nj->ni", sc.plant().jacobian(X), Xd)
+    vs = sc.plant_spec.friction_velocity
+    bad = _with(log, tau=lambda x: x - 60.0 * np.tanh(qd / vs))
+    idn = identify(bad, sc)
+    assert len(idn.notes) == 1 and "Fc1 = 0" in idn.active_bounds
+    note = idn.notes[0]
+    k = idn.base.names.index("Fc1")
+    assert f"#{k + 1} Fc1 (at a bound: Fc1 = 0)" in note
+    assert "a bound is active there" not in note
+    for part in note.split("; #")[1:]:  # each parameter's claim is its own
+        if "(at a bound:" in part:
+            j = int(part.split(" ")[0]) - 1
+            held = part.split("(at a bound: ")[1].split(")")[0].split(", ")
+            assert set(held) <= set(idn.active_bounds), (idn.base.expressions[j], held)
+
+
+def test_csv_quirks_are_read_or_refused_in_one_printable_line(tmp_path, exciting):
+    _, sc = exciting
+    log = synthetic_log(sc, duration=0.05)
+    rows = np.column_stack([log.t, log.q, log.tau])
+    body = "\n".join(",".join(repr(float(v)) for v in r) for r in rows) + "\n"
+    header = "t,q1,q2,q3,q4,tau1,tau2,tau3,tau4"
+    # duplicated columns that are not needed are ignored
+    extra = "\n".join(line + ",a,b,," for line in body.splitlines()) + "\n"
+    (tmp_path / "extra.csv").write_text(header + ",note,note,,\n" + extra)
+    np.testing.assert_array_equal(read_log(tmp_path / "extra.csv").q, log.q)
+    cases = {
+        "dup.csv": (header.replace("tau4", "tau1") + "\n" + body,
+                    "column tau1 occurs 2 times (columns 6, 9)"),
+        "nohdr.csv": (body, "the header is missing (the first line is numbers"),
+        "semi.csv": (header.replace(",", ";") + "\n" + body.replace(",", ";"),
+                     "the header read: 't;q1;q2;q3;q4;tau1;tau2;tau3;tau4', 1 column(s)"),
+    }  # fmt: skip
+    for name, (text, words) in cases.items():
+        (tmp_path / name).write_text(text)
+        with pytest.raises(IdentificationError) as info:
+            read_log(tmp_path / name)
+        assert words in str(info.value), str(info.value)
+    (tmp_path / "bin.csv").write_bytes(
+        b"\x7fELF\x02\x01,\x00\x03\n\x00\x1b[2J,\x05,\x06,\x07\n" * 3
+    )
+    with pytest.raises(IdentificationError, match="not a readable") as info:
+        read_log(tmp_path / "bin.csv")
+    assert str(info.value).isprintable(), repr(str(info.value))
+    with pytest.raises(IdentificationError, match="is a folder, not a file"):
+        read_log(tmp_path)
+
+
+def test_excitation_refuses_an_initial_pose_outside_its_limits(proto):
+    with pytest.raises(ValueError, match=r"initial.X = \[0.6, 0.0, 0.0\].*z >= 0.62 m"):
+        design_excitation(proto.replace(**{"initial.X": [0.6, 0.0, 0.0]}))
+
+
 # ------------------------------------------------------------------ the commands
 def _run(*args, cwd):
     return subprocess.run(
@@ -264,9 +383,12 @@ def _write_csv(path, log: Log):
 
 
 def test_excite_and_identify_commands(tmp_path, exciting, proto):
-    r = _run("excite", "--out", "ex.toml", "--harmonics", "4", cwd=tmp_path)
+    r = _run("excite", "--out", "ex.toml", "--harmonics", "4", "--periods", "1", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert "cond(W_b)" in r.stdout and "eq. 54" in r.stdout
+    assert "1080 (50 % of 2160)" in r.stdout  # the design's limit, and the drive's rating
+    assert "too short for pkmctl identify" in r.stderr and "--periods >= 2" in r.stderr
+    assert "Warning" not in r.stderr, r.stderr
     sc = pkmctl.Scenario.from_toml(tmp_path / "ex.toml")
     assert sc.trajectory.kind == "fourier" and len(sc.trajectory.a[0]) == 4
     _, exc_sc = exciting
@@ -285,6 +407,38 @@ def test_excite_and_identify_commands(tmp_path, exciting, proto):
     pkmctl.Scenario.builtin("prototype").replace(controller_model=block)  # ready to use
 
 
+def test_identify_output_is_one_runs_and_names_its_log_and_machine(tmp_path, exciting, proto):
+    """A second run into the same folder, without --validate and --no-physical, leaves no
+    controller_model.toml or validation.png of the first; other files stay. The files
+    name the log and the scenario assumed (and where it came from)."""
+    _, exc_sc = exciting
+    _write_csv(tmp_path / "run.csv", synthetic_log(exc_sc, tau_noise=1.0, quantise=True))
+    _write_csv(tmp_path / "val.csv", synthetic_log(proto, duration=6.0, tau_noise=1.0))
+    out = tmp_path / "id"
+    r = _run("identify", "run.csv", "--out", "id", "--validate", "val.csv", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert (
+        "# The identified model (pkmctl identify) from run.csv"
+        in (out / "controller_model.toml").read_text()
+    )
+    (out / "mine.txt").write_text("a user's file")
+    r = _run("identify", "run.csv", "--out", "id", "--no-physical", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert {p.name for p in out.iterdir()} == {
+        "report.md", "estimate.json", "fit.png", "residuals.png", "parameters.png", "mine.txt"
+    }  # fmt: skip
+    assert "removed controller_model.toml, validation.png" in " ".join(r.stdout.split())
+    assert " used; " in r.stderr  # the summary's separators
+    default = "scenario 'prototype' (the default: no --scenario and no pkmctl .json"
+    report = " ".join((out / "report.md").read_text().split())
+    assert "`run.csv`" in report and default in report
+    assert "Butterworth low-pass, order 4, at 100 Hz" in report
+    assert "FIR low-pass (Hamming window, 401 taps) at 10 Hz" in report
+    est = json.loads((out / "estimate.json").read_text())
+    assert est["log"] == "run.csv" and est["scenario"].startswith(default)
+    assert est["validation_log"] is None and est["theta_ext_physical"] is None
+
+
 @pytest.mark.parametrize(
     ("args", "words"),
     [
@@ -293,14 +447,27 @@ def test_excite_and_identify_commands(tmp_path, exciting, proto):
         (["identify", "nan.csv"], "column q2 holds 1 non-finite value(s), the first at data row 3"),
         (["identify", "cols.csv", "--force-lead", "x"], "--force-lead = 'x'"),
         (["excite", "--harmonics", "2"], "--harmonics = 2: must be in [3, 20]"),
+        (["excite", "--seed", "-1"], "--seed = -1: must be >= 0"),
+        (["identify", "dup.csv"], "column tau1 occurs 2 times (columns 6, 9)"),
+        (["identify", "nohdr.csv"], "the header is missing"),
+        (["identify", "zero.csv"], "tau1..tau4 are all zero"),
+        (["identify", "ok.csv", "--cutoff", "150"], "--cutoff = 150 Hz, which must be in (0, 20]"),
+        (["identify", "ok.csv", "--validate", "nope.csv"], "--validate 'nope.csv': no such file"),
+        (["identify", "."], "log '.': is a folder, not a file"),
     ],
 )
 def test_command_errors_are_one_line_exit_2(tmp_path, args, words):
     (tmp_path / "cols.csv").write_text("t,q1,q2,q3,q4\n0,1,1,1,1\n")
-    rows = "\n".join(
-        f"{k * 1e-3},0.7,{'nan' if k == 2 else 0.7},0.7,0.7,1,1,1,1" for k in range(30)
-    )
-    (tmp_path / "nan.csv").write_text("t,q1,q2,q3,q4,tau1,tau2,tau3,tau4\n" + rows + "\n")
+    header = "t,q1,q2,q3,q4,tau1,tau2,tau3,tau4\n"
+
+    def rows(q2="0.7", tau="1,1,1,1"):
+        return "\n".join(f"{k * 1e-3},0.7,{q2 if k == 2 else 0.7},0.7,0.7,{tau}" for k in range(30))
+
+    (tmp_path / "nan.csv").write_text(header + rows(q2="nan") + "\n")
+    (tmp_path / "ok.csv").write_text(header + rows() + "\n")
+    (tmp_path / "zero.csv").write_text(header + rows(tau="0,0,0,0") + "\n")
+    (tmp_path / "dup.csv").write_text(header.replace("tau4", "tau1") + rows() + "\n")
+    (tmp_path / "nohdr.csv").write_text(rows() + "\n")
     r = _run(*args, "--out", "o" if args[0] == "identify" else "o.toml", cwd=tmp_path)
     assert r.returncode == 2, r.stderr
     assert words in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr

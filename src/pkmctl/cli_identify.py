@@ -9,6 +9,8 @@
 from __future__ import annotations
 
 import json
+import math
+import warnings
 from pathlib import Path
 from typing import Annotated
 
@@ -19,6 +21,7 @@ from rich.text import Text
 from pkmctl.cli import (
     _SCENARIO_NAMES,
     _Compiles,
+    _debug,
     _fail,
     _handle,
     _interruptible,
@@ -31,7 +34,8 @@ from pkmctl.cli import (
 
 
 def _scenario_for(ctx: typer.Context, spec: str | None, log: Path | None):
-    """The named scenario; else the one beside a pkmctl log (its .json); else prototype."""
+    """The named scenario; else the one beside a pkmctl log (its .json); else prototype;
+    and a label saying which and where it came from (for errors and the report)."""
     if spec is None and log is not None:
         meta = log.with_suffix(".json")
         if meta.is_file():
@@ -39,13 +43,24 @@ def _scenario_for(ctx: typer.Context, spec: str | None, log: Path | None):
 
             try:
                 text = json.loads(meta.read_text(encoding="utf-8"))["scenario_toml"]
-                return Scenario.from_toml(text)
+                sc = Scenario.from_toml(text)
+                return sc, f"scenario {sc.name!r} (from {str(meta)!r}, beside the log)"
             except (OSError, ValueError, KeyError, TypeError):
                 pass  # not pkmctl's metadata: fall back to the default
     try:
-        return _interruptible(lambda: _load_scenario(spec or "prototype"), lambda: "nothing done")
+        sc = _interruptible(lambda: _load_scenario(spec or "prototype"), lambda: "nothing done")
     except Exception as exc:
         _handle(ctx, exc)
+    if spec is None:
+        return sc, (
+            f"scenario {sc.name!r} (the default: no --scenario and no pkmctl .json beside the log)"
+        )
+    return sc, f"scenario {sc.name!r} (--scenario {spec})"
+
+
+def _as_options(message: str) -> str:
+    """The library's keyword ``cutoff`` as the command's option."""
+    return message.replace("cutoff = ", "--cutoff = ").replace("raise the cutoff", "raise --cutoff")
 
 
 @app.command()
@@ -75,12 +90,15 @@ def excite(
         _fail(f"--base-frequency = {base_frequency}: must be in (0, 10] Hz")
     if not 1 <= periods <= 100:
         _fail(f"--periods = {periods}: must be in [1, 100]")
+    if seed < 0:
+        _fail(f"--seed = {seed}: must be >= 0")
     try:
         out = check_output_file(out, what="--out")
     except Exception as exc:
         _handle(ctx, exc)
-    base = _scenario_for(ctx, scenario, None)
-    from pkmctl.ident.excite import design_excitation
+    base, _ = _scenario_for(ctx, scenario, None)
+    from pkmctl.ident.excite import FORCE_MARGIN, SPEED_MARGIN, design_excitation
+    from pkmctl.ident.identify import minimum_duration
 
     compiles = _Compiles()
     try:
@@ -88,16 +106,19 @@ def excite(
             console.status(Text(f"designing an exciting trajectory for {base.name!r}")),
             compiles.listen(),
         ):
-            exc_ = _interruptible(
-                lambda: design_excitation(
-                    base,
-                    harmonics=harmonics,
-                    base_frequency=base_frequency,
-                    periods=periods,
-                    seed=seed,
-                ),
-                lambda: f"nothing written{compiles.kept()}",
-            )
+
+            def work():
+                with warnings.catch_warnings():  # SLSQP's finite differences at a bad start
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    return design_excitation(
+                        base,
+                        harmonics=harmonics,
+                        base_frequency=base_frequency,
+                        periods=periods,
+                        seed=seed,
+                    )
+
+            exc_ = _interruptible(work, lambda: f"nothing written{compiles.kept()}")
             sc = exc_.scenario(base)
     except Exception as exc:
         _handle(ctx, exc)
@@ -113,8 +134,18 @@ def excite(
     t.add_column("limit / eq. 54", justify="right")
     t.add_row("cond(W_b) over the run", f"{exc_.cond:.4g}", f"{exc_.cond_paper:.4g} (eq. 54)")
     t.add_row("base parameters", str(exc_.base.count), "of 48")
-    t.add_row(Text("peak limb force [N]"), f"{exc_.peak_force:.4g}", f"{exc_.force_limit:.4g}")
-    t.add_row(Text("peak limb speed [m/s]"), f"{exc_.peak_speed:.3g}", f"{exc_.speed_limit:.3g}")
+    t.add_row(
+        Text("peak limb force [N]"),
+        f"{exc_.peak_force:.4g}",
+        f"{FORCE_MARGIN * exc_.force_limit:.4g} ({100 * FORCE_MARGIN:g} % of "
+        f"{exc_.force_limit:.4g})",
+    )
+    t.add_row(
+        Text("peak limb speed [m/s]"),
+        f"{exc_.peak_speed:.3g}",
+        f"{SPEED_MARGIN * exc_.speed_limit:.3g} ({100 * SPEED_MARGIN:g} % of "
+        f"{exc_.speed_limit:.3g})",
+    )
     t.add_row("max cond(J)", f"{exc_.max_cond_j:.3g}", "50")
     t.add_row(Text("z range [m]"), f"{exc_.z_range[0]:.3f}-{exc_.z_range[1]:.3f}", "0.62-0.78")
     t.add_row(Text("max |alpha|, |beta| [rad]"), f"{exc_.max_angle:.3f}", "0.5")
@@ -125,6 +156,13 @@ def excite(
             f"pkmctl simulate {out} --controller pd --out DIR, then pkmctl identify DIR/pd.parquet"
         )
     )
+    need = minimum_duration(10.0, exc_.base.count, 1.0 / base.timing.control_period)
+    if exc_.duration < need:
+        _say(
+            f"warning: {exc_.duration:g} s is too short for pkmctl identify at its default "
+            f"--cutoff 10 Hz, which needs >= {need:.3g} s: use --periods "
+            f">= {math.ceil(need * base_frequency - 1e-9)}"
+        )
 
 
 @app.command()
@@ -151,7 +189,10 @@ def identify(
     validate: Annotated[
         Path | None, typer.Option(help="A second log: predict its J^T tau and report the error.")
     ] = None,
-    cutoff: Annotated[float, typer.Option(help="Parallel filter cutoff (Hz).")] = 10.0,
+    cutoff: Annotated[
+        float,
+        typer.Option(help="Parallel filter cutoff (Hz): in (0, fs/50], fs the log's sample rate."),
+    ] = 10.0,
     force_lead: Annotated[
         str,
         typer.Option(
@@ -166,9 +207,11 @@ def identify(
     """Identify the base parameters and the joint friction from a logged run (OLS, WLS,
     jackknife standard deviations), optionally validate on a second log; write a report
     and the estimate as a scenario [controller_model] block."""
+    import numpy as np
+
+    from pkmctl.ident.identify import IdentificationError, check_log_file, predict, read_log
     from pkmctl.ident.identify import identify as run_identify
-    from pkmctl.ident.identify import predict, read_log
-    from pkmctl.ident.report import write_identification
+    from pkmctl.ident.report import remove_stale, write_identification
     from pkmctl.io.atomic import check_output_folder, discard, staged_folder
 
     if force_lead == "auto":
@@ -180,12 +223,17 @@ def identify(
             _fail(f"--force-lead = {force_lead!r}: must be 'auto' or a number of seconds")
         if not abs(lead) < 1.0:
             _fail(f"--force-lead = {force_lead}: must be 'auto' or a time in (-1, 1) s")
-    try:
+    if not (math.isfinite(cutoff) and cutoff > 0):
+        _fail(f"--cutoff = {cutoff:g}: must be > 0 Hz (at most a fiftieth of the sample rate)")
+    try:  # before the long work (the output first, as every command does)
         out = check_output_folder(out, what="--out")
+        check_log_file(log)
+        if validate is not None:
+            check_log_file(validate, what="--validate")
     except Exception as exc:
         _handle(ctx, exc)
     existed = out.is_dir()
-    sc = _scenario_for(ctx, scenario, log)
+    sc, origin = _scenario_for(ctx, scenario, log)
     compiles = _Compiles()
     try:
         with (
@@ -195,28 +243,41 @@ def identify(
         ):
 
             def work():
-                idn = run_identify(read_log(log), sc, cutoff=cutoff, force_lead=lead,
-                                   physical=physical)  # fmt: skip
-                val = None
-                if validate is not None:
-                    val = predict(idn, read_log(validate), sc)
-                    val["source"] = str(validate)
-                return idn, val, write_identification(idn, stage, source=str(log),
-                                                      validation=val)  # fmt: skip
+                # refused logs are refused in one line; no numerical warnings on the way
+                with warnings.catch_warnings(), np.errstate(all="ignore"):
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    idn = run_identify(read_log(log), sc, cutoff=cutoff, force_lead=lead,
+                                       physical=physical, scenario_label=origin)  # fmt: skip
+                    val = None
+                    if validate is not None:
+                        val = predict(idn, read_log(validate, what="--validate"), sc)
+                        val["source"] = str(validate)
+                    return idn, val, write_identification(idn, stage, source=str(log),
+                                                          validation=val)  # fmt: skip
 
             def interrupted() -> str:
                 discard(stage)
                 return _untouched(out, existed) + compiles.kept()
 
             idn, val, paths = _interruptible(work, interrupted)
+    except MemoryError:
+        _fail(
+            f"out of memory identifying from {log} (about 1.2 kB per sample): cut the log, or "
+            f"resample it to a lower rate (>= 50 x --cutoff); {_untouched(out, existed)}"
+        )
     except Exception as exc:
+        if isinstance(exc, IdentificationError) and not _debug(ctx):
+            exc = IdentificationError(_as_options(str(exc)))
         _handle(ctx, exc, suffix="; " + _untouched(out, existed))
+    stale = remove_stale(out, paths)
     obs = idn.observation
     used = obs.t.size
     _say(
-        f"{obs.samples_in} samples, {used} used "
+        f"{obs.samples_in} samples: {used} used; "
         + "; ".join(f"{k} discarded ({why})" for why, k in obs.discarded.items())
     )
+    if lead is None:
+        _say(f"force lead (auto): {1e3 * obs.force_lead:+.4g} ms")
     t = Table(title=f"{idn.base.count} base parameters (cond {idn.cond:.4g}), WLS")
     for c, j in (("#", "right"), ("base parameter", "left"), ("unit", "left"),
                  ("estimate", "right"), ("std %", "right")):  # fmt: skip
@@ -237,4 +298,8 @@ def identify(
     if val is not None:
         msg += f"; validation on {validate}: {100 * val['relative_error']:.3g} %"
     console.print(Text(msg))
-    console.print(Text(f"wrote {out / 'report.md'} and {len(paths) - 1} more files"))
+    console.print(Text(f"machine: {idn.scenario}"))
+    wrote = f"wrote {out / 'report.md'} and {len(paths) - 1} more files"
+    if stale:
+        wrote += f"; removed {', '.join(p.name for p in stale)} of an earlier run"
+    console.print(Text(wrote))

@@ -38,6 +38,16 @@ MAX_ANGLE = 0.5
 MAX_COND_J = 50.0
 #: Fractions of the drives' peak force and maximum limb speed the design may use.
 FORCE_MARGIN, SPEED_MARGIN = 0.5, 0.8
+#: A design whose cond(W_b) exceeds this does not excite every base parameter.
+MAX_COND_DESIGN = 1e8
+_LIMITS = (
+    "|alpha|, |beta| <= 0.5 rad",
+    "z >= 0.62 m",
+    "z <= 0.78 m",
+    "cond(J) <= 50",
+    "limb speeds <= 80 % of the drives'",
+    "limb forces <= 50 % of the drives'",
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -200,6 +210,16 @@ def design_excitation(
             return 20.0
         return math.log10(_cond(base.reduce(W).reshape(-1, base.count)))
 
+    # The trajectory starts and ends at rest at the initial pose: it must meet the limits.
+    at_rest = constraints(np.zeros(3 * (na + nb)))
+    if at_rest.min() < 0:
+        broken = ", ".join(_LIMITS[k] for k in np.flatnonzero(at_rest < 0))
+        raise ValueError(
+            f"initial.X = {[round(float(v), 6) for v in X0]}: the exciting trajectory starts "
+            f"and ends at rest there, but it breaks its limits ({broken}; z in "
+            f"{Z_RANGE[0]}-{Z_RANGE[1]} m): set initial.X inside them"
+        )
+
     def shrink_to_limits(x: np.ndarray) -> tuple[np.ndarray, bool]:
         """x shrunk by 0.2 % steps (X - X(0) is linear in the coefficients; speeds, forces
         and the workspace excursion shrink with it) until every limit holds on the grid
@@ -241,8 +261,14 @@ def design_excitation(
     # times finer meets every limit.
     t_fine = t
     t = np.linspace(0.0, 1.0 / f, 20 * samples + 1)
-    x, _ = shrink_to_limits(best[1])
+    x, ok = shrink_to_limits(best[1])
     t = t_fine
+    if not ok:
+        broken = ", ".join(_LIMITS[k] for k in np.flatnonzero(constraints(x) < 0))
+        raise ValueError(
+            f"scenario {scenario.name!r}: no exciting trajectory meets the limits ({broken}); "
+            "try another --seed or fewer --harmonics"
+        )
     tr = unpack(x)
     duration = periods / f
     # What it reaches, checked on a grid four times finer than the design's.
@@ -255,6 +281,13 @@ def design_excitation(
     cond = float(np.linalg.cond(base.reduce(W).reshape(-1, base.count)))
     Xp, Xdp, Xddp = scenario.builtin("paper").trajectory.build().evaluate(tt)
     cond_paper = observation_condition(scenario, base, Xp, Xdp, Xddp)
+    if not cond <= MAX_COND_DESIGN:
+        raise ValueError(
+            f"scenario {scenario.name!r}: the best trajectory found inside the limits has "
+            f"cond(W_b) = {cond:.3g} (eq. 54: {cond_paper:.3g}), above {MAX_COND_DESIGN:g}: it "
+            "does not excite every base parameter; try another --seed, or move initial.X "
+            "away from the limits"
+        )
     return Excitation(
         trajectory=tr,
         duration=duration,

@@ -3,9 +3,12 @@
 From limb lengths q(t) and limb forces tau(t):
 
 1. pose X by least-squares forward kinematics (Gauss-Newton, warm-started at the
-   previous sample; quantised lengths fit no pose exactly);
+   previous sample; quantised lengths fit no pose exactly, but lengths whose residual
+   exceeds what quantisation and noise explain, :func:`fk_limit`, are refused: another
+   machine's, or columns swapped);
 2. X low-pass filtered (zero-phase Butterworth, order 4, at ``diff_cutoff``, a tenth of
-   the sample rate by default), Xdot and Xddot by sixth-order central differences;
+   the sample rate by default, which must be :data:`MIN_POSE_TO_CUTOFF` times the
+   cutoff), Xdot and Xddot by sixth-order central differences;
 3. the observation J(X)^T tau = W(X, Xdot, Xddot) Theta_ext at every sample (the internal
    forces, in the null space of J^T, carry no information), then y and every column of
    W filtered by the same zero-phase FIR low-pass at ``cutoff`` ("parallel filtering",
@@ -15,7 +18,7 @@ From limb lengths q(t) and limb forces tau(t):
    2.5 * cutoff; reduced to the base parameters (:mod:`pkmctl.ident.base`). Force timing:
    the force acting at t is the logged one at t - ``force_lead`` (0: instantaneous
    readings; a log of commands each held over a control period T needs +T/2; ``None``
-   estimates it by least misfit);
+   estimates it by least misfit over +-:data:`LEAD_SEARCH` samples, refused at the edge);
 4. ordinary least squares, then weighted least squares with each axis weighted by the
    inverse of its OLS residual standard deviation;
 5. standard deviations from a delete-a-block jackknife (:func:`_jackknife`): the
@@ -31,6 +34,7 @@ From limb lengths q(t) and limb forces tau(t):
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,10 +55,15 @@ __all__ = [
     "IdentificationError",
     "Log",
     "Observation",
+    "check_log_file",
+    "fk_limit",
     "identify",
+    "max_cutoff",
+    "minimum_duration",
     "observe",
     "predict",
     "read_log",
+    "sample_rate",
 ]
 
 #: Fewest samples a fit needs after trimming and decimation, per base parameter.
@@ -70,6 +79,22 @@ JACKKNIFE_BLOCKS = 40
 DECIMATED_RATE = 2.5
 #: Largest relative deviation of a sampling interval from the median (a gap beyond it).
 MAX_JITTER = 0.01
+#: The pose filter must be at least this many times above the parallel filter's cutoff,
+#: so the cutoff may be at most fs / 50. Measured on a PD run of the exciting trajectory
+#: (1 kHz log, cutoff 10 Hz) decimated: the estimate moved from the 1 kHz one by at most
+#: 2.0 of its std at 500 Hz (pose filter 5 x cutoff), 5.7 at 250 Hz (2.5 x), 10 at 200 Hz
+#: (2 x) and 26 at 100 Hz (1 x).
+MIN_POSE_TO_CUTOFF = 5.0
+#: Largest forward-kinematics residual (m) that measurement error explains. Four lengths
+#: fit three coordinates, so only the error's component along the one direction J^T does
+#: not see is left over: about 2.4 x the encoder noise's std at worst over 60 s at 1 kHz
+#: (measured: 3e-8 m with quantisation alone, 2.4e-6 m at 1e-6 m of noise, 5e-6 m with
+#: lengths rounded to 10 um), against 1.4e-3 m for another machine's geometry and 0.11 m
+#: for swapped columns. The limit is this or FK_NOISE_FACTOR x the scenario's sensor.noise.
+MAX_FK_RESIDUAL = 2e-5
+FK_NOISE_FACTOR = 8.0
+#: ``force_lead=None`` searches this many samples either side of 0.
+LEAD_SEARCH = 10
 
 
 class IdentificationError(PkmctlError, ValueError):
@@ -79,19 +104,55 @@ class IdentificationError(PkmctlError, ValueError):
 @dataclass(frozen=True, eq=False)
 class Log:
     """A run's time series: t (N,) s, q (N, 4) m, tau (N, 4) N; ``source`` where it came
-    from and the columns used."""
+    from and the columns used; ``what`` names it in errors ("log", "--validate")."""
 
     t: np.ndarray
     q: np.ndarray
     tau: np.ndarray
     source: str = "log"
     columns: tuple[str, ...] = ()
+    what: str = "log"
+
+    @property
+    def where(self) -> str:
+        """How errors name this log: ``log 'run.csv'``, ``--validate 'other.csv'``."""
+        return f"{self.what} {_printable(self.source)!r}"
 
 
-def _read_table(path: Path) -> dict[str, np.ndarray]:
-    where = f"log {str(path)!r}"
+def _printable(text: str, limit: int = 120) -> str:
+    """``text`` with non-printable characters escaped (a binary file's bytes must not
+    reach the terminal), cut to ``limit`` characters."""
+    out = "".join(c if c.isprintable() else c.encode("unicode_escape").decode() for c in text)
+    return out if len(out) <= limit else out[: limit - 3] + "..."
+
+
+def check_log_file(path: str | Path, *, what: str = "log") -> Path:
+    """``path`` as a Path if it is a readable file; else a one-line IdentificationError
+    (checked before any long work)."""
+    path = Path(path)
+    where = f"{what} {_printable(str(path))!r}"
+    if path.is_dir():
+        raise IdentificationError(f"{where}: is a folder, not a file (give the .csv or .parquet)")
     if not path.is_file():
         raise IdentificationError(f"{where}: no such file")
+    if not os.access(path, os.R_OK):
+        raise IdentificationError(f"{where}: not readable (permission denied)")
+    return path
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _read_table(path: Path, what: str = "log") -> tuple[dict, dict[str, int], list[str]]:
+    """The columns of a Parquet or CSV table by name (float arrays; None for a non-numeric
+    one), the names that occur more than once (name: count; not read) and the header."""
+    where = f"{what} {_printable(str(path))!r}"
+    check_log_file(path, what=what)
     try:
         if path.suffix.lower() == ".parquet":
             import pyarrow.parquet as pq
@@ -104,24 +165,38 @@ def _read_table(path: Path) -> dict[str, np.ndarray]:
     except Exception as exc:  # pyarrow's errors: ArrowInvalid, OSError, ...
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise IdentificationError(
-            f"{where}: not a readable Parquet or CSV table ({first})"
+            f"{where}: not a readable Parquet or CSV table ({_printable(first, 80)})"
         ) from None
+    header = [name.strip() for name in table.column_names]
+    if header and all(_is_number(n) for n in header):
+        raise IdentificationError(
+            f"{where}: the header is missing (the first line is numbers: "
+            f"{_printable(','.join(table.column_names), 60)!r}); the first line must name the "
+            "columns t, q1..q4, tau1..tau4"
+        )
+    counts: dict[str, int] = {}
+    for name in header:
+        counts[name] = counts.get(name, 0) + 1
+    dups = {n: k for n, k in counts.items() if k > 1}
     out = {}
-    for name in table.column_names:
-        col = table.column(name)
+    for i, name in enumerate(header):
+        if name in dups:
+            continue  # an error only if it is needed
+        col = table.column(i)  # by position: a name may occur twice
         try:
-            out[name.strip()] = col.to_numpy(zero_copy_only=False).astype(float)
+            out[name] = col.to_numpy(zero_copy_only=False).astype(float)
         except (TypeError, ValueError):
-            out[name.strip()] = None  # a non-numeric column: an error only if it is needed
-    return out
+            out[name] = None  # a non-numeric column: an error only if it is needed
+    return out, dups, header
 
 
-def read_log(path: str | Path) -> Log:
+def read_log(path: str | Path, *, what: str = "log") -> Log:
     """Read t, q1..q4 and tau1..tau4 from a Parquet or CSV file.
 
     pkmctl's own time series (``pkmctl simulate``) carry the true lengths q1..q4 and, when
     the sensor is not ideal, the measured q1_m..q4_m: the measured ones are used. A real
-    machine's CSV needs columns t (s), q1..q4 (m), tau1..tau4 (N, limb forces).
+    machine's CSV needs columns t (s), q1..q4 (m), tau1..tau4 (N, limb forces). ``what``
+    names the log in errors ("log", "--validate").
     """
     path = Path(path)
     if path.suffix.lower() == ".json" and path.is_file():  # pkmctl's metadata: its table
@@ -131,19 +206,33 @@ def read_log(path: str | Path) -> Log:
             path = path.with_name(json.loads(path.read_text(encoding="utf-8"))["table"])
         except (ValueError, KeyError, TypeError, UnicodeDecodeError):
             raise IdentificationError(
-                f"log {str(path)!r}: not the metadata of a pkmctl time series"
+                f"{what} {_printable(str(path))!r}: not the metadata of a pkmctl time series"
             ) from None
-    cols = _read_table(path)
-    where = f"log {str(path)!r}"
+    cols, dups, header = _read_table(path, what)
+    where = f"{what} {_printable(str(path))!r}"
     qn = [f"q{i}_m" for i in range(1, 5)]
-    if not all(n in cols for n in qn):
+    if not all(n in cols or n in dups for n in qn):
         qn = [f"q{i}" for i in range(1, 5)]
     need = ["t", *qn, *(f"tau{i}" for i in range(1, 5))]
+    twice = [n for n in need if n in dups]
+    if twice:
+        n = twice[0]
+        places = [str(k + 1) for k, h in enumerate(header) if h == n]
+        raise IdentificationError(
+            f"{where}: column {n} occurs {dups[n]} times (columns {', '.join(places)}): "
+            "which one holds the data is ambiguous; rename or remove the others"
+        )
     missing = [n for n in need if n not in cols]
     if missing:
+        shown = _printable(",".join(header), 80)
+        hint = (
+            "; identify reads comma-separated values"
+            if len(header) == 1 and any(c in header[0] for c in ";\t ")
+            else ""
+        )
         raise IdentificationError(
             f"{where}: missing column(s) {', '.join(missing)} (need t, q1..q4 in m, "
-            "tau1..tau4 in N)"
+            f"tau1..tau4 in N; the header read: {shown!r}, {len(header)} column(s){hint})"
         )
     for n in need:
         if cols[n] is None:
@@ -157,12 +246,12 @@ def read_log(path: str | Path) -> Log:
     t = cols["t"]
     q = np.column_stack([cols[n] for n in qn])
     tau = np.column_stack([cols[f"tau{i}"] for i in range(1, 5)])
-    return Log(t, q, tau, str(path), tuple(need))
+    return Log(t, q, tau, str(path), tuple(need), what)
 
 
 def _check_times(log: Log) -> float:
     """The sampling interval (s); one-line errors for what identification cannot use."""
-    where = f"log {log.source!r}"
+    where = log.where
     t = log.t
     if t.size < 20:
         raise IdentificationError(f"{where}: {t.size} samples, too few (need >= 20)")
@@ -183,16 +272,56 @@ def _check_times(log: Log) -> float:
             f"{h:.6g} s; {gap.size} such): a gap or jitter beyond {100 * MAX_JITTER:g} %; "
             "resample the log or cut it there"
         )
-    if np.any(log.q <= 0):
-        raise IdentificationError(f"{where}: limb lengths q must be > 0 (m)")
+    names = log.columns[1:5] if len(log.columns) == 9 else tuple(f"q{i}" for i in range(1, 5))
+    bad = np.argwhere(log.q <= 0)
+    if bad.size:
+        k, i = bad[0]
+        raise IdentificationError(
+            f"{where}: column {names[i]} at data row {k + 1} (t = {t[k]:.9g} s) is "
+            f"{log.q[k, i]:g}: limb lengths must be > 0 m"
+        )
+    zero = [i for i in range(4) if not np.any(log.tau[:, i])]
+    if len(zero) == 4:
+        raise IdentificationError(
+            f"{where}: tau1..tau4 are all zero: the forces carry no information"
+        )
+    if zero:
+        raise IdentificationError(
+            f"{where}: column tau{zero[0] + 1} is all zero: a limb's force is missing from "
+            "the log, and the fit would be meaningless"
+        )
     return h
+
+
+def sample_rate(h: float) -> float:
+    """The sample rate (Hz) of a log sampled every ``h`` s, to 6 significant digits: a
+    median interval of 0.0010000001 s is 1 kHz (decimation by 40, not 39, at 10 Hz)."""
+    return float(f"{1.0 / h:.6g}")
+
+
+def max_cutoff(fs: float) -> float:
+    """The largest parallel filter cutoff (Hz) for a log sampled at ``fs`` Hz: the pose
+    filter (at :data:`DIFF_CUTOFF_RATIO` x fs) must be :data:`MIN_POSE_TO_CUTOFF` times
+    above it."""
+    return DIFF_CUTOFF_RATIO * fs / MIN_POSE_TO_CUTOFF
+
+
+def minimum_duration(cutoff: float, parameters: int, fs: float = 1000.0) -> float:
+    """Seconds of log an identification at ``cutoff`` Hz needs for ``parameters`` base
+    parameters: the filters' support at both ends (the FIR, 4 / cutoff s, and the pose
+    filter's transients, 6 / (0.1 fs) s each side) and parameters + 1 jackknife blocks of
+    2 / cutoff s."""
+    support = 2.0 * (2.0 / cutoff + 6.0 / (DIFF_CUTOFF_RATIO * fs) + 3.0 / fs)
+    return support + (parameters + 1) * 2.0 / cutoff
 
 
 @dataclass(frozen=True, eq=False)
 class Observation:
     """The samples a fit uses: t (n,), X, Xdot, Xddot (n, 3), y = J^T tau (n, 3) and W
     (n, 3, 48); ``discarded`` says how many samples were dropped and why; ``fk_residual``
-    is the largest forward-kinematics residual |q(X) - q| (m)."""
+    is the largest forward-kinematics residual |q(X) - q| (m); ``diff_cutoff`` the pose
+    filter's cutoff (Hz, Butterworth order 4, zero-phase) and ``fir_taps`` the length of
+    the parallel filter (a Hamming-window FIR at ``cutoff``)."""
 
     t: np.ndarray
     X: np.ndarray
@@ -207,9 +336,16 @@ class Observation:
     discarded: dict[str, int]
     fk_residual: float
     force_lead: float  # s: the force acting at t is the logged one at t - force_lead
+    diff_cutoff: float = math.nan
+    fir_taps: int = 0
 
 
-def _forward_kinematics(mech: Mechanism, log: Log) -> tuple[np.ndarray, float]:
+def _forward_kinematics(
+    mech: Mechanism, log: Log, max_residual: float = math.inf, machine: str = "the scenario"
+) -> tuple[np.ndarray, float]:
+    """Poses X (n, 3) by least squares and the largest residual |q(X) - q| (m); refused
+    if it exceeds ``max_residual``: lengths that no pose of this geometry fits."""
+    from pkmctl.model.mechanism import limbs_batch
     from pkmctl.sim.sensors import fk_batch
 
     X = np.empty((log.t.size, 3))
@@ -217,8 +353,18 @@ def _forward_kinematics(mech: Mechanism, log: Log) -> tuple[np.ndarray, float]:
     bad, worst = fk_batch(mech.geometry, q, mech.home.copy(), 1e-13, 1e-15, 50, X)
     if bad >= 0:
         raise IdentificationError(
-            f"log {log.source!r}: forward kinematics failed at t = {log.t[bad]:.6g} s "
-            f"(q = {q[bad].tolist()} m): not lengths of this machine, or a singular pose"
+            f"{log.where}: forward kinematics failed at t = {log.t[bad]:.6g} s "
+            f"(q = {q[bad].tolist()} m): not lengths of {machine}, or a singular pose"
+        )
+    if worst > max_residual:
+        qx, _ = limbs_batch(mech.geometry, X)
+        res = np.abs(qx - q).max(axis=1)
+        k = int(np.argmax(res))
+        raise IdentificationError(
+            f"{log.where}: the lengths do not fit the geometry of {machine}: forward-"
+            f"kinematics residual {res[k]:.3g} m at data row {k + 1} (t = {log.t[k]:.6g} s), "
+            f"more than the {max_residual:.3g} m quantisation and sensor noise explain "
+            "(q columns swapped or in other units, or another machine: give its --scenario)"
         )
     return X, float(worst)
 
@@ -277,6 +423,34 @@ def _d2(x: np.ndarray, h: float) -> np.ndarray:
     return d
 
 
+def _check_rate(log: Log, cutoff: float, diff_cutoff: float | None) -> tuple[float, float, float]:
+    """The log's interval h (s), sample rate fs and pose filter cutoff fd (Hz), after the
+    checks of :func:`_check_times` and of the cutoff against the sample rate."""
+    h = _check_times(log)
+    fs = sample_rate(h)
+    where = log.where
+    if not (math.isfinite(cutoff) and cutoff > 0):
+        raise IdentificationError(f"cutoff = {cutoff:g} Hz: must be > 0")
+    if diff_cutoff is None:
+        fd = DIFF_CUTOFF_RATIO * fs
+        cmax = max_cutoff(fs)
+        if cutoff > cmax:
+            raise IdentificationError(
+                f"{where}: sampled at {fs:g} Hz, too slowly for cutoff = {cutoff:g} Hz, which "
+                f"must be in (0, {cmax:.4g}] Hz for this log (the pose filter, at "
+                f"{DIFF_CUTOFF_RATIO:g} x the sample rate, must be >= {MIN_POSE_TO_CUTOFF:g} x "
+                f"the cutoff); at {cutoff:g} Hz the log must be sampled at >= "
+                f"{cutoff * MIN_POSE_TO_CUTOFF / DIFF_CUTOFF_RATIO:.4g} Hz"
+            )
+    else:
+        fd = diff_cutoff
+        if not (cutoff <= fd < 0.5 * fs):
+            raise IdentificationError(
+                f"diff_cutoff = {fd:g} Hz: must be in [cutoff, {0.5 * fs:g}) Hz"
+            )
+    return h, fs, fd
+
+
 def observe(
     log: Log,
     mechanism: Mechanism,
@@ -286,35 +460,43 @@ def observe(
     diff_cutoff: float | None = None,
     decimation: int | None = None,
     force_lead: float | None = None,
+    usable: float = 0.0,
+    max_fk_residual: float = MAX_FK_RESIDUAL,
+    machine: str = "the scenario",
 ) -> Observation:
-    """The observation of a log (steps 1-3 of the module): see :class:`Observation`."""
-    h = _check_times(log)
-    fs = 1.0 / h
-    if not (0 < cutoff < 0.4 * fs):
+    """The observation of a log (steps 1-3 of the module): see :class:`Observation`.
+
+    ``usable``: seconds the caller needs between the filters' supports (checked before
+    any work); ``max_fk_residual`` (m): lengths that fit no pose of ``mechanism`` better
+    are refused (``machine`` names it in the error)."""
+    h, fs, fd = _check_rate(log, cutoff, diff_cutoff)
+    where = log.where
+    # the filters' support, before anything is built (a tiny cutoff is a huge FIR)
+    n = log.t.size
+    half = math.ceil(2.0 * fs / cutoff)  # the FIR's half-length (samples)
+    edge = half + math.ceil(6.0 / fd * fs)  # and the differentiating filter's transients
+    span = (n - 1) * h
+    need = 2 * (edge + 3) * h + usable
+    if span < need:
         raise IdentificationError(
-            f"cutoff = {cutoff:g} Hz: must be in (0, {0.4 * fs:g}) Hz for a log sampled at "
-            f"{fs:g} Hz"
+            f"{where}: {n} samples ({span:.4g} s), too short for cutoff = {cutoff:g} Hz: it "
+            f"needs >= {need:.4g} s (the filters' support, {(edge + 3) * h:.3g} s at each "
+            f"end, and {usable:.3g} s between); log a longer run or raise the cutoff"
         )
-    X, fk_res = _forward_kinematics(mechanism, log)
-    fd = min(DIFF_CUTOFF_RATIO * fs, 0.4 * fs) if diff_cutoff is None else diff_cutoff
-    if not (cutoff <= fd < 0.5 * fs):
-        raise IdentificationError(f"diff_cutoff = {fd:g} Hz: must be in [cutoff, {0.5 * fs:g}) Hz")
+    X, fk_res = _forward_kinematics(mechanism, log, max_fk_residual, machine)
     Xf = scipy.signal.sosfiltfilt(scipy.signal.butter(4, fd, fs=fs, output="sos"), X, axis=0)
     Xd, Xdd = _d1(Xf, h), _d2(Xf, h)
-    n = log.t.size
     inner = slice(3, n - 3)  # where the differences are defined
     from pkmctl.model.mechanism import extended_regressor_batch
 
     Xi, Xdi, Xddi = (np.ascontiguousarray(a[inner]) for a in (Xf, Xd, Xdd))
-    J = _check_poses(f"log {log.source!r}", mechanism, Xi)
+    J = _check_poses(where, mechanism, Xi)
     W = extended_regressor_batch(mechanism.geometry, Xi, Xdi, Xdi, Xddi, friction_velocity)
     # Parallel filtering (Gautier): the same linear filter on y and on every column of W
     # keeps y = W Theta exact, also for the friction's steps at velocity reversals. A
     # zero-phase FIR, evaluated only at the samples kept after decimation.
     h_fir = _lowpass(cutoff, fs)
-    half = h_fir.size // 2
     m = n - 6
-    edge = half + math.ceil(6.0 / fd * fs)  # and the differentiating filter's transients
     dec = decimation if decimation is not None else max(1, int(fs // (DECIMATED_RATE * cutoff)))
     if dec < 1:
         raise IdentificationError(f"decimation = {dec}: must be >= 1")
@@ -325,7 +507,7 @@ def observe(
     }
     if keep.size == 0:
         raise IdentificationError(
-            f"log {log.source!r}: {n} samples ({n * h:.3g} s) leave none after the filters' "
+            f"{where}: {n} samples ({n * h:.3g} s) leave none after the filters' "
             f"support ({edge} samples at each end); log a longer run"
         )
     W = _fir_at(W.reshape(m, -1), h_fir, keep).reshape(keep.size, 3, -1)
@@ -345,19 +527,28 @@ def observe(
             beta, *_ = np.linalg.lstsq(A, y, rcond=1e-10)
             return float(np.linalg.norm(y - A @ beta))
 
-        grid = h * np.linspace(-1.5, 1.5, 13)
+        # every sample within +-LEAD_SEARCH, then the best one's neighbourhood
+        grid = h * np.arange(-LEAD_SEARCH, LEAD_SEARCH + 1)
         k = int(np.argmin([misfit(v) for v in grid]))
-        lo, hi = grid[max(0, k - 1)], grid[min(grid.size - 1, k + 1)]
+        if k in (0, grid.size - 1):
+            raise IdentificationError(
+                f"{where}: force lead 'auto': the misfit is smallest at the edge of the "
+                f"searched +-{LEAD_SEARCH} samples ({1e3 * grid[k]:+.4g} ms): the forces are "
+                "further out of step than that, or the log is not what the model describes; "
+                "give the lead in seconds"
+            )
         force_lead = float(
             scipy.optimize.minimize_scalar(
-                misfit, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6 * h}
+                misfit, bounds=(grid[k - 1], grid[k + 1]), method="bounded",
+                options={"xatol": 1e-6 * h},
             ).x
-        )
+        )  # fmt: skip
     y = observed(force_lead)
     Xk, Xdk, Xddk = Xf[inner][keep], Xd[inner][keep], Xdd[inner][keep]
     return Observation(
-        t_in[keep], Xk, Xdk, Xddk, y, W, fs, cutoff, dec, n, discarded, fk_res, force_lead
-    )
+        t_in[keep], Xk, Xdk, Xddk, y, W, fs, cutoff, dec, n, discarded, fk_res, force_lead,
+        fd, h_fir.size,
+    )  # fmt: skip
 
 
 def _jackknife(A: np.ndarray, y: np.ndarray, n: int, blocks: int) -> np.ndarray:
@@ -408,6 +599,8 @@ class Identification:
     friction_velocity: float
     seconds: float
     notes: list[str] = field(default_factory=list)
+    scenario: str = ""  # the machine (geometry, prior) assumed: its name and origin
+    active_bounds: tuple[str, ...] = ()  # of the physically consistent fit, e.g. "Fc1 = 0"
 
     def controller_model(self) -> dict:
         """A scenario ``[controller_model]`` block with the physically consistent estimate."""
@@ -450,9 +643,29 @@ _UNIT_SCALE = np.array(
 )
 
 
-def _physical(A: np.ndarray, y: np.ndarray, base: BaseParameters, prior: np.ndarray) -> np.ndarray:
+#: Names of phi (see :func:`_to_standard`): per body m, L_x, L_y, L_z (L_x = (I_yy + I_zz
+#: - I_xx) / 2, ...), then the rotor masses and friction as in Theta_ext.
+_PHI_NAMES = tuple(
+    n.replace("Ixx", "Lx").replace("Iyy", "Ly").replace("Izz", "Lz") for n in PARAMETER_NAMES
+)
+
+
+def _lower_bounds() -> np.ndarray:
+    """Lower bounds of phi (48,): masses 1e-3 kg, L 1e-7 kg m^2 (inertias stay > 0),
+    rotor masses and friction 0."""
+    lo = np.zeros(N_THETA_EXT)
+    for b in range(N_BODIES):
+        lo[4 * b] = 1e-3  # kg
+        lo[4 * b + 1 : 4 * b + 4] = 1e-7  # kg m^2
+    return lo
+
+
+def _physical(
+    A: np.ndarray, y: np.ndarray, base: BaseParameters, prior: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Bounded least squares over phi (see :func:`_to_standard`), a tiny pull to the prior
-    in the directions the data does not see."""
+    in the directions the data does not see: Theta_ext (48,) and the indices of phi at
+    their bound."""
     T = _to_standard()
     M = A @ base.K @ T
     Tinv = np.linalg.inv(T)
@@ -462,10 +675,7 @@ def _physical(A: np.ndarray, y: np.ndarray, base: BaseParameters, prior: np.ndar
     ref = np.maximum(np.abs(prior), _UNIT_SCALE)
     lam = 1e-6 * np.linalg.norm(M) / math.sqrt(N_THETA_EXT)
     Reg = lam * (T / ref[:, None])
-    lo = np.zeros(N_THETA_EXT)
-    for b in range(N_BODIES):
-        lo[4 * b] = 1e-3  # kg
-        lo[4 * b + 1 : 4 * b + 4] = 1e-7  # kg m^2: inertias stay > 0
+    lo = _lower_bounds()
     phi0 = np.clip(phi0, lo, None)
     res = scipy.optimize.lsq_linear(
         np.vstack([M, Reg]),
@@ -474,7 +684,7 @@ def _physical(A: np.ndarray, y: np.ndarray, base: BaseParameters, prior: np.ndar
         method="bvls",
         tol=1e-12,
     )
-    return T @ res.x
+    return T @ res.x, np.flatnonzero(res.active_mask != 0)
 
 
 def identify(
@@ -486,11 +696,15 @@ def identify(
     physical: bool = True,
     friction_velocity: float | None = None,
     force_lead: float | None = 0.0,
+    scenario_label: str | None = None,
 ) -> Identification:
     """Identify the base parameters (and a physically consistent Theta_ext) from ``log``
     on ``scenario``'s geometry; the prior of the physical estimate is the scenario's
-    controller model. See the module for the method."""
+    controller model. ``scenario_label`` names the scenario in errors and the report
+    (default: its name). See the module for the method."""
     t0 = time.perf_counter()
+    label = scenario_label or f"scenario {scenario.name!r}"
+    _check_rate(log, cutoff, None)  # a bad log is refused before any work
     mech = scenario.plant()  # the geometry only: W does not depend on Theta
     vs = scenario.plant_spec.friction_velocity if friction_velocity is None else friction_velocity
     base = base_parameters(mech, vs)
@@ -501,9 +715,12 @@ def identify(
         cutoff=cutoff,
         decimation=decimation,
         force_lead=force_lead,
+        usable=(base.count + 1) * 2.0 / cutoff,
+        max_fk_residual=fk_limit(scenario),
+        machine=label,
     )
     n, r = obs.t.size, base.count
-    where = f"log {log.source!r}"
+    where = log.where
     if n < MIN_SAMPLES_PER_PARAMETER * r:
         raise IdentificationError(
             f"{where}: {n} samples after trimming and decimation, too few for {r} base "
@@ -543,19 +760,39 @@ def identify(
         cm = scenario.controller_model
         m_r, fc, fv = cm.machine_terms(scenario.plant_spec.screw_lead)
         prior = np.concatenate([scenario.controller_mechanism().theta, m_r, fc, fv])
-        phys = _physical(A * w[:, None], y * w, base, prior)
+        phys, at_bound = _physical(A * w[:, None], y * w, base, prior)
+        lo = _lower_bounds()
+        active = tuple(f"{_PHI_NAMES[j]} = {lo[j]:g}" for j in at_bound)
         bp = base.base(phys)
         phys_fit = Fit(bp, wls.cov, wls.std, _residual_rms(A, y, bp, n), _rel(A, y, bp))
-        moved = np.abs(bp - wls.beta) > 2 * wls.std
-        if np.any(moved):
+        moved = np.flatnonzero(np.abs(bp - wls.beta) > 2 * wls.std)
+        if moved.size:
+            KT = base.K @ _to_standard()  # beta in terms of phi: which bounds each holds
+            which = []
+            for k in moved:
+                own = [active[i] for i, j in enumerate(at_bound) if KT[k, j] != 0]
+                at = f" (at a bound: {', '.join(own)})" if own else ""
+                which.append(f"#{k + 1} {base.expressions[k]}{at}")
+            why = (
+                f"{len(active)} bound(s) active in the physical fit; one moves the others "
+                "through the data's correlations"
+                if active
+                else "no bound is active: the pull towards the prior moved them"
+            )
             notes.append(
                 "the physically consistent estimate differs from WLS by more than 2 std in "
-                + ", ".join(base.names[k] for k in np.flatnonzero(moved))
-                + " (a bound is active there)"
+                f"{'; '.join(which)} ({why})"
             )
     return Identification(
-        base, obs, ols, wls, cond, phys, phys_fit, vs, time.perf_counter() - t0, notes
-    )
+        base, obs, ols, wls, cond, phys, phys_fit, vs, time.perf_counter() - t0, notes,
+        label, active if physical else (),
+    )  # fmt: skip
+
+
+def fk_limit(scenario: Scenario) -> float:
+    """The largest forward-kinematics residual (m) a genuine log of ``scenario``'s machine
+    shows: :data:`MAX_FK_RESIDUAL`, or more for a scenario declaring noisy encoders."""
+    return max(MAX_FK_RESIDUAL, FK_NOISE_FACTOR * float(scenario.sensor.noise))
 
 
 def _residual_rms(A, y, beta, n) -> np.ndarray:
@@ -577,6 +814,8 @@ def predict(ident: Identification, log: Log, scenario: Scenario, *, beta=None) -
         cutoff=ident.observation.cutoff,
         decimation=None,
         force_lead=ident.observation.force_lead,
+        max_fk_residual=fk_limit(scenario),
+        machine=ident.scenario or f"scenario {scenario.name!r}",
     )
     b = ident.wls.beta if beta is None else beta
     yhat = ident.base.reduce(obs.W) @ b  # (n, 3)

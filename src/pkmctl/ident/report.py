@@ -13,12 +13,37 @@ from pkmctl.ident.base import PARAMETER_NAMES, PARAMETER_UNITS
 from pkmctl.ident.identify import Identification
 from pkmctl.io.atomic import atomic_write
 
-__all__ = ["write_identification"]
+__all__ = ["OUTPUT_NAMES", "remove_stale", "write_identification"]
 
 _AXES = (("z", "N"), ("alpha", "N m"), ("beta", "N m"))
 
+#: Every file ``pkmctl identify`` may write into its folder: a run removes those of an
+#: earlier run it does not write itself (and never any other file).
+OUTPUT_NAMES = (
+    "report.md",
+    "estimate.json",
+    "controller_model.toml",
+    "fit.png",
+    "residuals.png",
+    "parameters.png",
+    "validation.png",
+)
 
-def _figures(idn: Identification, folder: Path, validation: dict | None) -> list[Path]:
+
+def remove_stale(folder: Path, written: list[Path]) -> list[Path]:
+    """Remove the files of :data:`OUTPUT_NAMES` in ``folder`` that this run did not write
+    (``written``), so the folder holds one run's outputs; return those removed."""
+    keep = {Path(p).name for p in written}
+    gone = []
+    for name in OUTPUT_NAMES:
+        path = Path(folder) / name
+        if name not in keep and (path.is_file() or path.is_symlink()):
+            path.unlink()
+            gone.append(path)
+    return gone
+
+
+def _figures(idn: Identification, folder: Path, validation: dict | None, source: str) -> list[Path]:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -41,7 +66,7 @@ def _figures(idn: Identification, folder: Path, validation: dict | None) -> list
         ax.plot(obs.t, yhat[:, a], color="C1", lw=0.9, ls="--", label="predicted (WLS)")
         ax.set_ylabel(f"{name} [{unit}]")
     axs[0].legend(loc="upper right", fontsize=8)
-    axs[0].set_title("Identification data: measured and predicted task-space force")
+    axs[0].set_title(f"Identification data ({Path(source).name}): measured and predicted J^T tau")
     axs[-1].set_xlabel("t [s]")
     fig.tight_layout()
     save(fig, "fit.png")
@@ -51,7 +76,9 @@ def _figures(idn: Identification, folder: Path, validation: dict | None) -> list
         ax.plot(obs.t, obs.y[:, a] - yhat[:, a], color="C3", lw=0.8)
         ax.axhline(0.0, color="0.5", lw=0.5)
         ax.set_ylabel(f"{name} [{unit}]")
-    axs[0].set_title(f"Residuals (WLS), RMS {', '.join(f'{v:.3g}' for v in idn.wls.rms)}")
+    axs[0].set_title(
+        f"Residuals (WLS) on {Path(source).name}, RMS {', '.join(f'{v:.3g}' for v in idn.wls.rms)}"
+    )
     axs[-1].set_xlabel("t [s]")
     fig.tight_layout()
     save(fig, "residuals.png")
@@ -63,7 +90,7 @@ def _figures(idn: Identification, folder: Path, validation: dict | None) -> list
     ax.barh(ypos, np.minimum(pct, 200.0), color=np.where(pct > 100, "C3", "C0"))
     ax.set_yticks(ypos, idn.base.names, fontsize=7)
     ax.set_xlabel("half-width of the 95 % interval, % of the estimate (bars capped at 200)")
-    ax.set_title("Base parameters: how well the data determines each (WLS)")
+    ax.set_title(f"Base parameters: how well {Path(source).name} determines each (WLS)")
     ax.set_xscale("log")
     fig.tight_layout()
     save(fig, "parameters.png")
@@ -78,12 +105,18 @@ def _figures(idn: Identification, folder: Path, validation: dict | None) -> list
             ax.set_ylabel(f"{name} [{unit}]")
         axs[0].legend(loc="upper right", fontsize=8)
         axs[0].set_title(
-            f"Validation log: relative error {100 * validation['relative_error']:.3g} %"
+            f"Validation on {Path(validation['source']).name} (estimate from "
+            f"{Path(source).name}): relative error {100 * validation['relative_error']:.3g} %"
         )
         axs[-1].set_xlabel("t [s]")
         fig.tight_layout()
         save(fig, "validation.png")
     return out
+
+
+def _comment(text: str) -> str:
+    """``text`` on one line of a TOML comment."""
+    return " ".join(text.split())
 
 
 def _fmt(v: float) -> str:
@@ -100,12 +133,18 @@ def _markdown(idn: Identification, validation: dict | None, source: str) -> str:
         f"Used: {n_used} samples (3 equations each) after:",
         "",
     ]
+    machine = idn.scenario or "the scenario given"
     lines += [f"- {why}: {k} samples discarded" for why, k in obs.discarded.items()]
     lines += [
         "",
+        f"Machine (geometry, and the prior of the physical estimate): {machine}.",
+        "",
         f"Pose by least-squares forward kinematics (largest residual "
-        f"{obs.fk_residual:.3g} m); filters: zero-phase Butterworth, order 4, parallel "
-        f"filter at {obs.cutoff:g} Hz; force timing: the force acting at t is the logged "
+        f"{obs.fk_residual:.3g} m); filters: the pose by a zero-phase Butterworth low-pass, "
+        f"order 4, at {obs.diff_cutoff:g} Hz, before differentiation; J^T tau and the "
+        f"regressor by the same zero-phase FIR low-pass (Hamming window, {obs.fir_taps} "
+        f"taps) at {obs.cutoff:g} Hz (parallel filtering), decimated by {obs.decimation}; "
+        f"force timing: the force acting at t is the logged "
         f"one at t {'-' if obs.force_lead >= 0 else '+'} {abs(obs.force_lead):.4g} s; "
         "friction smoothing v_s = "
         f"{idn.friction_velocity:g} m/s (assumed, not identified).",
@@ -188,12 +227,13 @@ def write_identification(
     """Write report.md, estimate.json, controller_model.toml (if there is a physically
     consistent estimate) and the figures into ``folder``; return their paths."""
     folder = Path(folder)
-    paths = _figures(idn, folder, validation)
+    paths = _figures(idn, folder, validation, source)
     report = folder / "report.md"
     with atomic_write(report) as fh:
         fh.write(_markdown(idn, validation, source))
     data = {
         "log": source,
+        "scenario": idn.scenario,
         "base_parameters": [
             {
                 "name": n,
@@ -214,7 +254,13 @@ def write_identification(
         "samples_used": int(idn.observation.t.size),
         "discarded": idn.observation.discarded,
         "force_lead": idn.observation.force_lead,
+        "sample_rate": idn.observation.sample_rate,
+        "cutoff": idn.observation.cutoff,
+        "diff_cutoff": idn.observation.diff_cutoff,
+        "fk_residual": idn.observation.fk_residual,
+        "active_bounds": list(idn.active_bounds),
         "theta_ext_physical": None if idn.physical is None else idn.physical.tolist(),
+        "validation_log": None if validation is None else validation["source"],
         "validation_relative_error": None if validation is None else validation["relative_error"],
     }
     est = folder / "estimate.json"
@@ -225,8 +271,10 @@ def write_identification(
         cm = folder / "controller_model.toml"
         with atomic_write(cm) as fh:
             fh.write(
-                "# The identified model (pkmctl identify): paste into a scenario, or\n"
-                "# merge it: Theta_ext = [Theta (36), m_r (4, kg), F_c (4, N), F_v (4, N s/m)]\n"
+                f"# The identified model (pkmctl identify) from {_comment(source)}\n"
+                f"# on {_comment(idn.scenario or 'the scenario given')}.\n"
+                "# Paste into a scenario, or merge it:\n"
+                "# Theta_ext = [Theta (36), m_r (4, kg), F_c (4, N), F_v (4, N s/m)]\n"
             )
             fh.write(tomli_w.dumps({"controller_model": idn.controller_model()}))
         paths.insert(2, cm)
