@@ -669,3 +669,397 @@ def test_a_cells_tasks_share_one_prepared_scenario_per_process():
     assert _prepared(spec, 0) is not _prepared(spec, 1)
     assert _prepared(other, 1) is not _prepared(spec, 1)  # another digest
     assert _prepared(other, 1).periods != _prepared(spec, 1).periods
+
+
+# --------------------------------------------------------------------------------------
+# Found by testing (factors set twice, duplicated levels, the .fis, stale or foreign files,
+# digits, strings, the scheduler's handshake, Ctrl-C). Most use a campaign folder of
+# made-up records (_fake_campaign): no run, so they take well under a second each.
+
+
+def _fake_campaign(out: Path, text: str, metric=None, status=None) -> CampaignSpec:
+    """A campaign folder of ``text`` whose records are made up, not run: ``metric(run,
+    column)`` gives each metric (default: by cell and controller), ``status(run)`` each
+    status (default "ok")."""
+    import pyarrow as pa
+
+    from pkmctl.campaign.store import (
+        factor_column,
+        factor_value,
+        metric_columns,
+        open_store,
+        schema,
+        write_task,
+    )
+
+    spec = CampaignSpec.from_toml(text)
+    runs = open_store(out, spec, resume=False)
+    for t in spec.tasks():
+        rows = []
+        for r in t.runs:
+            st = status(r) if status else "ok"
+            row = {"spec_hash": spec.digest, "cell": r.cell, "controller": r.controller,
+                   "seed": r.seed, "task": t.index}  # fmt: skip
+            row.update({factor_column(p): factor_value(spec, p, spec.cells[r.cell][p])
+                        for p in spec.factors})  # fmt: skip
+            row.update(status=st, diverged_at=0.01 if st == "diverged" else None, message="")
+            for m in metric_columns(spec.metrics):
+                if st != "ok":
+                    row[m] = None
+                elif metric is not None:
+                    row[m] = metric(r, m)
+                else:
+                    row[m] = 1.0 + r.cell + spec.controllers.index(r.controller) + 1e-3 * r.seed
+            row.update(wall_s=0.0, kernel_s=0.0, worker="test:0")
+            rows.append(row)
+        write_task(runs, t.index, pa.Table.from_pylist(rows, schema=schema(spec)))
+    return spec
+
+
+def _refused(tmp_path, text: str, command: str = "run") -> str:
+    """The one line `campaign run` (or `show`) refuses ``text`` with (exit 2, no folder)."""
+    spec = tmp_path / "bad.toml"
+    spec.write_text(text)
+    out = tmp_path / "o"
+    args = ["--out", str(out)] if command == "run" else []
+    res = runner.invoke(app, ["campaign", command, str(spec), *args])
+    assert res.exit_code == 2, res.output
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    assert not out.exists()
+    return lines[0]
+
+
+HEAD = 'scenario = "paper"\ncontrollers = ["smc"]\nseeds = 1\nduration = 0.05\n'
+
+
+@pytest.mark.parametrize(
+    ("factors", "expected"),
+    [
+        (  # substeps 2 and 3 would never run: the other factor's with set it
+            '[factors."timing.substeps"]\nvalues = [2, 3]\n'
+            '[factors."timing.control_period"]\nvalues = [5e-5, 1e-3]\n'
+            'with = { "timing.substeps" = [1, 20] }\n',
+            "factors.'timing.control_period'.with.'timing.substeps': timing.substeps is set "
+            "twice, as a factor and in this with",
+        ),
+        (
+            '[factors."payload.mass"]\nvalues = [0.0, 1.0]\nwith = { "timing.substeps" = [1, 2] }\n'
+            '[factors."timing.control_period"]\nvalues = [5e-5, 1e-3]\n'
+            'with = { "timing.substeps" = [1, 20] }\n',
+            "timing.substeps is set twice, also in factors.'payload.mass'.with",
+        ),
+        (  # each run's seed overwrote it: every cell the same
+            '[factors."disturbance.seed"]\nvalues = [0, 1, 2]\n',
+            "factors.'disturbance.seed': a campaign cannot vary it (each run's seed sets it",
+        ),
+        (
+            '[factors."payload.mass"]\nvalues = [0.0, 1.0]\n'
+            'with = { "disturbance.seed" = [1, 2] }\n',
+            "factors.'payload.mass'.with.'disturbance.seed': a campaign cannot set it",
+        ),
+    ],
+)
+def test_a_field_set_twice_or_by_each_run_is_refused(tmp_path, factors, expected):
+    assert expected in _refused(tmp_path, HEAD + factors)
+
+
+@pytest.mark.parametrize(
+    ("design", "factors", "expected"),
+    [
+        ("grid", "values = [5.0, 5.0, 5.0]", "values = [5.0, 5.0, 5.0]: a value named twice"),
+        ("grid", "values = [5, 5.0]", "values = [5, 5.0]: a value named twice (5.0)"),
+        ("one-at-a-time", "values = [0.0, 5.0, 5.0]", "a value named twice (5.0)"),
+    ],
+)
+def test_a_level_named_twice_is_refused(tmp_path, design, factors, expected):
+    """Identical cells would count as independent pairs in the pooled statistics."""
+    text = HEAD + f'design = "{design}"\n[factors."payload.mass"]\n{factors}\n'
+    assert expected in _refused(tmp_path, text)
+
+
+def test_a_metric_named_twice_is_refused(tmp_path):
+    line = _refused(tmp_path, HEAD + 'metrics = ["rmse", "rmse"]\n')
+    assert "metrics = ['rmse', 'rmse']: a metric named twice" in line
+
+
+def test_more_runs_than_a_campaign_holds_are_refused_at_once(tmp_path):
+    limit = 1_000_000  # pkmctl.campaign.spec.MAX_RUNS
+    t0 = time.perf_counter()
+    line = _refused(tmp_path, HEAD.replace("seeds = 1", "seeds = 600000").replace(
+        '["smc"]', '["smc", "pd"]'), "show")  # fmt: skip
+    assert "seeds = 600000: 1200000 runs (cells x controllers x seeds), more than the " \
+           f"{limit} a campaign holds" in line  # fmt: skip
+    big = HEAD + '[factors."payload.mass"]\nvalues = [0.0, 1.0]\n'
+    line = _refused(tmp_path, big.replace("seeds = 1", f"seeds = {limit}"), "show")
+    assert f"2 cells x 1 controllers x {limit} seeds: {2 * limit} runs" in line
+    assert time.perf_counter() - t0 < 10
+
+
+def test_out_of_memory_in_a_campaign_command_gives_no_single_run_advice(monkeypatch):
+    def boom(*a, **k):
+        raise MemoryError
+
+    monkeypatch.setattr(CampaignSpec, "from_toml", boom)
+    res = runner.invoke(app, ["campaign", "show", "paper-claims"])
+    assert res.exit_code == 2, res.output
+    assert res.stderr.strip() == "error: out of memory reading the spec", res.stderr
+
+
+def _paper_fis(tmp_path: Path, sdot: str = "10") -> Path:
+    from importlib import resources
+
+    text = (resources.files("pkmctl") / "fuzzy" / "data" / "paper_flc.fis").read_text()
+    if sdot != "10":
+        text = text.replace("Range=[-10 10]", f"Range=[-{sdot} {sdot}]", 1)
+    path = tmp_path / "flc.fis"
+    path.write_text(text)
+    return path
+
+
+def test_a_fis_file_counts_by_its_content_and_the_folder_keeps_a_copy(tmp_path):
+    from pkmctl.campaign.spec import SpecError
+
+    src = tmp_path / "src"
+    src.mkdir()
+    fis = _paper_fis(src)
+    import tomllib
+
+    import tomli_w
+
+    scen = tomllib.loads(pkmctl.Scenario.builtin("paper").to_toml())
+    scen["fuzzy"]["fis"] = "flc.fis"  # relative to the scenario file
+    (src / "scen.toml").write_text(tomli_w.dumps(scen))
+    (src / "spec.toml").write_text(
+        'scenario = "scen.toml"\ncontrollers = ["fsmc"]\nseeds = 1\nduration = 0.02\n'
+        'metrics = ["rmse"]\n'
+    )
+    spec = CampaignSpec.from_toml(src / "spec.toml")
+    original = fis.read_bytes()
+    _paper_fis(src, sdot="8")  # another fuzzy system, in the same file: another campaign
+    edited = CampaignSpec.from_toml(src / "spec.toml")
+    assert edited.digest != spec.digest
+    fis.write_bytes(original)
+    out = tmp_path / "camp"
+    run_campaign(spec, out, workers=1)
+    assert (out / "fuzzy.fis").read_bytes() == original
+    assert 'fis = "fuzzy.fis"' in (out / "scenario.toml").read_text()  # relative: movable
+    _paper_fis(src, sdot="8")  # edited again: a resume is refused
+    with pytest.raises(SpecError, match="a different spec"):
+        run_campaign(edited, out, workers=1, resume=True)
+    # the folder is complete without the .fis it was made from, wherever it is
+    fis.unlink()
+    moved = tmp_path / "moved"
+    out.rename(moved)
+    res = runner.invoke(app, ["campaign", "report", str(moved)])
+    assert res.exit_code == 0, res.output
+    assert read_records(moved).column("status").to_pylist() == ["ok"]
+
+
+def test_one_at_a_time_centre_takes_the_with_of_its_value():
+    spec = CampaignSpec.from_toml(
+        HEAD.replace('["smc"]', '["smc", "pd"]') + 'design = "one-at-a-time"\n'
+        '[factors."timing.control_period"]\nvalues = [5e-5, 1e-3]\n'
+        'with = { "timing.substeps" = [4, 20] }\n'
+        '[factors."payload.mass"]\nvalues = [0.0, 2.0]\n'
+    )
+    assert [c.get("timing.substeps") for c in spec.cells] == [4, 20, 4]
+    assert [spec.scenario(i).timing.substeps for i in range(3)] == [4, 20, 4]
+    assert spec.axis("payload.mass") == [0, 2]
+    # a with value equal to the base's changes no cell (nor the built-in's hash)
+    same = CampaignSpec.from_toml(OFAT)
+    assert same.cells[0] == {"payload.mass": 0.0, "timing.control_period": 5e-5}
+
+
+def test_figures_draw_a_numeric_factor_in_the_order_of_its_values(tmp_path, monkeypatch):
+    from matplotlib.axes import Axes
+
+    from pkmctl.report.campaign import write_report
+
+    drawn = []
+    real = Axes.errorbar
+
+    def spy(self, x, y, *a, **k):
+        drawn.append(list(x))
+        return real(self, x, y, *a, **k)
+
+    monkeypatch.setattr(Axes, "errorbar", spy)
+    text = HEAD.replace('["smc"]', '["smc", "pd"]') + 'design = "one-at-a-time"\n'
+    text += 'metrics = ["rmse"]\n[factors."controller_model.theta_scale"]\n'
+    _fake_campaign(tmp_path / "c", text + "values = [1.0, 0.85, 0.5]\n")
+    write_report(tmp_path / "c")
+    assert drawn and all(xs == [0.5, 0.85, 1.0] for xs in drawn), drawn  # not 0.85, 1, 0.5
+
+
+def test_a_host_that_answers_but_is_not_dask_fails_in_seconds(spec_file, tmp_path, monkeypatch):
+    import http.server
+
+    from pkmctl.campaign import execute
+
+    class Quiet(http.server.BaseHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Quiet)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    monkeypatch.setattr(execute, "CONNECT_SECONDS", 2.0, raising=False)
+    out = tmp_path / "c"
+    address = f"tcp://127.0.0.1:{server.server_address[1]}"
+    box = {}
+    args = ["campaign", "run", str(spec_file), "--out", str(out), "--scheduler", address]
+    worker = threading.Thread(target=lambda: box.update(res=runner.invoke(app, args)), daemon=True)
+    try:
+        worker.start()
+        worker.join(30)
+        assert not worker.is_alive(), "hangs on a server that is not Dask"
+    finally:
+        server.shutdown()
+    res = box["res"]
+    assert res.exit_code == 2, res.output
+    said = f"error: --scheduler '{address}': cannot connect (no Dask handshake within 2 s"
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error: ")]
+    assert len(errors) == 1 and errors[0].startswith(said), res.stderr
+    assert not out.exists()
+
+
+def _pkmctl(*args: str, **kw) -> subprocess.Popen:
+    env = dict(os.environ)
+    src = str(Path(pkmctl.__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join([src, env.get("PYTHONPATH", "")])
+    return subprocess.Popen([sys.executable, "-c", "from pkmctl.cli import main; main()", *args],
+                            env=env, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                            **kw)  # fmt: skip
+
+
+def test_an_interrupted_report_leaves_no_staging_folder(tmp_path):
+    out = tmp_path / "c"
+    text = HEAD.replace('["smc"]', '["smc", "pd"]') + 'metrics = ["rmse", "max_error"]\n'
+    text += '[factors."payload.mass"]\nvalues = [0.0, 1.0, 2.0]\n'
+    _fake_campaign(out, text + '[factors."controller_model.theta_scale"]\nvalues = [0.5, 1.0]\n')
+    (out / "report").mkdir()
+    proc = _pkmctl("campaign", "report", str(out))
+    deadline = time.monotonic() + 60
+    while not list((out / "report").glob(".pkmctl-*")) and proc.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    if proc.returncode == 0:
+        pytest.skip("the report was done before the interrupt")
+    assert proc.returncode == 130, err
+    assert "nothing written" in err
+    assert list((out / "report").iterdir()) == []  # no .pkmctl-*.tmp left
+
+
+def test_the_resume_hint_after_ctrl_c_is_a_command_to_paste(tmp_path):
+    import shlex
+
+    spec = tmp_path / "s p.toml"
+    spec.write_text(HEAD.replace("seeds = 1", "seeds = 64").replace("0.05", "0.5"))
+    out = tmp_path / "out dir"
+    proc = _pkmctl("campaign", "run", str(spec), "--out", str(out), "--workers", "1")
+    deadline = time.monotonic() + 120
+    while not (out / "campaign.json").exists() and proc.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    hint = shlex.join(["pkmctl", "campaign", "run", str(spec), "--out", str(out), "--workers",
+                       "1", "--resume"])  # fmt: skip
+    assert f"{hint} completes it" in err, err
+
+
+def test_a_report_removes_the_files_it_no_longer_writes(tmp_path):
+    from pkmctl.report.campaign import write_report
+
+    out = tmp_path / "c"
+    text = HEAD.replace('["smc"]', '["smc", "afsmc"]')
+    question = '\n[[compare]]\nname = "adaptation"\ncontroller = "afsmc"\nbaseline = "smc"\n'
+    _fake_campaign(out, text + question)
+    write_report(out)
+    assert (out / "report" / "answer.md").exists() and (out / "report" / "comparison.csv").exists()
+    (out / "report" / "mine.txt").write_text("a file of the user's")
+    (out / "spec.toml").write_text(text)  # the question removed: same hash
+    write_report(out)
+    left = sorted(p.name for p in (out / "report").iterdir())
+    assert left == ["divergence.csv", "figures", "mine.txt", "paired.csv", "report.md",
+                    "summary.csv"]  # fmt: skip
+
+
+def test_a_task_file_of_another_campaign_is_refused(tmp_path):
+    import shutil
+
+    from pkmctl.campaign.spec import SpecError
+
+    text = HEAD.replace('["smc"]', '["smc", "pd"]')
+    spec = _fake_campaign(tmp_path / "a", text)
+    other = _fake_campaign(tmp_path / "b", text.replace("0.05", "0.06"))
+    shutil.copy(tmp_path / "b" / "runs" / "task-00001.parquet",
+                tmp_path / "a" / "runs" / "task-00001.parquet")  # fmt: skip
+    said = f"task-00001.parquet: records of campaign {other.digest!r}, not of this folder's"
+    with pytest.raises(SpecError, match=said):
+        read_records(tmp_path / "a")
+    with pytest.raises(SpecError, match=said):  # not counted as done
+        run_campaign(spec, tmp_path / "a", workers=1, resume=True)
+    res = runner.invoke(app, ["campaign", "report", str(tmp_path / "a")])
+    assert res.exit_code == 2 and said in res.stderr, res.output
+    # a new campaign in a folder whose runs/ holds files but no campaign.json
+    (tmp_path / "b" / "campaign.json").unlink()
+    with pytest.raises(SpecError, match="runs/ holds 2 task files"):
+        run_campaign(spec, tmp_path / "b", workers=1)
+
+
+def test_levels_and_csv_numbers_keep_every_digit(tmp_path):
+    import csv
+
+    from pkmctl.report.campaign import write_report
+
+    out = tmp_path / "c"
+    _fake_campaign(out, HEAD.replace('["smc"]', '["smc", "pd"]') + 'metrics = ["rmse"]\n'
+                   '[factors."payload.mass"]\nvalues = [1.00001, 1.00004, 10.0]\n',
+                   metric=lambda r, m: 8.923456789e-05 * (1 + r.cell))  # fmt: skip
+    write_report(out)
+    md = (out / "report" / "report.md").read_text()
+    assert "payload.mass = 1.00001 |" in md and "payload.mass = 1.00004 |" in md
+    assert "payload.mass = 10 |" in md  # as few digits as tell it
+    rows = list(csv.DictReader((out / "report" / "summary.csv").open()))
+    assert {r["f.payload.mass"] for r in rows} == {"1.00001", "1.00004", "10.0"}
+    means = {float(r["mean"]) for r in rows if r["metric"] == "rmse_z_mm"}
+    assert means == {8.923456789e-05 * k for k in (1, 2, 3)}  # read back exactly
+
+
+def test_string_factor_values_are_stored_as_the_text(tmp_path):
+    from pkmctl.report.campaign import write_report
+
+    out = tmp_path / "c"
+    _fake_campaign(out, HEAD + 'metrics = ["rmse"]\n[factors."sensor.kind"]\n'
+                   'values = ["ideal", "encoder"]\n')  # fmt: skip
+    n = query(out, """SELECT count(*) AS n FROM runs WHERE "f.sensor.kind" = 'ideal'""")
+    assert n.to_pylist() == [{"n": 1}]
+    assert read_records(out).column("f.sensor.kind").to_pylist() == ["ideal", "encoder"]
+    write_report(out)
+    assert "sensor.kind = encoder" in (out / "report" / "report.md").read_text()
+
+
+def test_report_of_one_controller_failed_points_and_durations_by_cell(tmp_path):
+    from pkmctl.report.campaign import write_report
+
+    out = tmp_path / "c"
+    _fake_campaign(out, HEAD.replace("seeds = 1", "seeds = 2") + 'metrics = ["rmse"]\n'
+                   '[factors."timing.duration"]\nvalues = [0.05, 0.1]\n',
+                   status=lambda r: "diverged" if (r.cell, r.seed) == (1, 0) else "ok")  # fmt: skip
+    write_report(out)
+    md = (out / "report" / "report.md").read_text()
+    assert "4 runs recorded: 2 cells x 1 controllers (smc) x 2 seeds, 0.05-0.1 s each" in md
+    assert "One controller (smc): no pair to compare" in md
+    assert "### rmse_z_mm\n\n## " not in md  # no empty section
+    assert 'a point marked "k failed" leaves out k runs that diverged or failed' in md
+
+
+def test_the_docs_name_every_built_in_scenario():
+    from pkmctl.sim.scenario import BUILTINS
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "campaigns.md").read_text()
+    line = next(ln for ln in text.splitlines() if ln.startswith('scenario = "paper"'))
+    assert all(name in line or name in text.split(line)[1][:200] for name in BUILTINS), line

@@ -642,6 +642,21 @@ def _seconds(s: float) -> str:
     return f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min" if s < 7200 else f"{s / 3600:.1f} h"
 
 
+def _campaign_handle(ctx: typer.Context, exc: BaseException, doing: str) -> NoReturn:
+    """:func:`_handle` for the campaign commands; running out of memory says what the
+    command was doing (``doing``), not the single-run advice about timing.duration."""
+    if isinstance(exc, MemoryError) and not _debug(ctx):
+        _fail(f"out of memory {doing}")
+    _handle(ctx, exc)
+
+
+def _each(spec) -> str:
+    """How long each run of a campaign is (a range when ``timing.duration`` is a factor)."""
+    durations = spec.durations()
+    lo, hi = min(durations), max(durations)
+    return f"{lo:g} s each" if lo == hi else f"{lo:g}-{hi:g} s each (by cell)"
+
+
 @campaign_app.command("run")
 def campaign_run(
     ctx: typer.Context,
@@ -687,7 +702,8 @@ def campaign_run(
                 lambda: CampaignSpec.from_toml(Path(spec_file)), lambda: "nothing run"
             )
     except Exception as exc:
-        _handle(ctx, exc)
+        _campaign_handle(ctx, exc, "reading the spec: nothing run")
+    existed = (out / "campaign.json").exists()
     n_workers = workers or (os.cpu_count() or 1)
     tasks = spec.tasks()
     where = (
@@ -734,11 +750,20 @@ def campaign_run(
             _say(f"dashboard: {link}" if link else "the cluster's scheduler runs no dashboard")
 
         def interrupted() -> str:
+            import shlex
+
             bar.stop()
-            return (
-                f"{state['done']} of {spec.n_runs} runs kept in {out}; "
-                f"pkmctl campaign run {spec_file} --out {out} --resume completes it"
-            )
+            if not (out / "campaign.json").exists():  # stopped before the folder was made
+                return "nothing written"
+            args = ["pkmctl", "campaign", "run", spec_file, "--out", str(out)]
+            if scheduler:
+                args += ["--scheduler", scheduler]
+            elif workers is not None:
+                args += ["--workers", str(workers)]
+            kept = f"{state['done']} of {spec.n_runs} runs kept in {out}"
+            if not existed and state["done"] == 0:
+                kept = f"no run done yet; the campaign folder {out} is made"
+            return f"{kept}; {shlex.join([*args, '--resume'])} completes it"
 
         try:
             with compiles.listen():
@@ -756,7 +781,11 @@ def campaign_run(
                 )
         except Exception as exc:
             bar.stop()
-            _handle(ctx, exc)
+            _campaign_handle(
+                ctx, exc, f"running the campaign's tasks ({spec.periods()} control periods a "
+                f"run, {n_workers} workers here): fewer --workers, or fewer periods a run "
+                f"(duration, timing.control_period); the tasks done are kept (--resume)",
+            )  # fmt: skip
     rate = done.done_now / done.wall_s if done.wall_s > 0 else 0.0
     kept = f" ({done.done_before} done before)" if done.done_before else ""
     console.print(
@@ -796,14 +825,14 @@ def campaign_show(
     try:
         spec = _interruptible(lambda: CampaignSpec.from_toml(Path(spec_file)), lambda: "")
     except Exception as exc:
-        _handle(ctx, exc)
+        _campaign_handle(ctx, exc, "reading the spec")
     sys.stdout.write(spec.text if spec.text.endswith("\n") else spec.text + "\n")
     work = spec.n_runs * spec.run_seconds()
     cores = os.cpu_count() or 1
     _say(
         f"campaign {spec.name!r} ({spec.digest}): {spec.n_runs} runs = {len(spec.cells)} cells "
         f"({spec.design}) x {len(spec.controllers)} controllers x {len(spec.seeds)} seeds, "
-        f"{spec.duration:g} s each, in {len(spec.tasks())} tasks; estimated {_seconds(work)} "
+        f"{_each(spec)}, in {len(spec.tasks())} tasks; estimated {_seconds(work)} "
         f"on one core, {_seconds(work / cores)} on {cores}"
     )
     for i in range(len(spec.cells)):
@@ -827,10 +856,26 @@ def campaign_report(
 
     if not (Path(folder) / "spec.toml").is_file():
         _fail(f"{folder!r}: not a campaign folder (no spec.toml; see pkmctl campaign run --out)")
+    cancel, finished, box = threading.Event(), threading.Event(), {}
+
+    def work():
+        try:
+            box["files"] = write_report(folder, cancel=cancel)
+            return box["files"]
+        finally:
+            finished.set()
+
+    def interrupted() -> str:
+        # the report runs on in its thread: stop it, and let it remove its staging folder
+        # (FOLDER/report/.pkmctl-*.tmp) before the command exits
+        cancel.set()
+        finished.wait(30)
+        return "the report was written already" if "files" in box else "nothing written"
+
     try:
-        files = _interruptible(lambda: write_report(folder), lambda: "nothing written")
+        files = _interruptible(work, interrupted)
     except Exception as exc:
-        _handle(ctx, exc)
+        _campaign_handle(ctx, exc, "reading the records and writing the report: nothing written")
     console.print(Text(f"wrote {files[0]} and {len(files) - 1} figures"))
 
 

@@ -32,6 +32,7 @@ from pkmctl.campaign.store import (
     factor_column,
     factor_value,
     open_store,
+    read_spec,
     record_session,
     schema,
     task_grouping,
@@ -271,18 +272,55 @@ class SchedulerError(PkmctlError, OSError):
     """The Dask scheduler given cannot be reached (one line: the address and why)."""
 
 
-def _connect(address: str):
+#: Seconds a scheduler has to answer Dask's handshake (docs/campaigns.md: "within 10 s").
+CONNECT_SECONDS = 10.0
+
+
+def _handshake(address: str, seconds: float) -> None:
+    """Connect to ``address`` and exchange Dask's handshake, all within ``seconds``.
+
+    ``Client(address, timeout=...)`` bounds the TCP connection only: a server that accepts
+    it but is not Dask (an HTTP server) never answers the handshake, and the client waited
+    for ever; one that answers something else made it allocate what the first bytes
+    announce (a MemoryError)."""
+    import asyncio
+
+    from distributed.comm import connect
+
+    async def probe():  # a refused connection is retried: its error comes before ours
+        comm = await connect(address, timeout=round(0.8 * seconds, 1))
+        await comm.close()
+
+    asyncio.run(asyncio.wait_for(probe(), seconds))
+
+
+def _connect(address: str, seconds: float | None = None):
     """A Dask client of the scheduler at ``address``, before anything is written: an address
-    that is malformed or does not answer within 10 s is a :class:`SchedulerError`."""
+    that is malformed, does not answer Dask's handshake within ``seconds`` (default
+    :data:`CONNECT_SECONDS`), or answers something else is a :class:`SchedulerError`."""
     from distributed import Client
 
+    seconds = CONNECT_SECONDS if seconds is None else seconds
+
+    def fail(why: str) -> SchedulerError:
+        return SchedulerError(f"--scheduler {address!r}: cannot connect ({why}); nothing written")
+
     try:
-        return Client(address, timeout="10s")
-    except (OSError, TimeoutError, ValueError, TypeError) as exc:
+        _handshake(address, seconds)
+    except TimeoutError:  # asyncio's too, since Python 3.11
+        raise fail(f"no Dask handshake within {seconds:g} s: not a Dask scheduler?") from None
+    except MemoryError:
+        raise fail("its answer is not Dask's protocol: not a Dask scheduler?") from None
+    except Exception as exc:  # noqa: BLE001 - whatever the address does, one line
         why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise SchedulerError(
-            f"--scheduler {address!r}: cannot connect ({why}); nothing written"
-        ) from None
+        raise fail(why) from None
+    try:
+        return Client(address, timeout=f"{seconds:g}s")
+    except MemoryError:
+        raise fail("its answer is not Dask's protocol: not a Dask scheduler?") from None
+    except Exception as exc:  # noqa: BLE001 - one line, nothing written
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise fail(why) from None
 
 
 def _dask_results(spec: CampaignSpec, tasks: list[Task], client, on_client=None) -> Iterable:
@@ -364,8 +402,10 @@ def run_campaign(
 def _run(spec, out, client, scheduler, workers, resume, progress, on_client, stop_after):
     """:func:`run_campaign` once connected (``client``: a Dask client, or None: local)."""
     runs_dir = open_store(out, spec, resume=resume)
+    if spec.base.fuzzy.fis is not None:  # the runs read the folder's copy of the .fis file:
+        spec = read_spec(out)  # its content is the spec hash's, whatever becomes of the file
     tasks = spec.tasks(*task_grouping(out))  # the grouping the folder was started with
-    done = completed_tasks(runs_dir)
+    done = completed_tasks(runs_dir, spec.digest)  # another campaign's file is refused
     todo = [t for t in tasks if t.index not in done]
     before = sum(len(t.runs) for t in tasks if t.index in done)
     record_session(out, f"dask {scheduler}" if scheduler else f"{workers} local workers")

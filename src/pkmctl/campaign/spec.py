@@ -112,6 +112,12 @@ LEGACY_TASK_SECONDS = 0.2
 #: too; a folder started before it was recorded grouped by 1 (:data:`LEGACY_TASK_MULTIPLE`).
 TASK_MULTIPLE = 8
 LEGACY_TASK_MULTIPLE = 1
+#: Runs a campaign may hold (cells x controllers x seeds), checked before the cells, seeds
+#: and runs are built: a spec of 10^8 seeds is refused at once, not after filling the
+#: memory with them. A million runs of 0.5 s is about six days of a core.
+MAX_RUNS = 1_000_000
+#: Fields a factor cannot set: each run sets them itself (``seeds`` set the disturbance's).
+RUN_FIELDS = {"disturbance.seed": "each run's seed sets it: list the seeds in seeds = [...]"}
 
 
 @dataclass(frozen=True)
@@ -158,6 +164,8 @@ def _linked(path: str, body: dict, n: int) -> dict[str, list]:
     for field, vals in linked.items():
         if field == path:
             raise _fail(f"{where}: {field!r} is the factor itself")
+        if field in RUN_FIELDS:
+            raise _fail(f"{where}.{field!r}: a campaign cannot set it ({RUN_FIELDS[field]})")
         if not isinstance(vals, list) or len(vals) != n:
             raise _fail(f"{where}.{field!r} = {vals!r}: must be a list of {n} values, one a value")
         out[field] = [None if v == "none" else v for v in vals]
@@ -177,6 +185,9 @@ def _factor_values(path: str, body: Any) -> tuple[list, dict[str, list]]:
         if not isinstance(values, list) or not values:
             raise _fail(f"{where}.values = {values!r}: must be a non-empty list")
         values = [None if v == "none" else v for v in values]
+        for i, v in enumerate(values):  # identical cells would count as independent pairs
+            if any(_same(v, w) for w in values[:i]):
+                raise _fail(f"{where}.values = {body['values']!r}: a value named twice ({v!r})")
         return values, (_linked(path, body, len(values)) if "with" in body else {})
     kind = body.get("distribution")
     if kind not in DISTRIBUTIONS:
@@ -215,6 +226,73 @@ def _factor_values(path: str, body: Any) -> tuple[list, dict[str, list]]:
             raise _fail(f"{where}.std = {p[1]}: must be > 0")
         draws = rng.normal(p[0], p[1], n)
     return draws.tolist(), {}
+
+
+def _same(a, b) -> bool:
+    """Two factor values that make the same cell (5 and 5.0 do; True and 1 do not)."""
+    if isinstance(a, bool) or isinstance(b, bool):
+        return type(a) is type(b) and a == b
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    return a == b
+
+
+def _check_fields(parsed: dict) -> None:
+    """Refuse a factor a run overrides, and a field set twice in a cell: a factor that is
+    also in another factor's ``with``, or a field in two factors' ``with``."""
+    for p in parsed:
+        if p in RUN_FIELDS:
+            raise _fail(f"factors.{p!r}: a campaign cannot vary it ({RUN_FIELDS[p]})")
+    setter: dict[str, str] = {}
+    for p, (_, linked) in parsed.items():
+        for field in linked:
+            if field in parsed:
+                raise _fail(
+                    f"factors.{p!r}.with.{field!r}: {field} is set twice, as a factor and in "
+                    f"this with (make it one or the other)"
+                )
+            if field in setter:
+                raise _fail(
+                    f"factors.{p!r}.with.{field!r}: {field} is set twice, also in "
+                    f"factors.{setter[field]!r}.with (set it in one factor's with only)"
+                )
+            setter[field] = p
+
+
+def _too_many(n_runs: int, what: str) -> SpecError:
+    return _fail(
+        f"{what}: {n_runs} runs (cells x controllers x seeds), more than the {MAX_RUNS} a "
+        f"campaign holds: split it into campaigns of fewer cells or seeds"
+    )
+
+
+def fis_digest(path: str) -> str:
+    """``sha256:`` and the SHA-256 of a ``.fis`` file's bytes: what a campaign's hash holds
+    for a fuzzy system read from a file (its content, not where it is)."""
+    try:
+        return "sha256:" + hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError as exc:
+        raise ScenarioError(f"fuzzy.fis = {path!r}: {exc.strerror or exc}") from None
+
+
+def _identity(base: Scenario, cells, controllers, seeds, metrics, *, fis_path: bool = False):
+    """The SHA-256 (16 hex digits) of what determines a campaign's records. A ``.fis``
+    file counts by its content (``fis_path``: by its path, as folders made before did)."""
+    # logging.every changes no record (metrics are computed over every period in the
+    # loop), so it is not part of what the campaign is: a store made before the option
+    # existed, or with another value, still resumes
+    dumped = base.model_dump(mode="json", by_alias=True, exclude={"logging"})
+    if base.fuzzy.fis is not None and not fis_path:
+        dumped["fuzzy"]["fis"] = fis_digest(base.fuzzy.fis)
+    identity = {
+        "base": dumped,
+        "cells": cells,
+        "controllers": controllers,
+        "seeds": seeds,
+        "metrics": metrics,
+    }
+    blob = json.dumps(identity, sort_keys=True, separators=(",", ":")).encode()
+    return hashlib.sha256(blob).hexdigest()[:16]
 
 
 def _load_base(ref: Any, folder: Path) -> Scenario:
@@ -311,9 +389,12 @@ class CampaignSpec:
         if len(set(controllers)) != len(controllers):
             raise _fail(f"controllers = {controllers!r}: a controller is named twice")
         seeds = data.get("seeds", 1)
-        if isinstance(seeds, int) and not isinstance(seeds, bool):
-            if seeds < 1:
-                raise _fail(f"seeds = {seeds}: must be >= 1 (zero runs)")
+        count = isinstance(seeds, int) and not isinstance(seeds, bool)
+        if count and seeds < 1:
+            raise _fail(f"seeds = {seeds}: must be >= 1 (zero runs)")
+        if count and seeds * len(controllers) > MAX_RUNS:  # before a list of them is made
+            raise _too_many(seeds * len(controllers), f"seeds = {seeds}")
+        if count:
             seeds = list(range(seeds))
         if not isinstance(seeds, list) or not seeds:
             raise _fail(f"seeds = {seeds!r}: must be a count >= 1 or a non-empty list (zero runs)")
@@ -331,6 +412,8 @@ class CampaignSpec:
         for m in metrics:
             if m not in METRICS:
                 raise _fail(f"metrics: {m!r} unknown (choose from {', '.join(METRICS)})")
+        if len(set(metrics)) != len(metrics):
+            raise _fail(f"metrics = {metrics!r}: a metric named twice")
         factors = data.get("factors", {})
         if not isinstance(factors, dict):
             raise _fail(f"factors = {factors!r}: must be a table of dotted paths")
@@ -338,15 +421,26 @@ class CampaignSpec:
         if design not in DESIGNS:
             raise _fail(f"design = {design!r}: must be one of {', '.join(DESIGNS)}")
         parsed = {p: _factor_values(p, body) for p, body in factors.items()}
+        _check_fields(parsed)
         base = base.replace(**{"timing.duration": float(duration)})
         center = None
+        if design == "grid":
+            n_cells = math.prod(len(v) for v, _ in parsed.values())
+        else:
+            center = {p: _base_value(base, p) for p in parsed}
+            n_cells = 1 + sum(
+                sum(not _same(v, center[p]) for v in values) for p, (values, _) in parsed.items()
+            )
+        n_runs = n_cells * len(controllers) * len(seeds)
+        if n_runs > MAX_RUNS:  # before the cells are built and validated
+            raise _too_many(n_runs, f"{n_cells} cells x {len(controllers)} controllers x "
+                                    f"{len(seeds)} seeds")  # fmt: skip
         if design == "grid":
             cells = tuple(
                 _cell(parsed, dict(zip(parsed, combo, strict=True)))
                 for combo in itertools.product(*(range(len(v)) for v, _ in parsed.values()))
             )
         else:
-            center = {p: _base_value(base, p) for p in parsed}
             cells = _one_at_a_time(base, parsed, center)
         for cell in cells:
             _cell_scenario(base, cell)  # raises the scenario's one-line error
@@ -354,17 +448,6 @@ class CampaignSpec:
         name = data.get("name", "campaign")
         if not isinstance(name, str) or not name:
             raise _fail(f"name = {name!r}: must be a non-empty string")
-        identity = {
-            # logging.every changes no record (metrics are computed over every period in the
-            # loop), so it is not part of what the campaign is: a store made before the
-            # option existed, or with another value, still resumes
-            "base": base.model_dump(mode="json", by_alias=True, exclude={"logging"}),
-            "cells": cells,
-            "controllers": controllers,
-            "seeds": seeds,
-            "metrics": metrics,
-        }
-        blob = json.dumps(identity, sort_keys=True, separators=(",", ":")).encode()
         return cls(
             name=name,
             description=str(data.get("description", "")),
@@ -376,7 +459,7 @@ class CampaignSpec:
             duration=float(duration),
             metrics=tuple(metrics),
             text=text,
-            digest=hashlib.sha256(blob).hexdigest()[:16],
+            digest=_identity(base, cells, controllers, seeds, metrics),
             design=design,
             center=center,
             compare=compare,
@@ -408,12 +491,24 @@ class CampaignSpec:
         """The validated scenario of cell ``cell``."""
         return _cell_scenario(self.base, self.cells[cell])
 
+    def durations(self) -> list[float]:
+        """Each cell's run duration, s (the spec's ``duration``, or a ``timing.duration``
+        factor's value)."""
+        return [float(c.get("timing.duration", self.duration)) for c in self.cells]
+
+    def legacy_digest(self) -> str:
+        """The hash a folder made before a ``.fis`` file counted by its content has: with
+        the file's path instead (:func:`pkmctl.campaign.store.read_spec` accepts it)."""
+        return _identity(self.base, self.cells, list(self.controllers), list(self.seeds),
+                         list(self.metrics), fis_path=True)  # fmt: skip
+
     def periods(self) -> int:
-        """Control periods of one run (the base's period; a factor may change it)."""
+        """Control periods of the longest run (the base's period and duration; factors
+        may change them)."""
         return max(
-            int(round(self.duration / float(c.get("timing.control_period",
-                                                  self.base.timing.control_period))))
-            for c in self.cells
+            int(round(d / float(c.get("timing.control_period",
+                                      self.base.timing.control_period))))
+            for c, d in zip(self.cells, self.durations(), strict=True)
         )  # fmt: skip
 
     def run_seconds(self) -> float:
@@ -459,13 +554,26 @@ def _base_value(base: Scenario, path: str):
 
 def _one_at_a_time(base: Scenario, parsed: dict, center: dict) -> tuple[dict, ...]:
     """The centre (every factor at the base's value), then each factor's other values in
-    turn, the rest at the centre. A value equal to the base's is the centre, not a cell."""
-    cells = [dict(center)]
+    turn, the rest at the centre. A value equal to the base's is the centre, not a cell.
+
+    The centre takes the ``with`` fields of each factor's value that equals the base's
+    (``values = [5e-5, 1e-3]`` with ``substeps = [4, 20]`` and a base at 5e-5: the centre
+    runs 4 sub-steps), and every cell of another factor keeps them, as it keeps the rest
+    of the centre. No field is in two factors' ``with`` (:func:`_check_fields`), so this
+    is well defined. A field whose ``with`` value is the base's stays out of the cells
+    (it changes nothing, and the cells and the spec hash stay as they were)."""
+    middle = dict(center)
+    for p, (values, linked) in parsed.items():
+        at = next((i for i, v in enumerate(values) if _same(v, center[p])), None)
+        if at is not None:
+            middle.update({f: vals[at] for f, vals in linked.items()
+                           if not _same(vals[at], _base_value(base, f))})  # fmt: skip
+    cells = [middle]
     for p, (values, linked) in parsed.items():
         for i, v in enumerate(values):
-            if v == center[p]:
+            if _same(v, center[p]):
                 continue
-            cell = dict(center)
+            cell = dict(middle)
             cell[p] = v
             cell.update({f: vals[i] for f, vals in linked.items()})
             cells.append(cell)

@@ -14,7 +14,7 @@ import numpy as np
 import pyarrow as pa
 
 from pkmctl.campaign.spec import CampaignSpec
-from pkmctl.campaign.store import factor_column
+from pkmctl.campaign.store import factor_column, factor_value
 
 __all__ = [
     "bootstrap_interval",
@@ -192,8 +192,9 @@ def by_factor(spec: CampaignSpec, table: pa.Table, metric: str, factor: str) -> 
     every other factor's cells (one-at-a-time: the cells of the factor's axis, the others
     at the centre) and every seed (the runs that ended ok).
 
-    Returns rows ``{"controller", "value", "n", "mean", "lo", "hi"}``, values in the
-    order of first appearance in the cells.
+    Returns rows ``{"controller", "value", "n", "failed", "mean", "lo", "hi"}``
+    (``failed``: the runs at that value that did not end ok, left out of the mean), values
+    in the order of first appearance in the cells.
     """
     col = factor_column(factor)
     c = _columns(table, ["cell", "controller", "status", metric, col])
@@ -208,14 +209,13 @@ def by_factor(spec: CampaignSpec, table: pa.Table, metric: str, factor: str) -> 
         for v in values:
             stored = c[col]
             if stored.dtype == object:
-                import json
-
-                match = stored == json.dumps(v)
+                match = stored == factor_value(spec, factor, v)
             elif v is None:
                 match = np.isnan(stored)
             else:
                 match = stored == float(v)
-            sel = match & on_axis & (c["controller"] == ctrl) & (c["status"] == "ok")
+            mine = match & on_axis & (c["controller"] == ctrl)
+            sel = mine & (c["status"] == "ok")
             x = c[metric][sel]
             x = x[np.isfinite(x)]
             lo, hi = bootstrap_interval(x, seed=_seed(factor, repr(v), ctrl, metric))
@@ -224,6 +224,7 @@ def by_factor(spec: CampaignSpec, table: pa.Table, metric: str, factor: str) -> 
                     "controller": ctrl,
                     "value": v,
                     "n": int(x.size),
+                    "failed": int((mine & (c["status"] != "ok")).sum()),
                     "mean": float(x.mean()) if x.size else math.nan,
                     "lo": lo,
                     "hi": hi,

@@ -4,6 +4,8 @@ Layout of a campaign folder::
 
     spec.toml            the spec as written
     scenario.toml        its base scenario (the spec may name a file elsewhere)
+    fuzzy.fis            a copy of the .fis file the base scenario names, if any (the
+                         stored scenario names this copy)
     campaign.json        its digest, runs, tasks, task size, record columns, and each
                          session that ran tasks (when, where, which versions)
     runs/task-00017.parquet    the records of task 17, written atomically, once
@@ -80,6 +82,10 @@ def _numeric(values) -> bool:
     )
 
 
+def _strings(values) -> bool:
+    return all(v is None or isinstance(v, str) for v in values)
+
+
 def schema(spec: CampaignSpec) -> pa.Schema:
     """The records' columns: key, factors, status, metrics, timing."""
     fields = [
@@ -107,10 +113,31 @@ def schema(spec: CampaignSpec) -> pa.Schema:
 
 
 def factor_value(spec: CampaignSpec, path: str, value):
-    """A cell's factor value as its column stores it (a float, or JSON text)."""
-    if _numeric([c[path] for c in spec.cells]):
+    """A cell's factor value as its column stores it: a float if every value of the factor
+    is a number (or none), the text itself if every one is a string (or none), else JSON
+    text (a list, or a mix)."""
+    values = [c[path] for c in spec.cells]
+    if _numeric(values):
         return None if value is None else float(value)
+    if _strings(values):
+        return value
     return json.dumps(value)
+
+
+#: A fuzzy system's file, copied into the campaign folder (:func:`open_store`).
+FIS_COPY = "fuzzy.fis"
+
+
+def _stored_scenario(spec: CampaignSpec) -> str:
+    """The base scenario as ``scenario.toml`` holds it: its ``.fis`` file, if any, is the
+    copy beside it (:data:`FIS_COPY`, relative: the folder can move)."""
+    if spec.base.fuzzy.fis is None:
+        return spec.base.to_toml()
+    import tomli_w
+
+    data = spec.base.model_dump(exclude_none=True, by_alias=True)
+    data["fuzzy"]["fis"] = FIS_COPY
+    return tomli_w.dumps(data)
 
 
 def _manifest(spec: CampaignSpec) -> dict:
@@ -201,11 +228,26 @@ def open_store(out: Path, spec: CampaignSpec, *, resume: bool) -> Path:
                 f"{spec.digest!r} (a different spec; use another --out)"
             )
     else:
+        stray = sorted((out / "runs").glob("task-*.parquet"))
+        if stray:  # records of a campaign whose campaign.json is gone: not this one's
+            raise SpecError(
+                f"--out {str(out)!r}: runs/ holds {len(stray)} task files ({stray[0].name}, "
+                f"...) but no campaign.json: another campaign's? Use another --out"
+            )
+        fis = None
+        if spec.base.fuzzy.fis is not None:
+            try:
+                fis = Path(spec.base.fuzzy.fis).read_bytes()
+            except OSError as exc:
+                raise SpecError(f"fuzzy.fis = {spec.base.fuzzy.fis!r}: {exc.strerror}") from None
         out.mkdir(parents=True, exist_ok=True)
         with atomic_write(out / "spec.toml") as fh:
             fh.write(spec.text)
+        if fis is not None:  # the content the spec hash holds, whatever happens to the file
+            with atomic_write(out / FIS_COPY, "wb") as fh:
+                fh.write(fis)
         with atomic_write(out / "scenario.toml") as fh:
-            fh.write(spec.base.to_toml())
+            fh.write(_stored_scenario(spec))
         with atomic_write(manifest) as fh:
             json.dump(_manifest(spec), fh, indent=2)
     runs = out / "runs"
@@ -227,6 +269,12 @@ def read_spec(out: str | Path) -> CampaignSpec:
         raise SpecError(f"{str(out)!r}: not a readable campaign folder ({exc})") from None
     data["scenario"] = str((out / "scenario.toml").absolute())
     spec = CampaignSpec.from_dict(data, text=text, folder=out)
+    if spec.digest != digest and spec.base.fuzzy.fis is not None:
+        # a folder made before a .fis file counted by its content (and was copied here)
+        if spec.legacy_digest() == digest:
+            import dataclasses
+
+            spec = dataclasses.replace(spec, digest=digest)
     if spec.digest != digest:
         raise SpecError(
             f"{str(out)!r}: its spec hashes to {spec.digest!r}, its records to {digest!r} "
@@ -239,14 +287,29 @@ def _task_path(runs: Path, index: int) -> Path:
     return runs / f"task-{index:05d}.parquet"
 
 
-def completed_tasks(runs: Path) -> set[int]:
-    """Indices of the tasks whose file exists (a file is whole, or absent)."""
+def _foreign(path: Path, hashes, digest: str) -> SpecError:
+    other = sorted(set(hashes) - {digest})
+    return SpecError(
+        f"{path}: records of campaign {other[0]!r}, not of this folder's {digest!r} (a file "
+        f"of another campaign: move it out of runs/)"
+    )
+
+
+def completed_tasks(runs: Path, digest: str | None = None) -> set[int]:
+    """Indices of the tasks whose file exists (a file is whole, or absent). With
+    ``digest``, a file holding records of another campaign (another spec hash) is a
+    :class:`SpecError` naming it: it would count as done and mix into the report."""
     done = set()
     for p in runs.glob("task-*.parquet"):
         try:
-            done.add(int(p.stem.removeprefix("task-")))
+            index = int(p.stem.removeprefix("task-"))
         except ValueError:
             continue
+        if digest is not None:
+            hashes = pq.read_table(p, columns=["spec_hash"]).column("spec_hash").unique()
+            if set(hashes.to_pylist()) != {digest}:
+                raise _foreign(p, hashes.to_pylist(), digest)
+        done.add(index)
     return done
 
 
@@ -267,10 +330,15 @@ def read_records(out: str | Path, *, timing: bool = True) -> pa.Table:
     spec = read_spec(out)
     files = sorted((out / "runs").glob("task-*.parquet"))
     sch = schema(spec)
-    if not files:
-        table = sch.empty_table()
-    else:
-        table = pa.concat_tables([pq.read_table(f, schema=sch) for f in files])
+    tables = []
+    for f in files:
+        t = pq.read_table(f, schema=sch)
+        hashes = t.column("spec_hash").unique().to_pylist()
+        if hashes and set(hashes) != {spec.digest}:
+            raise _foreign(f, hashes, spec.digest)
+        tables.append(t)
+    table = pa.concat_tables(tables) if tables else sch.empty_table()
+    table = _plain_strings(spec, table)
     order = {c: i for i, c in enumerate(spec.controllers)}
     ctrl_rank = pa.array([order[c] for c in table.column("controller").to_pylist()], pa.int64())
     table = table.append_column("_rank", ctrl_rank)
@@ -278,6 +346,22 @@ def read_records(out: str | Path, *, timing: bool = True) -> pa.Table:
     table = table.drop_columns(["_rank"])
     if not timing:
         table = table.drop_columns(list(TIMING_COLUMNS))
+    return table
+
+
+def _plain_strings(spec: CampaignSpec, table: pa.Table) -> pa.Table:
+    """Factors of string values as the text itself: folders made before stored them as
+    JSON text (``"ideal"`` with its quotes); those records read as the new ones."""
+    for p in spec.factors:
+        values = [c[p] for c in spec.cells]
+        if _numeric(values) or not _strings(values):
+            continue
+        col = factor_column(p)
+        old = {json.dumps(v): v for v in values if v is not None}
+        stored = table.column(col).to_pylist()
+        if any(v in old for v in stored):
+            fixed = pa.array([old.get(v, v) for v in stored], pa.string())
+            table = table.set_column(table.schema.get_field_index(col), col, fixed)
     return table
 
 

@@ -20,14 +20,49 @@ from pkmctl.campaign.spec import CampaignSpec, SpecError
 from pkmctl.campaign.store import factor_column, read_records, read_spec
 from pkmctl.io.atomic import atomic_write, staged_folder
 
-__all__ = ["comparison_lines", "write_report"]
+__all__ = ["REPORT_FILES", "comparison_lines", "write_report"]
+
+#: Every entry a report writes into ``DIR/report``; one it does not write this time (say
+#: ``answer.md`` after the ``[[compare]]`` went) is removed, so nothing stale stays.
+REPORT_FILES = (
+    "report.md",
+    "summary.csv",
+    "paired.csv",
+    "divergence.csv",
+    "comparison.csv",
+    "answer.md",
+    "figures",
+)
 
 
 def _g(x) -> str:
+    """A number to read (4 significant digits)."""
     if x is None:
         return "none"
     if isinstance(x, float):
         return "n/a" if not math.isfinite(x) else f"{x:.4g}"
+    return str(x)
+
+
+def _level(x) -> str:
+    """A factor's value, in as few digits as tell it from any other: ``0.001``, ``10``,
+    ``1.00001`` (never rounded: two cells must not read the same)."""
+    if x is None:
+        return "none"
+    if isinstance(x, float):
+        short = f"{x:g}"
+        return short if math.isfinite(x) and float(short) == x else repr(x)
+    if isinstance(x, list):
+        return "[" + ", ".join(repr(v) if isinstance(v, float) else _level(v) for v in x) + "]"
+    return str(x)
+
+
+def _full(x) -> str:
+    """A number for a CSV: every digit (the shortest text that reads back to it)."""
+    if x is None:
+        return "none"
+    if isinstance(x, float):
+        return "n/a" if not math.isfinite(x) else repr(x)
     return str(x)
 
 
@@ -41,7 +76,7 @@ def _cell_name(spec: CampaignSpec, cell: int) -> str:
         varied = [p for p in spec.factors if spec.cells[cell][p] != spec.center[p]]
         if not varied:
             return "the centre"
-    return ", ".join(f"{p} = {_g(spec.cells[cell][p])}" for p in varied)
+    return ", ".join(f"{p} = {_level(spec.cells[cell][p])}" for p in varied)
 
 
 def _ratio(r: dict) -> str:
@@ -147,19 +182,32 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]), lineterminator="\n")
         w.writeheader()
         for r in rows:
-            w.writerow({k: _g(v) if isinstance(v, float) or v is None else v for k, v in r.items()})
+            w.writerow(
+                {k: _full(v) if isinstance(v, float) or v is None else v for k, v in r.items()}
+            )
 
 
-def _plot(spec, table, metric: str, factor: str, path: Path) -> None:
+def _plot(spec, table, metric: str, factor: str, path: Path) -> int:
+    """One figure: ``metric`` against ``factor``, per controller, with intervals; the
+    points in the order of the factor's values (numbers: ascending). A point whose runs
+    did not all end ok is marked with how many failed (left out of its mean); a value
+    where every run failed is an x on the axis. Returns the runs left out."""
+    from matplotlib.transforms import blended_transform_factory
+
     rows = stats.by_factor(spec, table, metric, factor)
     fig = Figure(figsize=(6, 4))
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     values = list(dict.fromkeys(repr(r["value"]) for r in rows))
-    numeric = all(isinstance(r["value"], int | float) for r in rows)
+    numeric = all(
+        isinstance(r["value"], int | float) and not isinstance(r["value"], bool) for r in rows
+    )
+    on_axis = blended_transform_factory(ax.transData, ax.transAxes)
+    left_out = 0
     for k, ctrl in enumerate(spec.controllers):
         mine = [r for r in rows if r["controller"] == ctrl]
-        if numeric:
+        if numeric:  # a line in the order of x, not of the cells (one-at-a-time: the centre first)
+            mine.sort(key=lambda r: float(r["value"]))
             xs = [float(r["value"]) for r in mine]
         else:
             xs = [values.index(repr(r["value"])) + 0.05 * k for r in mine]
@@ -168,9 +216,23 @@ def _plot(spec, table, metric: str, factor: str, path: Path) -> None:
             [max(r["mean"] - r["lo"], 0) if math.isfinite(r["lo"]) else 0 for r in mine],
             [max(r["hi"] - r["mean"], 0) if math.isfinite(r["hi"]) else 0 for r in mine],
         ]
-        ax.errorbar(xs, ys, yerr=err, marker="o", capsize=3, label=ctrl)
+        line = ax.errorbar(xs, ys, yerr=err, marker="o", capsize=3, label=ctrl)
+        color = line[0].get_color()
+        for x, r in zip(xs, mine, strict=True):
+            if not r["failed"]:
+                continue
+            left_out += r["failed"]
+            if math.isfinite(r["mean"]):
+                ax.annotate(f"{r['failed']} failed", (x, r["mean"]), xytext=(4, 4),
+                            textcoords="offset points", fontsize=7, color=color)  # fmt: skip
+            else:  # no run ended ok: no mean to draw, an x on the axis says so
+                ax.plot([x], [0.02], marker="x", color=color, transform=on_axis,
+                        clip_on=False, linestyle="none")  # fmt: skip
+                ax.annotate(f"all {r['failed']} failed", (x, 0.02), xycoords=on_axis,
+                            xytext=(4, 4), textcoords="offset points", fontsize=7,
+                            color=color)  # fmt: skip
     if not numeric:
-        ax.set_xticks(range(len(values)), [_g(r["value"]) for r in rows[: len(values)]])
+        ax.set_xticks(range(len(values)), [_level(r["value"]) for r in rows[: len(values)]])
     ax.set_xlabel(factor)
     ax.set_ylabel(f"{metric} (mean, 95 % interval)")
     ax.legend()
@@ -180,6 +242,7 @@ def _plot(spec, table, metric: str, factor: str, path: Path) -> None:
     fig.savefig(buf, format="png", dpi=90)
     with atomic_write(path, "wb") as fh:
         fh.write(buf.getvalue())
+    return left_out
 
 
 def _few(unclear: list[dict]) -> str:
@@ -235,6 +298,16 @@ def _words(spec, paired: list[dict], metric: str) -> list[str]:
     return out
 
 
+def _each(spec: CampaignSpec) -> str:
+    """How long each run is: ``4.2 s each``, or the range when cells differ
+    (``timing.duration`` a factor)."""
+    durations = spec.durations()
+    lo, hi = min(durations), max(durations)
+    if lo == hi:
+        return f"{lo:g} s each"
+    return f"{lo:g}-{hi:g} s each (by cell)"
+
+
 def _answer_header(spec: CampaignSpec, table) -> str:
     ok = sum(s == "ok" for s in table.column("status").to_pylist())
     centre = (
@@ -245,14 +318,24 @@ def _answer_header(spec: CampaignSpec, table) -> str:
     return (
         f"Campaign {spec.name!r} ({spec.digest}): {table.num_rows} of {spec.n_runs} runs "
         f"recorded, {ok} ended ok; {len(spec.cells)} cells ({spec.design}{centre}), "
-        f"{len(spec.seeds)} seeds, {spec.duration:g} s each.\n\n"
+        f"{len(spec.seeds)} seeds, {_each(spec)}.\n\n"
     )
 
 
-def write_report(out: str | Path) -> list[Path]:
+def write_report(out: str | Path, cancel=None) -> list[Path]:
     """Write ``out/report/`` (report.md, summary.csv, paired.csv, divergence.csv,
-    figures/METRIC_vs_FACTOR.png, and answer.md if the spec asks questions with
-    ``[[compare]]``) from the campaign in ``out``, all at once."""
+    figures/METRIC_vs_FACTOR.png, and answer.md and comparison.csv if the spec asks
+    questions with ``[[compare]]``) from the campaign in ``out``, all at once; the files
+    of :data:`REPORT_FILES` it does not write this time are removed.
+
+    ``cancel``: a :class:`threading.Event`; once set, the report stops at the next figure
+    or file with :class:`KeyboardInterrupt` and its staging folder is removed (Ctrl-C of
+    ``pkmctl campaign report``, which runs this in a thread)."""
+
+    def check() -> None:
+        if cancel is not None and cancel.is_set():
+            raise KeyboardInterrupt
+
     out = Path(out)
     spec = read_spec(out)
     table = read_records(out)
@@ -273,7 +356,7 @@ def write_report(out: str | Path) -> list[Path]:
         "",
         f"{table.num_rows} of {spec.n_runs} runs recorded: {len(spec.cells)} cells x "
         f"{len(spec.controllers)} controllers ({', '.join(spec.controllers)}) x "
-        f"{len(spec.seeds)} seeds, {spec.duration:g} s each, base scenario "
+        f"{len(spec.seeds)} seeds, {_each(spec)}, base scenario "
         f"{spec.base.name!r}. Factors: "
         + (", ".join(spec.factors) if spec.factors else "none")
         + ".",
@@ -284,8 +367,12 @@ def write_report(out: str | Path) -> list[Path]:
         "## Which controller is better where",
         "",
     ]
-    for m in metrics:
-        lines += [f"### {m}", "", *_words(spec, paired, m), ""]
+    if len(spec.controllers) < 2:
+        lines += [f"One controller ({spec.controllers[0]}): no pair to compare; its numbers "
+                  "per cell are below.", ""]  # fmt: skip
+    else:
+        for m in metrics:
+            lines += [f"### {m}", "", *_words(spec, paired, m), ""]
     answers = []
     for q in spec.compare:
         rows = stats.comparison(spec, table, q.controller, q.baseline, metrics)
@@ -318,16 +405,27 @@ def write_report(out: str | Path) -> list[Path]:
             )
         lines.append("")
     figures = []
+    check()
     with staged_folder(out / "report") as stage:
         (stage / "figures").mkdir()
         lines += ["## Each metric against each factor", ""]
+        left_out = 0
         for m in metrics:
             for p in spec.factors:
+                check()
                 name = f"{m}_vs_{p}.png"
-                _plot(spec, table, m, p, stage / "figures" / name)
+                left_out += _plot(spec, table, m, p, stage / "figures" / name)
                 figures.append(name)
                 lines.append(f"![{m} against {p}](figures/{name})")
         lines.append("")
+        if left_out:
+            lines += [
+                'Points are means over the runs that ended ok: a point marked "k failed" '
+                'leaves out k runs that diverged or failed, and an x on the axis with "all '
+                'k failed" marks a value where no run ended ok (no mean to draw).',
+                "",
+            ]
+        check()
         _write_csv(stage / "summary.csv", summary)
         _write_csv(stage / "paired.csv", [r | {"cell": r["cell"]} for r in paired])
         _write_csv(stage / "divergence.csv", [
@@ -345,5 +443,10 @@ def write_report(out: str | Path) -> list[Path]:
                 fh.write(_answer_header(spec, table) + "\n".join(answers).rstrip() + "\n")
         with atomic_write(stage / "report.md") as fh:
             fh.write("\n".join(lines).replace("\n\n\n", "\n\n") + "\n")
+        check()
+        written = {e.name for e in stage.iterdir()}
     report = out / "report"
+    for name in REPORT_FILES:  # those of an earlier report this one does not write
+        if name not in written and (report / name).is_file():
+            (report / name).unlink()
     return [report / "report.md", *(report / "figures" / f for f in figures)]
