@@ -22,6 +22,7 @@ from pkmctl.report import (
     table4_csv,
     table4_markdown,
 )
+from pkmctl.report.tables import rmse_after
 from pkmctl.sim.metrics import RMSE_KEYS
 from pkmctl.sim.result import Result
 
@@ -265,6 +266,33 @@ def test_render_report_gives_a_drives_force_limit() -> None:
     assert "unbounded" not in text
     assert "every T_c = 1 ms from the `encoder` sensor's measurement and its force " in text
     assert "applied through the `drive` actuator's own dynamics" in text
+
+
+def test_render_report_of_the_prototype_is_true_to_its_runs() -> None:
+    """On the machine as built the gravity estimate misses in sign and size (rotor inertia,
+    friction, the drive): the report must not say "as predicted"; CTC spends most of its
+    beta error after the start, so "the whole-run RMSE measures the start" is not said of
+    it. A decimated log (logging.every = 20) keeps the run's times: no peak time read off
+    the kept rows (it said t = 1.78 s for a peak at 9 ms), T and "after 1 s" from the
+    run's end, not the last kept row."""
+    from pkmctl.sim.metrics import last_time
+
+    sc = pkmctl.Scenario.builtin("prototype", 1.5)
+    runs = {c: pkmctl.simulate(sc, controller=c) for c in ("smc", "fsmc", "pd", "ctc")}
+    text = render_report(runs, figures=[], scenario_name="prototype")
+    assert "as predicted" not in text
+    assert "do not have the predicted sign and size" in text
+    assert "rotor inertia, joint friction and the `drive` actuator's dynamics" in text
+    assert "for CTC mostly the tracking" in text
+    thin = sc.replace(**{"logging.every": 20})
+    decimated = {c: pkmctl.simulate(thin, controller=c) for c in ("smc", "pd")}
+    r = decimated["smc"]
+    assert r.t[-1] < last_time(r) == pytest.approx(1.5 - 1e-3)
+    text = render_report(decimated, figures=[], scenario_name="prototype")
+    forces = next(line for line in text.splitlines() if line.startswith("- **Forces**"))
+    assert " at t = " not in forces and "at the logged periods (one in 20)" in forces
+    assert "over T = 1.5 s" in text
+    assert rmse_after(r) is not None and "too short" not in text
 
 
 def test_render_report_says_which_plant_ran(results) -> None:

@@ -12,7 +12,7 @@ import math
 from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
-from pkmctl.sim.metrics import RMSE_KEYS, chattering_index, peak_forces, rmse
+from pkmctl.sim.metrics import RMSE_KEYS, chattering_index, last_time, peak_forces, rmse
 
 if TYPE_CHECKING:
     from pkmctl.sim.result import Result
@@ -125,7 +125,7 @@ def rmse_after(result: Result, t_from: float = RMSE_AFTER_S) -> dict[str, float]
     dict of str to float, or None
         Keys of :data:`~pkmctl.sim.metrics.RMSE_KEYS`.
     """
-    if result.t.size == 0 or result.t[-1] < t_from:
+    if result.t.size == 0 or last_time(result) < t_from:  # the run's end, not its log's
         return None
     return rmse(result, t_from=t_from)
 
@@ -194,7 +194,7 @@ def table4_markdown(results: Mapping[str, Result]) -> str:
         if paper is None:  # a baseline: the paper has no row for it
             continue
         lines.append(_row([label, "paper", *(repr(paper[k]) for k in RMSE_KEYS)]))
-        ratio = [_fmt(ours[k] / paper[k], ".2f") for k in RMSE_KEYS]
+        ratio = [_fmt(ours[k] / paper[k], ".2g") for k in RMSE_KEYS]  # 0.0012, not 0.00
         lines.append(_row([label, "ours / paper", *ratio]))
 
     lines += ["", f"**RMSE after the first {RMSE_AFTER_S:g} s (ours; the paper gives none)**", ""]

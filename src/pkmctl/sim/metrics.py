@@ -289,6 +289,11 @@ def time_over_speed_limit(result, *, source: str = "auto") -> float | None:
     return int(np.any(_true_limb_speeds(result) > limit, axis=1).sum()) * Tc
 
 
+def last_time(result) -> float:
+    """The time of the run's last control period, whatever rows its log kept."""
+    return _last_time(result)
+
+
 def _last_time(result) -> float:
     lm = getattr(result, "loop_metrics", None)
     if _every(result) > 1 and lm is not None:
