@@ -306,3 +306,22 @@ def test_from_scenario_builds_the_controller_the_loop_runs(name):
     assert make_controller("smc", sc.controller_mechanism(), period=np.float32(1e-3)).period == (
         float(np.float32(1e-3))
     )
+
+
+@pytest.mark.parametrize("name", ["smc", "afsmc"])
+def test_a_step_at_an_invalid_pose_is_refused_and_changes_nothing(robot, name):
+    """A sensor glitch (z < 0, a tilt past pi/2) gave a 70 kN command and moved Theta^;
+    the Mechanism's methods refuse the same poses."""
+    ctrl = make_controller(name, robot, period=1e-3)
+    z3 = np.zeros(3)
+    home = np.array([0.7, 0.0, 0.0])
+    ctrl.step(home, z3, home, z3, z3)
+    before = ctrl.state.raw
+    for bad, which in (([-0.7, 0.0, 0.0], "X"), ([0.7, 1.6, 0.0], "X")):
+        with pytest.raises(pkmctl.errors.InvalidPoseError, match=rf"{name} step: {which} = "):
+            ctrl.step(bad, z3, home, z3, z3)
+    with pytest.raises(pkmctl.errors.InvalidPoseError, match=rf"{name} step: X_d = "):
+        ctrl.step(home, z3, [0.7, 0.0, -1.6], z3, z3)
+    np.testing.assert_array_equal(ctrl.state.raw, before)
+    with pytest.raises(pkmctl.errors.NonFiniteInputError):  # NaN is still named as such
+        ctrl.step([np.nan, 0.0, 0.0], z3, home, z3, z3)

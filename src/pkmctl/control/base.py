@@ -27,11 +27,13 @@ import numpy as np
 from pkmctl._jit import specialise
 from pkmctl.control.gains import Gains
 from pkmctl.control.sliding import SLIDING_STATE
-from pkmctl.errors import NonFiniteInputError
+from pkmctl.errors import InvalidPoseError, NonFiniteInputError
 from pkmctl.fuzzy import FLC, FuzzySystem, MamdaniSystem
 from pkmctl.fuzzy.term import term_system
 from pkmctl.model.mechanism import Mechanism
 from pkmctl.parts import PartContext, controller_step, get_part, names
+
+_HALF_PI = math.pi / 2
 
 __all__ = [
     "AFSMC",
@@ -204,13 +206,22 @@ class Controller:
         """One control period: the task-space force F (3,) for the measured (X, Xdot).
 
         Raises :class:`~pkmctl.errors.NonFiniteInputError` (the state unchanged) if any
-        input holds NaN or inf, and ``ValueError`` if one is not of shape (3,).
+        input holds NaN or inf, :class:`~pkmctl.errors.InvalidPoseError` (the state
+        unchanged) if X or X_d is outside the valid set (z > 0, |alpha|, |beta| < pi/2: a
+        sensor glitch must not become a 70 kN command, nor move Theta^), and ``ValueError``
+        if one is not of shape (3,).
         """
         args = (
             self.params, self._state, self._work, self._y, self._ref,
             _as_vec3(X, "X"), _as_vec3(Xdot, "Xdot"), _as_vec3(X_d, "X_d"),
             _as_vec3(Xdot_d, "Xdot_d"), _as_vec3(Xddot_d, "Xddot_d"), np.empty(3),
         )  # fmt: skip
+        for name, x in (("X", args[5]), ("X_d", args[7])):  # NaN passes: it is refused below
+            if x[0] <= 0.0 or abs(x[1]) >= _HALF_PI or abs(x[2]) >= _HALF_PI:
+                raise InvalidPoseError(
+                    f"{self.name} step: {name} = {x.tolist()} is not a valid pose (z > 0, "
+                    "|alpha|, |beta| < pi/2); the controller's state is unchanged"
+                )
         # The compiled entry checks the 15 inputs before it steps (a few ns; the loop
         # has its own fast path and never calls it).
         if self._fast is None:
