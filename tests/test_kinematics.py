@@ -139,3 +139,26 @@ def test_batch_equals_single(robot):
     np.testing.assert_array_equal(
         robot.forward_kinematics(robot.inverse_kinematics(X[:2])).shape, (2, 3)
     )
+
+
+@pytest.mark.parametrize(
+    ("kw", "error", "message"),
+    [
+        ({"guess": np.zeros(2)}, ValueError, r"^guess: expected shape \(3,\) or \(1, 3\) as q"),
+        (
+            {"guess": [np.nan, 0.0, 0.0]},
+            pkmctl.errors.InvalidPoseError,
+            r"^guess: pose must be finite",
+        ),
+        ({"guess": [-0.7, 0.0, 0.0]}, pkmctl.errors.InvalidPoseError, r"^guess\[0\]: z = -0.7 m"),
+        ({"tol": -1.0}, ValueError, r"^tol = -1.0: must be a finite number > 0"),
+        ({"max_iter": 0}, ValueError, r"^max_iter = 0: must be an integer >= 1"),
+    ],
+)
+def test_forward_kinematics_names_a_bad_option(kw, error, message):
+    """numpy's "operands could not be broadcast", "X: pose must be finite" for a NaN
+    guess, and a negative tol run to "did not converge" were what they used to say."""
+    robot = pkmctl.Mechanism.paper()
+    q = robot.inverse_kinematics(np.array([0.7, 0.1, 0.1]))
+    with pytest.raises(error, match=message):
+        robot.forward_kinematics(q, **kw)

@@ -280,9 +280,21 @@ class Mechanism:
             raise ValueError(f"q: expected shape (4,) or (N, 4), got {qa.shape}")
         if not np.all(np.isfinite(qb)) or np.any(qb <= 0):
             raise ValueError("q: limb lengths must be finite and > 0")
+        if not (isinstance(tol, int | float | np.floating) and 0 < tol < math.inf):
+            raise ValueError(f"tol = {tol!r}: must be a finite number > 0 (m)")
+        if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer) or max_iter < 1:
+            raise ValueError(f"max_iter = {max_iter!r}: must be an integer >= 1")
         g = self.home if guess is None else np.asarray(guess, dtype=float)
-        gb = np.broadcast_to(np.atleast_2d(g), (qb.shape[0], 3))
-        _check_basic(gb)
+        g2 = np.atleast_2d(g)
+        if g2.ndim != 2 or g2.shape[1] != 3 or g2.shape[0] not in (1, qb.shape[0]):
+            raise ValueError(
+                f"guess: expected shape (3,) or ({qb.shape[0]}, 3) as q, got {np.shape(g)}"
+            )
+        gb = np.broadcast_to(g2, (qb.shape[0], 3))
+        try:
+            _check_basic(gb)
+        except InvalidPoseError as exc:
+            raise InvalidPoseError(f"guess: {exc}".replace("guess: X", "guess")) from None
         out = np.empty((qb.shape[0], 3))
         for n in range(qb.shape[0]):
             X, res, it = forward_kinematics_kernel(
