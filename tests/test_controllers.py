@@ -323,5 +323,6 @@ def test_a_step_at_an_invalid_pose_is_refused_and_changes_nothing(robot, name):
     with pytest.raises(pkmctl.errors.InvalidPoseError, match=rf"{name} step: X_d = "):
         ctrl.step(home, z3, [0.7, 0.0, -1.6], z3, z3)
     np.testing.assert_array_equal(ctrl.state.raw, before)
-    with pytest.raises(pkmctl.errors.NonFiniteInputError):  # NaN is still named as such
-        ctrl.step([np.nan, 0.0, 0.0], z3, home, z3, z3)
+    for glitch in ([np.nan, 0.0, 0.0], [0.7, np.inf, 0.0]):  # still named as such
+        with pytest.raises(pkmctl.errors.NonFiniteInputError):
+            ctrl.step(glitch, z3, home, z3, z3)

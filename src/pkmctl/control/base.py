@@ -216,8 +216,9 @@ class Controller:
             _as_vec3(X, "X"), _as_vec3(Xdot, "Xdot"), _as_vec3(X_d, "X_d"),
             _as_vec3(Xdot_d, "Xdot_d"), _as_vec3(Xddot_d, "Xddot_d"), np.empty(3),
         )  # fmt: skip
-        for name, x in (("X", args[5]), ("X_d", args[7])):  # NaN passes: it is refused below
-            if x[0] <= 0.0 or abs(x[1]) >= _HALF_PI or abs(x[2]) >= _HALF_PI:
+        for name, x in (("X", args[5]), ("X_d", args[7])):
+            bad = x[0] <= 0.0 or abs(x[1]) >= _HALF_PI or abs(x[2]) >= _HALF_PI
+            if bad and math.isfinite(x[0] + x[1] + x[2]):  # NaN, inf: refused as such below
                 raise InvalidPoseError(
                     f"{self.name} step: {name} = {x.tolist()} is not a valid pose (z > 0, "
                     "|alpha|, |beta| < pi/2); the controller's state is unchanged"
