@@ -162,6 +162,10 @@ MALFORMED = [
     ("NumMFs=2\nMF1='neg'", "NumMFs=1\nMF1='neg'", "MF2 beyond NumMFs=1"),
     ("[Input3]", "[Input 3]", "unknown section"),
     ("Name='c'", "Name 'c'", "expected Key=Value"),
+    # signs the rule pattern admits but int() does not (was a bare ValueError, no line)
+    ("2 2 1, 3 (1) : 1", "- 2 1, 3 (1) : 1", "term indices and the connective must be integers"),
+    ("2 2 1, 3 (1) : 1", "+-2 2 1, 3 (1) : 1", "term indices and the connective must be int"),
+    ("2 2 1, 3 (1) : 1", "2 2 1, 3 (1) : -", "term indices and the connective must be integers"),
 ]  # fmt: skip
 
 
@@ -233,3 +237,34 @@ def test_write_fis_and_unwritable_names(tmp_path, flc):
     x = fz.Variable("it's", (0.0, 1.0), (fz.Term("a", "trimf", (0, 0.5, 1)),))
     with pytest.raises(ValueError, match="cannot be written"):
         fis.to_fis_text(fz.MamdaniSystem((x,), x, [fz.Rule((0,), 0)]))
+    # a term's name too: it was written, and the file could not be read back
+    for bad in ("it's low", "two\nlines"):
+        y = fz.Variable("y", (0.0, 1.0), (fz.Term(bad, "trimf", (0, 0.5, 1)),))
+        with pytest.raises(ValueError, match="cannot be written"):
+            fis.to_fis_text(fz.MamdaniSystem((y,), y, [fz.Rule((0,), 0)]))
+
+
+def test_odd_text_reads_with_its_line_numbers(tmp_path):
+    """U+0085 (a Windows-1252 "…" read as Latin-1) and U+2028 are not line breaks in a
+    .fis (str.splitlines broke lines there: bogus errors, shifted line numbers); a BOM
+    before text given as a string is skipped, as in a file; a subset file with no rules
+    is one FISError naming the file, not a bare ValueError."""
+    cp1252 = _replace(GENERAL, "Name='mixed'", "Name='mixed\u2026'").replace(
+        "[Input1]", "% tuned\u2026 by hand\n[Input1]"
+    )
+    path = tmp_path / "cp.fis"
+    path.write_bytes(cp1252.encode("cp1252"))
+    assert fis.read_fis(path).name == "mixed\x85"
+    bad = _replace(cp1252, "MF2='high':'trapmf',[3 6 10 12]", "MF2='high':'foomf',[3 6 10 12]")
+    path.write_bytes(bad.encode("cp1252"))
+    with pytest.raises(fis.FISError) as info:
+        fis.read_fis(path)
+    assert info.value.lineno == _lineno(bad, "foomf") and len(info.value.problems) == 1
+    assert fis.read_fis("\ufeff" + GENERAL) == fis.read_fis(GENERAL)
+    text = fis.to_fis_text(fz.FLC())
+    head, _ = text.split("[Rules]")
+    import re
+
+    empty = re.sub(r"NumRules=\d+", "NumRules=0", head) + "[Rules]\n"
+    with pytest.raises(fis.FISError, match=r"^<string>:\d+: a Mamdani system needs at least one"):
+        fis.read_fis(empty)

@@ -114,7 +114,11 @@ class _Reader:
         self.source = source
         self.problems: list[tuple[int, str, str]] = []
         self.sections: dict[str, _Section] = {}
-        lines = text.splitlines()
+        # line breaks are \n, \r\n and \r only: str.splitlines also breaks at U+0085 (a
+        # Windows-1252 "…" read as Latin-1) and U+2028, inside a name or a comment
+        lines = re.split(r"\r\n|\r|\n", text)
+        if lines and not lines[-1]:
+            lines.pop()
         self.nlines = max(1, len(lines))
         current: _Section | None = None
         skipping = False
@@ -310,16 +314,20 @@ class _Reader:
         if self.problems:
             return None
         if not general and _mamdani_subset(kind, methods, inputs, outputs, rules):
-            return MamdaniSystem(
-                tuple(inputs),
-                outputs[0],
-                tuple(
-                    Rule(tuple(None if a == 0 else a - 1 for a in r.antecedent),
-                         r.consequent[0] - 1, r.weight)
-                    for r in rules
-                ),
-                name=name,
-            )  # fmt: skip
+            try:
+                return MamdaniSystem(
+                    tuple(inputs),
+                    outputs[0],
+                    tuple(
+                        Rule(tuple(None if a == 0 else a - 1 for a in r.antecedent),
+                             r.consequent[0] - 1, r.weight)
+                        for r in rules
+                    ),
+                    name=name,
+                )  # fmt: skip
+            except ValueError as exc:  # e.g. NumRules=0: named with the file, as the rest
+                self.note(rules_sec.lineno, str(exc))
+                return None
         try:
             return FuzzySystem(
                 tuple(inputs), tuple(outputs), tuple(rules), kind=kind, name=name, **methods
@@ -333,8 +341,13 @@ class _Reader:
         if m is None:
             self.note(lineno, "expected a rule 'i1 i2 ..., o1 ... (weight) : connective'", line)
             return None
-        ant = [int(v) for v in m.group(1).split()]
-        cons = [int(v) for v in m.group(2).split()]
+        try:
+            ant = [int(v) for v in m.group(1).split()]
+            cons = [int(v) for v in m.group(2).split()]
+            connective = int(m.group(4))
+        except ValueError:  # '-' or '+-1': the pattern admits signs, int() does not
+            self.note(lineno, "term indices and the connective must be integers", line)
+            return None
         weight = self.numbers(m.group(3), lineno, line) or []
         if len(ant) != len(inputs) or len(cons) != len(outputs) or len(weight) != 1:
             self.note(
@@ -344,7 +357,6 @@ class _Reader:
             )
             return None
         ok = True
-        connective = int(m.group(4))
         if connective not in (1, 2):
             self.note(lineno, f"connective must be 1 (AND) or 2 (OR), got {connective}", line)
             ok = False
@@ -419,8 +431,8 @@ def read_fis(
     unknown = set(options) - {"input_range", "samples"}
     if unknown:
         raise TypeError(f"read_fis got unknown options {sorted(unknown)}")
-    if isinstance(source, str) and ("\n" in source or source.lstrip().startswith("[")):
-        text, name = source, "<string>"
+    if isinstance(source, str) and ("\n" in source or source.lstrip("\ufeff \t\r").startswith("[")):
+        text, name = source.removeprefix("\ufeff"), "<string>"  # a BOM, as in a file
     else:
         name = str(source)
         try:
@@ -449,9 +461,13 @@ def _num(x: float) -> str:
 def to_fis_text(system: MamdaniSystem | FuzzySystem) -> str:
     """The MATLAB .fis text of a system (floats written exactly, by their repr)."""
     g = system if isinstance(system, FuzzySystem) else FuzzySystem.from_mamdani(system)
-    for name in [g.name] + [v.name for v in (*g.inputs, *g.outputs)]:
-        if "'" in name or "\n" in name:
-            raise ValueError(f"name {name!r} cannot be written to a .fis file")
+    names = [g.name] + [v.name for v in (*g.inputs, *g.outputs)]
+    names += [t.name for v in (*g.inputs, *g.outputs) for t in v.terms]
+    for name in names:  # read_fis could not read them back
+        if "'" in name or any(c in name for c in "\n\r\x85\u2028\u2029"):
+            raise ValueError(
+                f"name {name!r} cannot be written to a .fis file (no quote or line break)"
+            )
     out = [
         "[System]",
         f"Name='{g.name}'",
