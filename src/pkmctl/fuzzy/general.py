@@ -8,8 +8,10 @@ Fuzzy Logic Toolbox. The table layout (two flat read-only arrays, ``ints`` and
 Continuous defuzzification of a Mamdani output walks the output universe between
 *nodes*: the breakpoints of its terms (feet, peaks, spline midpoints, extrema), the
 points where a term reaches its clip level (min implication, found by bisection on
-intervals where the term is monotone) and the crossings of the top two implied sets
-(max aggregation, bisection). Between nodes the aggregate is one polynomial of degree
+intervals where the term is monotone) and the crossings of the implied sets (max
+aggregation: polynomial kinds, every change of the top set, from the roots of the pieces'
+differences, and for mom/som/lom the aggregate's interior extrema; other kinds, one
+bisection per panel). Between nodes the aggregate is one polynomial of degree
 <= 8 for the polynomial kinds (trimf, trapmf, zmf, smf, pimf, linzmf, linsmf; not with
 probor aggregation), which 5-point Gauss-Legendre integrates exactly; other kinds are
 cut into panels of width <= range/256 as well.
@@ -63,7 +65,7 @@ CONSTANT, LINEAR = 100, 101  # kinds of Sugeno output terms
 _PANELS = 256
 # the work tuple (new_work): float64 arrays, then int64 arrays
 (_W_X, _W_OUT, _W_XS, _W_MU_IN, _W_W, _W_PH, _W_MU, _W_NODES, _W_SA, _W_SB, _W_SM, _W_VE,
- _W_YE, _W_VM, _W_VALS, _W_YS, _W_PK, _W_PNEG) = range(18)  # fmt: skip
+ _W_YE, _W_VM, _W_VALS, _W_YS, _W_CF, _W_RS, _W_PK, _W_PNEG, _W_DG) = range(21)  # fmt: skip
 
 _GL_X = np.array(
     [-0.9061798459386640, -0.5384693101056831, 0.0, 0.5384693101056831, 0.9061798459386640]
@@ -212,6 +214,283 @@ def _sort(a, n):
         a[j + 1] = v
 
 
+# 5 interpolation points inside [-1, 1] (Chebyshev roots: no end, where a step term would
+# jump) and the inverse of their Vandermonde matrix: degree-4 coefficients from values
+_CH_T = np.cos((2 * np.arange(5) + 1) * np.pi / 10)
+_CH_INV = np.linalg.inv(np.vander(_CH_T, 5, increasing=True))
+
+
+@_jit
+def _implied(kind, par, pk, pneg, ph, i, imp, y):
+    """Piece i (an implied set) at y."""
+    m = _term(kind, par, pk[i], pneg[i], y)
+    return min(ph[i], m) if imp == 0 else ph[i] * m
+
+
+@_jit
+def _coefs(kind, par, pk, pneg, ph, na, imp, c, r, cf, dg):
+    """Coefficients in t of each piece on the node interval y = c + r t, t in [-1, 1]
+    (polynomial kinds): cf[5 i + m] of t^m, dg[i] its degree (-1: zero on the interval,
+    0: clipped at its level)."""
+    for i in range(na):
+        o = 5 * i
+        for m in range(5):
+            cf[o + m] = 0.0
+        k = pk[i]
+        if imp == 0 and _term(kind, par, k, pneg[i], c) >= ph[i]:
+            cf[o] = ph[i]
+            dg[i] = 0 if ph[i] != 0.0 else -1
+            continue
+        kk = kind[k]
+        if kk == 10:
+            for g in range(5):
+                v = _implied(kind, par, pk, pneg, ph, i, imp, c + r * _CH_T[g])
+                for m in range(5):
+                    cf[o + m] += _CH_INV[m, g] * v
+            d = 4
+        elif kk == 3 or kk == 4:
+            va = _implied(kind, par, pk, pneg, ph, i, imp, c - 0.5 * r)
+            vm = _implied(kind, par, pk, pneg, ph, i, imp, c)
+            vb = _implied(kind, par, pk, pneg, ph, i, imp, c + 0.5 * r)
+            cf[o] = vm
+            cf[o + 1] = vb - va
+            cf[o + 2] = 2.0 * (va + vb - 2.0 * vm)
+            d = 2
+        else:
+            va = _implied(kind, par, pk, pneg, ph, i, imp, c - 0.5 * r)
+            vb = _implied(kind, par, pk, pneg, ph, i, imp, c + 0.5 * r)
+            cf[o] = 0.5 * (va + vb)
+            cf[o + 1] = vb - va
+            d = 1
+        while d >= 0 and cf[o + d] == 0.0:
+            d -= 1
+        dg[i] = d
+
+
+@_jit
+def _horner(q, o, d, t):
+    v = 0.0
+    for m in range(d, -1, -1):
+        v = v * t + q[o + m]
+    return v
+
+
+@_jit
+def _roots(rs, d, ta, tb):
+    """Real roots in (ta, tb) of the polynomial rs[0] + rs[1] t + ... + rs[d] t^d, found
+    level by level from its (d-1)-th derivative down: between two roots of the derivative
+    the polynomial is monotone, so a sign change there is one root (bisection). Returns
+    their count; the roots are rs[40:40 + count], ascending. rs[5:25], rs[32:40] scratch."""
+    while d > 0 and rs[d] == 0.0:
+        d -= 1
+    if d <= 0:
+        return 0
+    for lev in range(1, d):  # lev-th derivative at rs[5 lev:]
+        for m in range(d - lev + 1):
+            rs[5 * lev + m] = rs[5 * (lev - 1) + m + 1] * (m + 1)
+    n = 0
+    for lev in range(d - 1, -1, -1):
+        o = 5 * lev
+        dd = d - lev
+        rs[32] = ta
+        for i in range(n):
+            rs[33 + i] = rs[40 + i]
+        rs[33 + n] = tb
+        ms = n + 2
+        n = 0
+        if dd == 1:
+            if rs[o + 1] != 0.0:
+                t = -rs[o] / rs[o + 1]
+                if ta < t < tb:
+                    rs[40] = t
+                    n = 1
+            continue
+        for i in range(ms - 1):
+            a = rs[32 + i]
+            b = rs[33 + i]
+            if not b > a:
+                continue
+            fa = _horner(rs, o, dd, a)
+            fb = _horner(rs, o, dd, b)
+            if fa == 0.0 and i > 0:
+                rs[40 + n] = a
+                n += 1
+            elif fa * fb < 0.0:
+                for _ in range(80):
+                    m = 0.5 * (a + b)
+                    if not a < m < b:
+                        break
+                    fm = _horner(rs, o, dd, m)
+                    if (fm < 0.0) == (fa < 0.0):
+                        a = m
+                    else:
+                        b = m
+                rs[40 + n] = 0.5 * (a + b)
+                n += 1
+    return n
+
+
+@_jit
+def _cmp(cf, dg, j, i, u, rs):
+    """Sign of p_j - p_i just right of t = u: of the first non-zero of its value and
+    derivatives at u."""
+    d = max(dg[i], dg[j], 0)
+    for m in range(5):
+        rs[48 + m] = (cf[5 * j + m] if m <= dg[j] else 0.0) - (cf[5 * i + m] if m <= dg[i] else 0.0)
+    for k in range(d + 1):
+        v = 0.0  # k-th derivative / k! at u
+        for m in range(d, k - 1, -1):
+            cmk = 1.0
+            for q in range(k):
+                cmk = cmk * (m - q) / (q + 1)
+            v += rs[48 + m] * cmk * u ** (m - k)
+        if v > 0.0:
+            return 1
+        if v < 0.0:
+            return -1
+    return 0
+
+
+@_jit
+def _emit(kind, par, nt, pk, pneg, ph, na, imp, agg, u, w, mu, sa, sb, sm, nseg, m0, m1):
+    if w > u:
+        i0, i1 = _gl(kind, par, nt, pk, pneg, ph, na, imp, agg, u, w, mu)
+        sa[nseg] = u
+        sb[nseg] = w
+        sm[nseg] = i0
+        nseg += 1
+        m0 += i0
+        m1 += i1
+    return nseg, m0, m1
+
+
+@_jit
+def _emit_ext(kind, par, nt, pk, pneg, ph, na, imp, agg, a0, b0, c, r, tu, tw, rs, d, ext, mu,
+              sa, sb, sm, nseg, m0, m1):  # fmt: skip
+    """Segments of [tu, tw] (t coordinates of the node interval [a0, b0]), cut where
+    the polynomial in rs[0:d + 1] (the aggregate there) has an extremum if ext."""
+    u = a0 if tu == -1.0 else (b0 if tu == 1.0 else c + r * tu)
+    w = b0 if tw == 1.0 else (a0 if tw == -1.0 else c + r * tw)
+    if ext and d >= 2 and nseg + 8 < sa.shape[0]:
+        for m in range(d):
+            rs[m] = rs[m + 1] * (m + 1)
+        n = _roots(rs, d - 1, tu, tw)
+        for k in range(n):
+            y = min(max(c + r * rs[40 + k], u), w)
+            nseg, m0, m1 = _emit(kind, par, nt, pk, pneg, ph, na, imp, agg, u, y, mu, sa, sb, sm,
+                                 nseg, m0, m1)  # fmt: skip
+            u = y
+    return _emit(kind, par, nt, pk, pneg, ph, na, imp, agg, u, w, mu, sa, sb, sm, nseg, m0, m1)
+
+
+@_jit
+def _poly_interval(kind, par, nt, pk, pneg, ph, na, imp, agg, a0, b0, ext, mu, cf, dg, rs, sa, sb,
+                   sm, nseg, m0, m1):  # fmt: skip
+    """Segments of one node interval with polynomial pieces: for max aggregation cut at
+    every change of the top piece (walking its upper envelope: from t = u, the first root
+    of p_j - p_top where p_j rises above it), and at the aggregate's extrema if ext."""
+    c = 0.5 * (a0 + b0)
+    r = 0.5 * (b0 - a0)
+    _coefs(kind, par, pk, pneg, ph, na, imp, c, r, cf, dg)
+    if agg != 0:
+        d = 0
+        for m in range(5):
+            rs[m] = 0.0
+        for i in range(na):
+            for m in range(dg[i] + 1):
+                rs[m] += cf[5 * i + m]
+            d = max(d, dg[i])
+        return _emit_ext(kind, par, nt, pk, pneg, ph, na, imp, agg, a0, b0, c, r, -1.0, 1.0, rs, d,
+                         ext, mu, sa, sb, sm, nseg, m0, m1)  # fmt: skip
+    u = -1.0
+    top = -1
+    for i in range(na):
+        if dg[i] >= 0 and (top < 0 or _cmp(cf, dg, i, top, u, rs) > 0):
+            top = i
+    if top < 0:
+        return _emit(kind, par, nt, pk, pneg, ph, na, imp, agg, a0, b0, mu, sa, sb, sm, nseg, m0,
+                     m1)  # fmt: skip
+    for _ in range(4 * na + 4):
+        tn = 1.0
+        jn = -1
+        if nseg + 16 < sa.shape[0]:
+            for j in range(na):
+                if j == top or dg[j] < 0:
+                    continue
+                d = max(dg[j], dg[top])
+                for m in range(5):
+                    rs[m] = (cf[5 * j + m] if m <= dg[j] else 0.0) - (
+                        cf[5 * top + m] if m <= dg[top] else 0.0
+                    )
+                n = _roots(rs, d, u, tn)
+                for k in range(n):
+                    rk = rs[40 + k]
+                    nx = rs[41 + k] if k + 1 < n else tn
+                    if _horner(rs, 0, d, 0.5 * (rk + nx)) > 0.0:
+                        tn = rk  # < tn: the roots are in (u, tn)
+                        jn = j
+                        break
+        for m in range(5):
+            rs[m] = cf[5 * top + m] if m <= dg[top] else 0.0
+        nseg, m0, m1 = _emit_ext(kind, par, nt, pk, pneg, ph, na, imp, agg, a0, b0, c, r, u, tn,
+                                 rs, dg[top], ext, mu, sa, sb, sm, nseg, m0, m1)  # fmt: skip
+        if jn < 0:
+            return nseg, m0, m1
+        u = tn
+        top = jn
+    return _emit(kind, par, nt, pk, pneg, ph, na, imp, agg, c + r * u, b0, mu, sa, sb, sm, nseg,
+                 m0, m1)  # fmt: skip
+
+
+@_jit
+def _panels(kind, par, nt, pk, pneg, ph, na, imp, agg, nodes, nn, hmax, mu, sa, sb, sm):
+    """Segments of the non-polynomial case: node intervals cut into panels of width <=
+    hmax, each split once where the top implied set changes (max aggregation)."""
+    nseg = 0
+    m0 = 0.0
+    m1 = 0.0
+    for j in range(nn - 1):
+        a0 = nodes[j]
+        b0 = nodes[j + 1]
+        if not b0 > a0:
+            continue
+        nsub = max(1, int(math.ceil((b0 - a0) / hmax)))
+        for q in range(nsub):
+            a = a0 + (b0 - a0) * q / nsub
+            b = b0 if q == nsub - 1 else a0 + (b0 - a0) * (q + 1) / nsub
+            split = b
+            if agg == 0:
+                d = (b - a) * 1e-9
+                ia = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, a + d, mu)[1]
+                ib = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, b - d, mu)[1]
+                if ia != ib and ia >= 0 and ib >= 0:
+                    lo_s = a
+                    hi_s = b
+                    for _ in range(64):
+                        mid = 0.5 * (lo_s + hi_s)
+                        if not lo_s < mid < hi_s:
+                            break
+                        za = _term(kind, par, pk[ia], pneg[ia], mid)
+                        zb = _term(kind, par, pk[ib], pneg[ib], mid)
+                        za = min(ph[ia], za) if imp == 0 else ph[ia] * za
+                        zb = min(ph[ib], zb) if imp == 0 else ph[ib] * zb
+                        if za >= zb:
+                            lo_s = mid
+                        else:
+                            hi_s = mid
+                    split = 0.5 * (lo_s + hi_s)
+            for u, w in ((a, split), (split, b)):
+                if w > u:
+                    i0, i1 = _gl(kind, par, nt, pk, pneg, ph, na, imp, agg, u, w, mu)
+                    sa[nseg] = u
+                    sb[nseg] = w
+                    sm[nseg] = i0
+                    nseg += 1
+                    m0 += i0
+                    m1 += i1
+    return nseg, m0, m1
+
+
 @_jit
 def _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp, nbp, poly, method, mu, wk):
     """Defuzzification of the continuous aggregate (see the module docstring); scratch
@@ -263,45 +542,18 @@ def _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp, nbp, poly
     nseg = 0
     m0 = 0.0
     m1 = 0.0
-    for j in range(nn - 1):
-        a0 = nodes[j]
-        b0 = nodes[j + 1]
-        if not b0 > a0:
-            continue
-        nsub = 1 if smooth else max(1, int(math.ceil((b0 - a0) / hmax)))
-        for q in range(nsub):
-            a = a0 + (b0 - a0) * q / nsub
-            b = b0 if q == nsub - 1 else a0 + (b0 - a0) * (q + 1) / nsub
-            split = b
-            if agg == 0:
-                d = (b - a) * 1e-9
-                ia = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, a + d, mu)[1]
-                ib = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, b - d, mu)[1]
-                if ia != ib and ia >= 0 and ib >= 0:
-                    lo_s = a
-                    hi_s = b
-                    for _ in range(64):
-                        mid = 0.5 * (lo_s + hi_s)
-                        if not lo_s < mid < hi_s:
-                            break
-                        za = _term(kind, par, pk[ia], pneg[ia], mid)
-                        zb = _term(kind, par, pk[ib], pneg[ib], mid)
-                        za = min(ph[ia], za) if imp == 0 else ph[ia] * za
-                        zb = min(ph[ib], zb) if imp == 0 else ph[ib] * zb
-                        if za >= zb:
-                            lo_s = mid
-                        else:
-                            hi_s = mid
-                    split = 0.5 * (lo_s + hi_s)
-            for u, w in ((a, split), (split, b)):
-                if w > u:
-                    i0, i1 = _gl(kind, par, nt, pk, pneg, ph, na, imp, agg, u, w, mu)
-                    sa[nseg] = u
-                    sb[nseg] = w
-                    sm[nseg] = i0
-                    nseg += 1
-                    m0 += i0
-                    m1 += i1
+    if smooth:
+        cf = wk[_W_CF]
+        dg = wk[_W_DG]
+        rs = wk[_W_RS]
+        for j in range(nn - 1):
+            if nodes[j + 1] > nodes[j]:
+                nseg, m0, m1 = _poly_interval(kind, par, nt, pk, pneg, ph, na, imp, agg, nodes[j],
+                                              nodes[j + 1], method >= 2, mu, cf, dg, rs, sa, sb,
+                                              sm, nseg, m0, m1)  # fmt: skip
+    if not smooth:
+        nseg, m0, m1 = _panels(kind, par, nt, pk, pneg, ph, na, imp, agg, nodes, nn, hmax, mu, sa,
+                               sb, sm)  # fmt: skip
     if method >= 2 or m0 <= 0.0:
         return _points(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, sa, sb, nseg, method, mu,
                        wk[_W_VE], wk[_W_YE], wk[_W_VM])  # fmt: skip
@@ -520,18 +772,21 @@ def new_work(ints):
     and midpoints (S + 1, S + 1, S), samples (2 of n_samples), then int64 piece terms and
     negations (P,). P = max(R, 2 K) pieces (max aggregation merges the rules of each signed
     term), N = B + 2 + P (B + 1) nodes (B breakpoints, the ends, <= one clip point per
-    piece between two nodes) and S = 2 (N + 257) segments (each node interval cut into
-    panels of width <= range / 256, each panel split once at a crossing).
+    piece between two nodes) and S = 2 (N + 257) + 8 N segments (each node interval cut
+    into panels of width <= range / 256, each panel split once at a crossing; polynomial
+    terms: node intervals split at every crossing and, for mom/som/lom, extremum; past
+    that room an interval is not split further). Then the polynomial pieces'
+    coefficients (5 P,), root-finding scratch (64,) and int64 piece degrees (P,).
     """
     n_in, n_out, R, KO, B = ints[_NIN], ints[_NOUT], ints[_R], ints[_KO], ints[_B]
     P = max(R, 2 * KO, 1)
     N = B + 2 + P * (B + 1)
-    S = 2 * (N + _PANELS + 1)
+    S = 2 * (N + _PANELS + 1) + 8 * N
     ns = max(ints[_SAMPLES], 1)
     e = np.empty
     return (e(n_in), e(n_out), e(n_in), e(n_in * ints[_T]), e(max(R, 1)), e(P), e(max(KO, 1)),
-            e(N), e(S), e(S), e(S), e(S + 1), e(S + 1), e(S), e(ns), e(ns),
-            np.empty(P, np.int64), np.empty(P, np.int64))  # fmt: skip
+            e(N), e(S), e(S), e(S), e(S + 1), e(S + 1), e(S), e(ns), e(ns), e(5 * P), e(64),
+            np.empty(P, np.int64), np.empty(P, np.int64), np.empty(P, np.int64))  # fmt: skip
 
 
 @_jit

@@ -23,6 +23,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
+
 from pkmctl._jit import kernel
 from pkmctl.fuzzy.kernels import mf_piece
 
@@ -128,11 +130,60 @@ def mf_fill(kind, a, b, c, d, x, out):
         out[n] = mf_value(kind, a, b, c, d, x[n]) if x[n] == x[n] else math.nan
 
 
+def _extrema_scan(df, lo: float, hi: float, n: int = 4000) -> list[float]:
+    """Where df changes sign on [lo, hi]: a grid of n cells, then bisection."""
+    out = []
+    xs = [lo + (hi - lo) * k / n for k in range(n + 1)]
+    gs = [df(x) for x in xs]
+    for k in range(n):
+        a, b, ga = xs[k], xs[k + 1], gs[k]
+        if ga == 0.0 and 0 < k and gs[k - 1] * gs[k + 1] < 0.0:
+            out.append(a)
+        elif ga * gs[k + 1] < 0.0:
+            for _ in range(100):
+                m = 0.5 * (a + b)
+                if not a < m < b:
+                    break
+                gm = df(m)
+                if (gm < 0.0) == (ga < 0.0):
+                    a = m
+                else:
+                    b = m
+            out.append(0.5 * (a + b))
+    return out
+
+
+def _pimf_extrema(p: Sequence[float]) -> list[float]:
+    """Interior extrema of smf(a, b) · zmf(c, d) where both factors vary (b > c): on each
+    interval between the factors' breakpoints the product is one polynomial of degree
+    <= 4 (fitted on 5 points in local coordinates, roots of its derivative, polished by
+    bisection on the sign of the derivative)."""
+    a, b, c, d = p
+    lo, hi = max(a, c), min(b, d)
+    if not lo < hi:
+        return []
+    knots = sorted({lo, hi, *[v for v in (0.5 * (a + b), 0.5 * (c + d)) if lo < v < hi]})
+    out = []
+    for u, w in zip(knots, knots[1:], strict=False):
+        mid, rad = 0.5 * (u + w), 0.5 * (w - u)
+        t = np.cos((2 * np.arange(5) + 1) * np.pi / 10)
+        v = [mf_value(10, a, b, c, d, mid + rad * tk) for tk in t]
+        cf = np.polynomial.polynomial.polyfit(t, v, 4)
+        dcf = np.polynomial.polynomial.polyder(cf)
+
+        def df(x: float, dcf=dcf, mid=mid, rad=rad) -> float:
+            return float(np.polynomial.polynomial.polyval((x - mid) / rad, dcf))
+
+        out += [x for x in _extrema_scan(df, u, w, 64) if u < x < w]
+    return out
+
+
 def breakpoints(kind: str, params: Sequence[float]) -> list[float]:
     """Points where the function is not smooth or changes monotony (its extrema).
 
     Between two consecutive ones the function is monotone and, for the polynomial
-    kinds, one polynomial.
+    kinds, one polynomial. Also where the factors of pimf (b > c) and gauss2mf (c1 > c2)
+    overlap (the product's maximum) and where dsigmf's two sigmoids cross.
     """
     p = list(params)
     if kind in ("trimf", "trapmf"):
@@ -140,28 +191,39 @@ def breakpoints(kind: str, params: Sequence[float]) -> list[float]:
     if kind in ("zmf", "smf"):
         return [p[0], 0.5 * (p[0] + p[1]), p[1]]
     if kind == "pimf":
-        return [p[0], 0.5 * (p[0] + p[1]), p[1], p[2], 0.5 * (p[2] + p[3]), p[3]]
+        pts = [p[0], 0.5 * (p[0] + p[1]), p[1], p[2], 0.5 * (p[2] + p[3]), p[3]]
+        return pts + _pimf_extrema(p)
     if kind in ("linzmf", "linsmf"):
         return p[:2]
     if kind == "gaussmf":
         return [p[0]]
     if kind == "gauss2mf":
-        return [p[1], p[3]]
+        s1, c1, s2, c2 = p
+        if c1 > c2:  # overlapping tails: the product peaks between the centres
+            return [c1, c2, (c1 * s2 * s2 + c2 * s1 * s1) / (s1 * s1 + s2 * s2)]
+        return [c1, c2]
     if kind == "gbellmf":
         return [p[2]]
     if kind == "sigmf":
         return [p[1]]
-    # dsigmf, psigmf: the centres and the extremum between them (golden section)
-    lo, hi = min(p[1], p[3]), max(p[1], p[3])
-    s1 = lambda x: 1.0 / (1.0 + math.exp(-p[0] * (x - p[1])))  # noqa: E731
-    s2 = lambda x: 1.0 / (1.0 + math.exp(-p[2] * (x - p[3])))  # noqa: E731
+    # dsigmf, psigmf: the centres, the crossing of the two sigmoids (dsigmf's zero) and
+    # every extremum (sign changes of the derivative on a grid over where both vary)
+    a1, c1, a2, c2 = p
+    pts = [c1, c2]
+    if kind == "dsigmf" and a1 != a2:
+        pts.append((a1 * c1 - a2 * c2) / (a1 - a2))
+    ends = [c + s * 40.0 / abs(a) for a, c in ((a1, c1), (a2, c2)) if a != 0.0 for s in (-1, 1)]
+    if not ends:
+        return pts
 
-    def f(x: float) -> float:
-        return -abs(s1(x) - s2(x)) if kind == "dsigmf" else -s1(x) * s2(x)
+    def s(a: float, c: float, x: float) -> float:
+        z = -a * (x - c)
+        return 1.0 / (1.0 + math.exp(z)) if z < 700.0 else 0.0
 
-    g = (math.sqrt(5) - 1) / 2
-    a, b = lo - (hi - lo + 1.0), hi + (hi - lo + 1.0)
-    for _ in range(200):
-        x1, x2 = b - g * (b - a), a + g * (b - a)
-        a, b = (a, x2) if f(x1) < f(x2) else (x1, b)
-    return [p[1], p[3], 0.5 * (a + b)]
+    def df(x: float) -> float:
+        u, v = s(a1, c1, x), s(a2, c2, x)
+        if kind == "dsigmf":
+            return a1 * u * (1.0 - u) - a2 * v * (1.0 - v)
+        return a1 * (1.0 - u) + a2 * (1.0 - v)
+
+    return pts + _extrema_scan(df, min(ends), max(ends))
