@@ -926,8 +926,11 @@ def _pkmctl(*args: str, **kw) -> subprocess.Popen:
     env = dict(os.environ)
     src = str(Path(pkmctl.__file__).resolve().parents[1])
     env["PYTHONPATH"] = os.pathsep.join([src, env.get("PYTHONPATH", "")])
+    # Ctrl-C as a terminal gives it: a test run started in the background inherits SIGINT
+    # ignored, and Python then never raises KeyboardInterrupt (as tests/test_failures.py)
     return subprocess.Popen([sys.executable, "-c", "from pkmctl.cli import main; main()", *args],
                             env=env, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
                             **kw)  # fmt: skip
 
 
