@@ -470,24 +470,16 @@ def _panels(kind, par, nt, pk, pneg, ph, na, imp, agg, nodes, nn, hmax, mu, sa, 
                         mid = 0.5 * (lo_s + hi_s)
                         if not lo_s < mid < hi_s:
                             break
-                        za = _term(kind, par, pk[ia], pneg[ia], mid)
-                        zb = _term(kind, par, pk[ib], pneg[ib], mid)
-                        za = min(ph[ia], za) if imp == 0 else ph[ia] * za
-                        zb = min(ph[ib], zb) if imp == 0 else ph[ib] * zb
+                        za = _implied(kind, par, pk, pneg, ph, ia, imp, mid)
+                        zb = _implied(kind, par, pk, pneg, ph, ib, imp, mid)
                         if za >= zb:
                             lo_s = mid
                         else:
                             hi_s = mid
                     split = 0.5 * (lo_s + hi_s)
             for u, w in ((a, split), (split, b)):
-                if w > u:
-                    i0, i1 = _gl(kind, par, nt, pk, pneg, ph, na, imp, agg, u, w, mu)
-                    sa[nseg] = u
-                    sb[nseg] = w
-                    sm[nseg] = i0
-                    nseg += 1
-                    m0 += i0
-                    m1 += i1
+                nseg, m0, m1 = _emit(kind, par, nt, pk, pneg, ph, na, imp, agg, u, w, mu, sa, sb,
+                                     sm, nseg, m0, m1)  # fmt: skip
     return nseg, m0, m1
 
 
