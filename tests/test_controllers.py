@@ -172,7 +172,11 @@ def _one_dof_run(Ku, dt, t_end=0.5):
     flc = FLC()
     x, v = 0.1, 0.0
     th, lo, hi = np.array([m_hat0]), np.array([0.1]), np.array([10.0])
-    Y = np.zeros((1, 1))
+    # adapt() reads three rows of Y and three components of s (the task's z, alpha, beta):
+    # the 1-DOF system is row 0, the other two rows zero. With Y (1, 1) and s of length 1
+    # it read past both arrays, and the test passed or failed with the memory after them.
+    Y = np.zeros((3, 1))
+    sv = np.zeros(3)
     V, su = [], []
     s_prev = None
     for k in range(int(round(t_end / dt))):
@@ -187,7 +191,8 @@ def _one_dof_run(Ku, dt, t_end=0.5):
         uf = -Ku * float(flc(Ks * s, Ksd * sdot))
         su.append(s * uf)
         F = Y[0, 0] * th[0] + K * s + uf
-        adapt(th, Y, np.array([s]), dt, np.array([gamma]), lo, hi)
+        sv[0] = s
+        adapt(th, Y, sv, dt, np.array([gamma]), lo, hi)
         a = F / m
         x, v = x + dt * v + 0.5 * dt * dt * a, v + dt * a
     return np.array(V), np.array(su)
