@@ -130,6 +130,21 @@ def test_help_shows_its_text_verbatim(command, text):
     assert any(text in re.sub(r"[ │]+", " ", line) for line in res.output.splitlines())
 
 
+@pytest.mark.parametrize(
+    ("command", "flag"),
+    [([], "--version"), ([], "--debug"), (["bench"], "--quick"),
+     (["identify"], "--physical"), (["campaign", "run"], "--resume")],
+)  # fmt: skip
+def test_help_shows_flags_without_a_value(command, flag):
+    """A flag takes no value: its help row shows no "<bool>" (Typer's default display),
+    which read as if ``--debug true`` were the way to set it."""
+    res = runner.invoke(app, [*command, "--help"], terminal_width=200)
+    assert res.exit_code == 0
+    rows = [re.sub(r"[ │]+", " ", line).strip() for line in res.output.splitlines()]
+    row = next(r for r in rows if r.startswith(flag + " "))
+    assert "<bool>" not in row
+
+
 def test_console_entry_freezes_the_objects_for_a_quick_exit(monkeypatch, capsys):
     """``pkmctl`` (pyproject's script and ``python -m pkmctl``) is ``cli.main``: the app,
     its exit status, then ``gc.freeze()``, so that the interpreter's shutdown does not

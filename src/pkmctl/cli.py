@@ -213,10 +213,15 @@ def _main(
     ctx: typer.Context,
     version: Annotated[
         bool,
-        typer.Option("--version", callback=_version, is_eager=True, help="Print the version."),
+        typer.Option(
+            "--version", callback=_version, is_eager=True, help="Print the version.", metavar=""
+        ),
     ] = False,
     debug: Annotated[
-        bool, typer.Option("--debug", help="Show the traceback of an error (before COMMAND).")
+        bool,
+        typer.Option(
+            "--debug", help="Show the traceback of an error (before COMMAND).", metavar=""
+        ),
     ] = False,
     plugin: Annotated[
         list[str] | None,
@@ -224,6 +229,7 @@ def _main(
             "--plugin",
             help="A Python file or module that registers your own parts (docs/parts.md), "
             "imported first; repeat for several (before COMMAND).",
+            metavar="FILE",
         ),
     ] = None,
 ) -> None:
@@ -510,7 +516,7 @@ def scenario(
 @app.command()
 def bench(
     ctx: typer.Context,
-    quick: Annotated[bool, typer.Option(help="Short runs (a smoke test).")] = False,
+    quick: Annotated[bool, typer.Option(help="Short runs (a smoke test).", metavar="")] = False,
     json_out: Annotated[
         str | None, typer.Option("--json", help="Also write the results to this JSON file.")
     ] = None,
@@ -677,7 +683,8 @@ def campaign_run(
         typer.Option(help="Run on the Dask cluster of this scheduler (tcp://host:8786)."),
     ] = None,
     resume: Annotated[
-        bool, typer.Option(help="Complete the interrupted campaign in OUT (the same spec).")
+        bool,
+        typer.Option(help="Complete the interrupted campaign in OUT (the same spec).", metavar=""),
     ] = False,
 ) -> None:
     """Run a campaign: every cell x controller x seed of SPEC_FILE.

@@ -201,7 +201,10 @@ def identify(
         ),
     ] = "0",
     physical: Annotated[
-        bool, typer.Option(help="Also a physically consistent estimate (controller_model.toml).")
+        bool,
+        typer.Option(
+            help="Also a physically consistent estimate (controller_model.toml).", metavar=""
+        ),
     ] = True,
 ) -> None:
     """Identify the base parameters and the joint friction from a logged run (OLS, WLS,
