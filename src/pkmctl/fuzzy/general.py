@@ -14,7 +14,9 @@ differences, and for mom/som/lom the aggregate's interior extrema; other kinds, 
 bisection per panel). Between nodes the aggregate is one polynomial of degree
 <= 8 for the polynomial kinds (trimf, trapmf, zmf, smf, pimf, linzmf, linsmf; not with
 probor aggregation), which 5-point Gauss-Legendre integrates exactly; other kinds are
-cut into panels of width <= range/256 as well.
+cut into panels of width <= range/256 as well, with nodes at half-scale steps around a
+term narrower than two panels (:func:`pkmctl.fuzzy.mf.resolution_nodes`), and there
+mom/som/lom refine each smooth interior maximum by golden-section search.
 
 No kernel here allocates except the three entry points that say so (:func:`fis_eval`,
 :func:`eval_batch`, :func:`new_work`): every buffer comes from a *work* tuple made once by
@@ -46,7 +48,8 @@ _jit = kernel(fastmath=False, refcount=False)
  _SAMPLES) = range(15)  # fmt: skip
 (_O_INNT, _O_INKIND, _O_OUTNT, _O_OUTKIND, _O_ANT, _O_CONS, _O_ISOR, _O_NBP, _O_POLY,
  _O_INRANGE, _O_INPAR, _O_OUTRANGE, _O_OUTPAR, _O_W, _O_BP) = range(15, 30)  # fmt: skip
-HEADER = 30
+_BM = 30  # the most breakpoints of one output term (resolution nodes not counted)
+HEADER = 31
 #: codes of the methods, in header slots _AND ... _DEFUZZ
 AND_CODES = {"min": 0, "prod": 1}
 OR_CODES = {"max": 0, "probor": 1}
@@ -62,7 +65,9 @@ DEFUZZ_CODES = {
     "wtsum": 6,
 }
 CONSTANT, LINEAR = 100, 101  # kinds of Sugeno output terms
-_PANELS = 256
+#: Quadrature panels per output universe for the non-polynomial kinds (pkmctl.fuzzy.mf
+#: resolution_nodes adds nodes where a term is narrower than a panel).
+PANELS = 256
 # the work tuple (new_work): float64 arrays, then int64 arrays
 (_W_X, _W_OUT, _W_XS, _W_MU_IN, _W_W, _W_PH, _W_MU, _W_NODES, _W_SA, _W_SB, _W_SM, _W_VE,
  _W_YE, _W_VM, _W_VALS, _W_YS, _W_CF, _W_RS, _W_PK, _W_PNEG, _W_DG) = range(21)  # fmt: skip
@@ -513,7 +518,7 @@ def _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp, nbp, poly
                 b = nodes[j + 1]
                 ga = _term(kind, par, pk[i], pneg[i], a) - h
                 gb = _term(kind, par, pk[i], pneg[i], b) - h
-                if ga * gb < 0.0:
+                if ga * gb < 0.0 and nn < nodes.shape[0]:
                     for _ in range(64):
                         m = 0.5 * (a + b)
                         if not a < m < b:
@@ -526,7 +531,7 @@ def _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp, nbp, poly
                     nodes[nn] = 0.5 * (a + b)
                     nn += 1
         _sort(nodes, nn)
-    hmax = (hi - lo) / _PANELS
+    hmax = (hi - lo) / PANELS
     smooth = poly == 1 and agg != 2
     sa = wk[_W_SA]
     sb = wk[_W_SB]
@@ -547,8 +552,8 @@ def _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp, nbp, poly
         nseg, m0, m1 = _panels(kind, par, nt, pk, pneg, ph, na, imp, agg, nodes, nn, hmax, mu, sa,
                                sb, sm)  # fmt: skip
     if method >= 2 or m0 <= 0.0:
-        return _points(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, sa, sb, nseg, method, mu,
-                       wk[_W_VE], wk[_W_YE], wk[_W_VM])  # fmt: skip
+        return _points(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, sa, sb, sm, nseg,
+                       method, not smooth, mu, wk[_W_VE], wk[_W_YE], wk[_W_VM])  # fmt: skip
     if method == 0:
         return min(max(m1 / m0, lo), hi), 0
     # bisector: the segment where the running area reaches half, then bisection inside it
@@ -573,8 +578,41 @@ def _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp, nbp, poly
 
 
 @_jit
-def _points(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, sa, sb, nseg, method, mu, ve, ye,
-            vm):  # fmt: skip
+def _golden(kind, par, nt, pk, pneg, ph, na, imp, agg, a, m, b, vm, mu):
+    """(y, aggregate(y)) of the maximum of the aggregate in [a, b], given an inner point m
+    where it is vm and higher than at a and b: golden-section search down to rounding,
+    keeping the best point seen (so never below vm)."""
+    g = 0.3819660112501051
+    by = m
+    bv = vm
+    for _ in range(200):
+        if b - m > m - a:
+            t = m + g * (b - m)
+            if not m < t < b:
+                break
+            vt = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, t, mu)[0]
+            if vt > vm:
+                a, m, vm = m, t, vt
+            else:
+                b = t
+        else:
+            t = m - g * (m - a)
+            if not a < t < m:
+                break
+            vt = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, t, mu)[0]
+            if vt > vm:
+                b, m, vm = m, t, vt
+            else:
+                a = t
+        if vm > bv:
+            by = m
+            bv = vm
+    return by, bv
+
+
+@_jit
+def _points(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, sa, sb, sm, nseg, method, refine,
+            mu, ve, ye, vm):  # fmt: skip
     """Maximum-based methods (mom, som, lom) and the zero-area fallback of centroid and
     bisector, from the aggregate at the segment ends and midpoints.
 
@@ -582,7 +620,10 @@ def _points(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, sa, sb, nseg, met
     points; MATLAB's sampled mom in the limit); som/lom its smallest/largest point. A
     zero-area aggregate with firing rules is a set of point masses (singletons): the
     centroid is their weighted mean, the bisector their weighted median (flag 1). ve, ye
-    (>= nseg + 1) and vm (>= nseg) are scratch.
+    (>= nseg + 1) and vm (>= nseg) are scratch, and so is sm (the segments' areas, not
+    read after this) for mom/som/lom. With ``refine`` (the non-polynomial segments, whose
+    ends need not hold the aggregate's extrema) a sample higher than both its neighbours
+    moves to the maximum between them (:func:`_golden`).
     """
     vmax = 0.0
     for s in range(nseg + 1):
@@ -592,6 +633,22 @@ def _points(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, sa, sb, nseg, met
     for s in range(nseg):
         vm[s] = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, 0.5 * (sa[s] + sb[s]), mu)[0]
         vmax = max(vmax, vm[s])
+    if method >= 2:
+        for s in range(nseg):  # where each segment's sample inside it lies
+            sm[s] = 0.5 * (sa[s] + sb[s])
+    if method >= 2 and refine and vmax > 0.0:
+        for s in range(nseg):
+            if vm[s] > ve[s] and vm[s] > ve[s + 1]:
+                sm[s], vm[s] = _golden(kind, par, nt, pk, pneg, ph, na, imp, agg, sa[s], sm[s],
+                                       sb[s], vm[s], mu)  # fmt: skip
+                vmax = max(vmax, vm[s])
+        for s in range(nseg + 1):
+            left = vm[s - 1] if s > 0 else -1.0
+            right = vm[s] if s < nseg else -1.0
+            if ve[s] > left and ve[s] > right and 0 < s < nseg:
+                ye[s], ve[s] = _golden(kind, par, nt, pk, pneg, ph, na, imp, agg, sm[s - 1], ye[s],
+                                       sm[s], ve[s], mu)  # fmt: skip
+                vmax = max(vmax, ve[s])
     if vmax <= 0.0:
         return 0.5 * (lo + hi), 1
     if method <= 1:  # zero area: point masses
@@ -624,9 +681,9 @@ def _points(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, sa, sb, nseg, met
             last = max(last, sb[s])
         elif vm[s] >= tol:  # an interior peak between ends (smooth terms)
             npts += 1
-            psum += 0.5 * (sa[s] + sb[s])
-            first = min(first, 0.5 * (sa[s] + sb[s]))
-            last = max(last, 0.5 * (sa[s] + sb[s]))
+            psum += sm[s]
+            first = min(first, sm[s])
+            last = max(last, sm[s])
     for s in range(nseg + 1):
         if ve[s] >= tol:
             npts += 1
@@ -763,17 +820,19 @@ def new_work(ints):
     output memberships (K,), the defuzzifier's nodes (N,), segments (3 of S,), their ends
     and midpoints (S + 1, S + 1, S), samples (2 of n_samples), then int64 piece terms and
     negations (P,). P = max(R, 2 K) pieces (max aggregation merges the rules of each signed
-    term), N = B + 2 + P (B + 1) nodes (B breakpoints, the ends, <= one clip point per
-    piece between two nodes) and S = 2 (N + 257) + 8 N segments (each node interval cut
-    into panels of width <= range / 256, each panel split once at a crossing; polynomial
-    terms: node intervals split at every crossing and, for mom/som/lom, extremum; past
-    that room an interval is not split further). Then the polynomial pieces'
-    coefficients (5 P,), root-finding scratch (64,) and int64 piece degrees (P,).
+    term), N = B + 2 + P (BM + 1) nodes (B breakpoints and resolution nodes, the ends, and
+    the clip points: a piece crosses its level at most once in each of the BM + 1 runs
+    where its term is monotone, BM the most breakpoints of one term) and S = 2 (N + 257)
+    + 8 N segments (each node interval cut into panels of width <= range / 256, each panel
+    split once at a crossing; polynomial terms: node intervals split at every crossing
+    and, for mom/som/lom, extremum; past that room an interval is not split further).
+    Then the polynomial pieces' coefficients (5 P,), root-finding scratch (64,) and int64
+    piece degrees (P,).
     """
     n_in, n_out, R, KO, B = ints[_NIN], ints[_NOUT], ints[_R], ints[_KO], ints[_B]
     P = max(R, 2 * KO, 1)
-    N = B + 2 + P * (B + 1)
-    S = 2 * (N + _PANELS + 1) + 8 * N
+    N = B + 2 + P * (ints[_BM] + 1)
+    S = 2 * (N + PANELS + 1) + 8 * N
     ns = max(ints[_SAMPLES], 1)
     e = np.empty
     return (e(n_in), e(n_out), e(n_in), e(n_in * ints[_T]), e(max(R, 1)), e(P), e(max(KO, 1)),

@@ -28,7 +28,7 @@ import numpy as np
 from pkmctl._jit import kernel
 from pkmctl.fuzzy.kernels import mf_piece
 
-__all__ = ["MF_TYPES", "POLYNOMIAL_MFS", "check_mf", "mf_value"]
+__all__ = ["MF_TYPES", "POLYNOMIAL_MFS", "check_mf", "mf_value", "resolution_nodes"]
 
 _jit = kernel(fastmath=False)
 
@@ -128,6 +128,50 @@ def mf_fill(kind, a, b, c, d, x, out):
     """out[n] = mf_value(kind, a, b, c, d, x[n]) (NaN for NaN)."""
     for n in range(x.shape[0]):
         out[n] = mf_value(kind, a, b, c, d, x[n]) if x[n] == x[n] else math.nan
+
+
+#: Steps, in units of a smooth term's scale, of the nodes that resolve it: a Gaussian to
+#: 8 sigma (beyond, below e^-32 of its peak); a sigmoid to 32/|a| (within e^-32 of 1 or 0).
+_GAUSS_STEPS = tuple(0.5 * k for k in range(1, 17))
+_SIG_STEPS = (*_GAUSS_STEPS, 10.0, 12.0, 16.0, 20.0, 24.0, 32.0)
+
+
+def resolution_nodes(kind: str, params: Sequence[float], h: float, width: float) -> list[float]:
+    """Nodes that resolve a smooth term narrower than the quadrature panels (width h).
+
+    Gauss-Legendre on panels of width h integrates a Gaussian of sigma >= h to rounding
+    (measured: sigma = 1.3 h, 6e-13 of the range), one of sigma = h/4 only to 1e-6 and one
+    of sigma = h/40 to 2e-2. Where a term's scale (sigma, 1/|a| of a sigmoid, a bell's
+    |a|/max(1, |b|)) is below 2 h this gives the points at half-scale steps around its
+    centre (a bell: its core, then geometric steps of sqrt(2) over its heavy tails up to
+    ``width``, the universe's); otherwise none, and the panels alone do (the same
+    numbers as before these nodes existed). gaussmf as (mean, sigma).
+    """
+    p = list(params)
+    out: list[float] = []
+
+    def around(c: float, scale: float, steps: Sequence[float]) -> None:
+        if scale < 2.0 * h:
+            out.extend(c + sign * scale * t for t in steps for sign in (-1.0, 1.0))
+
+    if kind == "gaussmf":
+        around(p[0], p[1], _GAUSS_STEPS)
+    elif kind == "gauss2mf":
+        around(p[1], p[0], _GAUSS_STEPS)
+        around(p[3], p[2], _GAUSS_STEPS)
+    elif kind == "sigmf":
+        around(p[1], 1.0 / abs(p[0]) if p[0] else math.inf, _SIG_STEPS)
+    elif kind in ("dsigmf", "psigmf"):
+        for a, c in ((p[0], p[1]), (p[2], p[3])):
+            around(c, 1.0 / abs(a) if a else math.inf, _SIG_STEPS)
+    elif kind == "gbellmf":
+        a, b, c = abs(p[0]), min(max(abs(p[1]), 1.0), 16.0), p[2]
+        if a / b < 2.0 * h:
+            core = [k / (4.0 * b) for k in range(1, int(8.0 * b) + 1)]  # to 2 |a|
+            tail = [2.0 * math.sqrt(2.0) ** k for k in range(1, 200)]
+            tail = [t for t in tail if a * t <= 2.0 * width]
+            out.extend(c + sign * a * t for t in (*core, *tail) for sign in (-1.0, 1.0))
+    return out
 
 
 def _extrema_scan(df, lo: float, hi: float, n: int = 4000) -> list[float]:

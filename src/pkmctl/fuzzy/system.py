@@ -51,10 +51,11 @@ from pkmctl.fuzzy.general import (
     IMP_CODES,
     LINEAR,
     OR_CODES,
+    PANELS,
     eval_batch,
     fis_eval,
 )
-from pkmctl.fuzzy.mf import MF_TYPES, POLYNOMIAL_MFS, breakpoints
+from pkmctl.fuzzy.mf import MF_TYPES, POLYNOMIAL_MFS, breakpoints, resolution_nodes
 
 __all__ = [
     "FuzzyRule",
@@ -295,8 +296,10 @@ def _compile(system: FuzzySystem) -> SystemTables:
     out_par = np.zeros((n_out, KO, P))
     bps: list[list[float]] = []
     poly = []
+    most = 0  # the most breakpoints of one term: bounds its clip points (new_work)
     for o, v in enumerate(outputs):
         pts: list[float] = []
+        lo, hi = v.universe
         for k, t in enumerate(v.terms):
             out_kind[o, k] = _mf_code(t)
             out_par[o, k, : len(t.params)] = t.params
@@ -304,7 +307,11 @@ def _compile(system: FuzzySystem) -> SystemTables:
                 p = list(t.params)
                 if t.kind == "gaussmf":
                     p = [p[0], p[1]]
-                pts += breakpoints(t.kind, p)
+                own = breakpoints(t.kind, p)
+                most = max(most, len(own))
+                pts += own
+                pts += [y for y in resolution_nodes(t.kind, p, (hi - lo) / PANELS, hi - lo)
+                        if lo < y < hi]  # fmt: skip
         bps.append(sorted(set(pts)))
         poly.append(int(not sugeno and all(_mf_code(t) in POLYNOMIAL_MFS for t in v.terms)))
     B = max(1, max(len(b) for b in bps))
@@ -337,6 +344,7 @@ def _compile(system: FuzzySystem) -> SystemTables:
         AGG_CODES[system.agg_method], DEFUZZ_CODES[system.defuzz_method],
         int(system.input_range == "clip"), 0 if system.samples is None else int(system.samples),
     ]  # fmt: skip
+    header[HEADER - 1] = most
     int_parts = [np.asarray(s, np.int64).reshape(-1) for s in ints_sec]
     real_parts = [np.asarray(s, np.float64).reshape(-1) for s in reals_sec]
     pos = HEADER
