@@ -41,6 +41,24 @@ def test_toml_round_trip_exact(name):
     assert back.to_toml() == text
 
 
+def test_an_identified_model_block_round_trips():
+    """The [controller_model] block ``pkmctl identify`` writes (theta_ext) survives
+    to_toml/from_toml, replace() and simulate_many's seeds: every one of them writes the
+    block's other fields at their defaults, which the check against mixing them with
+    theta_ext refused."""
+    proto = Scenario.builtin("prototype")
+    block = {"theta_ext": [*map(float, proto.plant().theta), *[10.9] * 4, *[30.0] * 4,
+                           *[300.0] * 4]}  # fmt: skip
+    sc = Scenario.builtin("prototype-tuned", 0.01).replace(controller_model=block)
+    text = sc.to_toml()
+    assert Scenario.from_toml(text) == sc and Scenario.from_toml(text).to_toml() == text
+    assert sc.replace(**{"disturbance.seed": 3}).disturbance.seed == 3
+    runs = pkmctl.simulate_many(sc, "pd", seeds=[0, 1])
+    assert [r.info["steps"] for r in runs] == [10, 10]
+    with pytest.raises(ScenarioError, match="theta_ext is given, so rotor_inertia"):
+        sc.replace(**{"controller_model.rotor_inertia": 1e-5})
+
+
 def test_toml_file_round_trip(tmp_path):
     sc = Scenario.builtin("paper").replace(**{"disturbance.seed": 42, "timing.duration": 1.5})
     path = tmp_path / "s.toml"

@@ -368,10 +368,14 @@ class ControllerModelSpec(_Model):
     def _explicit(self) -> ControllerModelSpec:
         if self.theta_ext is None:
             return self
-        both = sorted(
-            self.model_fields_set
-            & {"theta_scale", "rotor_inertia", "friction_coulomb", "friction_viscous"}
-        )
+        # refused only away from their defaults: to_toml and replace() write every field,
+        # the defaults beside theta_ext included, and must read back
+        fields = type(self).model_fields
+        both = [
+            k
+            for k in ("friction_coulomb", "friction_viscous", "rotor_inertia", "theta_scale")
+            if k in self.model_fields_set and getattr(self, k) != fields[k].default
+        ]
         if both:
             raise ValueError(
                 f"theta_ext is given, so {', '.join(both)} must not be (theta_ext holds them)"
