@@ -9,6 +9,7 @@ import textwrap
 from pathlib import Path
 
 import numpy as np
+import pytest
 from numba import njit
 from numba.core.registry import CPUDispatcher
 
@@ -248,3 +249,109 @@ def test_a_users_part_is_never_run_stale_when_a_module_it_imports_changes(tmp_pa
         sys.path.remove(str(tmp_path))
         for name in ("law", "helper"):
             sys.modules.pop(name, None)
+
+
+_SETTING_LAW = """
+import os
+from typing import NamedTuple
+
+import numpy as np
+
+import pkmctl
+
+FEED_FORWARD = float(os.environ["LAW_FEED_FORWARD"])  # N on z, e.g. a payload's weight
+SHAPE = (1.0, np.array([0.5, 0.25]))  # a tuple holding an array: also frozen in
+
+
+class Law(NamedTuple):
+    kp: np.ndarray
+    kd: np.ndarray
+
+    @classmethod
+    def from_context(cls, ctx):
+        return cls(ctx.gains.pd_kp, ctx.gains.pd_kd)
+
+
+@pkmctl.register_controller("setting-law", params=Law)
+def setting_law(p, state, work, y, ref, F):
+    for i in range(3):
+        F[i] = p.kp[i] * (ref[i] - y[i]) + p.kd[i] * (ref[3 + i] - y[3 + i])
+    F[0] += FEED_FORWARD * SHAPE[0]
+"""
+
+_RUN_SETTING = """
+    import numpy as np
+    import pkmctl
+    import law
+    r = pkmctl.simulate("paper", controller="setting-law", duration=0.002)
+    print(repr(float(r.F[0, 0])))  # the first period's force: the same state in every run
+"""
+
+
+def test_a_users_part_is_never_run_stale_when_a_global_value_it_reads_changes(tmp_path):
+    """Numba freezes a global value a step reads into the machine code; the loop's cache
+    key covers those values, so a setting read from the environment (no file changed)
+    compiles another loop, and the first value's loop is found again."""
+    (tmp_path / "law.py").write_text(_SETTING_LAW)
+    env = {"PKMCTL_CACHE_DIR": str(tmp_path / "cache")}
+    means = [float(_run(_RUN_SETTING, path=tmp_path, env=env | {"LAW_FEED_FORWARD": v}))
+             for v in ("0", "500", "0")]  # fmt: skip
+    assert means[0] == means[2]
+    assert means[1] - means[0] == pytest.approx(500.0, rel=1e-12)
+
+
+def test_global_values_digest(tmp_path):
+    """What :func:`pkmctl.parts.global_values` covers: globals the step reads (through
+    modules too) and their values, closure values, the user's own functions it calls;
+    not what it does not read; built-in parts add nothing."""
+    from types import SimpleNamespace
+
+    from pkmctl.parts import get_part, global_values
+
+    def digest(*fns):
+        return global_values([SimpleNamespace(builtin=False, functions=dict(enumerate(fns)),
+                                              lanes={})])  # fmt: skip
+
+    g = {"K": 1.0, "UNUSED": 2.0, "np": np}
+    exec("def helper(x):\n    return K * x\ndef step(x):\n    return helper(x) + np.pi", g)
+    first = digest(g["step"])
+    g["UNUSED"] = 3.0
+    assert digest(g["step"]) == first
+    g["K"] = 1.5  # read by a function the step calls
+    assert digest(g["step"]) != first
+
+    def make(c):
+        def step(x):
+            return c * x
+
+        return step
+
+    assert digest(make(np.array([1.0]))) != digest(make(np.array([2.0])))
+    assert global_values([get_part("controller", "afsmc")]) == ""
+
+
+def test_a_part_typed_at_a_prompt_runs(tmp_path):
+    """A part defined in ``python -c`` (or at the interactive prompt) has no file: its
+    code goes into the cache key instead of failing on a missing '<string>' file."""
+    code = """
+        from typing import NamedTuple
+        import numpy as np
+        import pkmctl
+
+        class L(NamedTuple):
+            kp: np.ndarray
+            kd: np.ndarray
+
+        @pkmctl.register_controller("prompt-law", params=L,
+                                    build=lambda ctx: L(ctx.gains.pd_kp, ctx.gains.pd_kd))
+        def prompt_law(p, state, work, y, ref, F):
+            for i in range(3):
+                F[i] = p.kp[i] * (ref[i] - y[i]) + p.kd[i] * (ref[3 + i] - y[3 + i])
+            F[0] += {ff}
+
+        r = pkmctl.simulate("paper", "prompt-law", duration=0.002)
+        print(repr(float(r.F[0, 0])))
+    """
+    env = {"PKMCTL_CACHE_DIR": str(tmp_path / "cache")}
+    means = [float(_run(code.replace("{ff}", ff), env=env)) for ff in ("0.0", "170.0")]
+    assert means[1] - means[0] == pytest.approx(170.0, rel=1e-12)

@@ -168,7 +168,8 @@ def _lane_loop_signatures() -> dict[tuple, int]:
     from pkmctl._jit import _SPECIALISED
     from pkmctl.sim.lanes import _run_lanes
 
-    return {key: len(d.signatures) for (fn, key), d in _SPECIALISED.items() if fn is _run_lanes}
+    return {key: len(d.signatures) for (fn, key, _), d in _SPECIALISED.items()
+            if fn is _run_lanes}  # fmt: skip
 
 
 def test_simulate_many_in_lanes_equals_one_at_a_time():

@@ -278,31 +278,43 @@ _SPECIALISED: dict[tuple, object] = {}
 _SPECIALISED_LOCK = threading.Lock()
 
 
-def specialise(py_func: Callable, key: tuple, sources: Iterable[str], *, refcount: bool = True):
+def specialise(
+    py_func: Callable,
+    key: tuple,
+    sources: Iterable[str],
+    *,
+    refcount: bool = True,
+    values: str = "",
+):
     """A dispatcher of ``py_func`` of its own for ``key`` (e.g. a combination of part types).
 
-    Its cache folder's hash covers pkmctl's kernel sources and ``sources`` (the files
-    that define the parts in ``key``), so an edit to a user's part is never run stale.
-    One dispatcher per key and process.
+    Its cache folder's hash covers pkmctl's kernel sources, ``sources`` (the files that
+    define the parts in ``key``) and ``values`` (a digest of the global values they
+    compile in, :func:`pkmctl.parts.global_values`), so an edit to a user's part, or
+    another value of a setting it reads, is never run stale. One dispatcher per key,
+    values and process.
     """
     with _SPECIALISED_LOCK:
-        disp = _SPECIALISED.get((py_func, key))
+        disp = _SPECIALISED.get((py_func, key, values))
         if disp is None:
             options = JIT_OPTIONS | (REFCOUNT if refcount else NO_REFCOUNT)
             disp = njit(**options)(py_func)
-            folder = specialised_dir(py_func, key, sources)
+            folder = specialised_dir(py_func, key, sources, values)
             disp = _attach_cache(disp, folder, folder.parent.name)
             disp.__pkmctl_key__ = key  # for messages
-            _SPECIALISED[(py_func, key)] = disp
+            _SPECIALISED[(py_func, key, values)] = disp
         return disp
 
 
-def specialised_dir(py_func: Callable, key: tuple, sources: Iterable[str]) -> Path:
-    """The cache folder of :func:`specialise`'s dispatcher for ``key``: one per key, so
-    that processes compiling different combinations never share an index file."""
+def specialised_dir(
+    py_func: Callable, key: tuple, sources: Iterable[str], values: str = ""
+) -> Path:
+    """The cache folder of :func:`specialise`'s dispatcher for ``key``: one per key (and
+    ``values``), so that processes compiling different combinations never share an index
+    file."""
     sources = sorted({str(Path(s).resolve()) for s in sources if s} - _builtin())
     names = ",".join(f"{getattr(k, '__module__', '')}.{getattr(k, '__qualname__', k)}" for k in key)
-    tag = hashlib.sha256(f"{py_func.__module__}.{py_func.__qualname__}|{names}".encode())
+    tag = hashlib.sha256(f"{py_func.__module__}.{py_func.__qualname__}|{names}|{values}".encode())
     return cache_dir(sources) / f"{py_func.__name__.strip('_')}-{tag.hexdigest()[:12]}"
 
 

@@ -68,14 +68,16 @@ name. A user adds one from their own module with a decorator
 from __future__ import annotations
 
 import functools
+import hashlib
 import inspect
+import marshal
 import os
 import site
 import sys
 import sysconfig
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from types import ModuleType
+from types import CodeType, ModuleType
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -425,7 +427,90 @@ def user_sources(fn: Callable) -> set[str]:
     visit({**py.__globals__, **cells}, file)
     if file and file not in found:  # the function's own file, even if a library's
         found.add(file)
-    return found
+    # a function typed at a prompt or in a notebook cell has no file on disk: its code
+    # is in global_values instead
+    return {f for f in found if os.path.isfile(f)}
+
+
+_SIMPLE = (bool, int, float, complex, str, bytes, type(None), np.generic)
+
+
+def global_values(parts: Iterable[Part]) -> str:
+    """A digest of what the user's parts compile in besides their files' text, for the
+    cache key of their loop (with :func:`user_sources`): Numba freezes a global value a
+    compiled function reads (a number, string, tuple or array, read from the
+    environment or a settings file, say) into the machine code, so the loop of another
+    value must be another loop. Covers the globals and closure values each step function
+    reads, and those of the user's own functions it calls, transitively; and the code
+    of a function with no file on disk (typed at a prompt, ``python -c``). Built-in
+    parts add nothing."""
+    h = hashlib.sha256()
+    skip = _library_folders()
+    seen: set[int] = set()
+
+    def users(py: Any) -> bool:
+        try:
+            file = inspect.getsourcefile(py) or ""
+        except TypeError:
+            return False
+        return not any(os.path.realpath(file).startswith(folder) for folder in skip)
+
+    def names(code: CodeType) -> set[str]:
+        out = set(code.co_names)
+        for c in code.co_consts:
+            if isinstance(c, CodeType):
+                out |= names(c)
+        return out
+
+    def value(tag: str, v: Any, depth: int = 0) -> None:
+        if isinstance(v, np.ndarray):
+            h.update(f"{tag}:{v.dtype.str}{v.shape}\0".encode())
+            h.update(np.ascontiguousarray(v).tobytes())
+        elif isinstance(v, _SIMPLE):
+            h.update(f"{tag}={v!r}\0".encode())
+        elif isinstance(v, (tuple, list)) and depth < 4:
+            h.update(f"{tag}:{type(v).__name__}{len(v)}\0".encode())
+            for i, item in enumerate(v):
+                value(f"{tag}[{i}]", item, depth + 1)
+
+    def item(tag: str, v: Any) -> None:
+        fn = getattr(v, "py_func", v)
+        if inspect.isfunction(fn):
+            if users(fn):
+                visit(fn)
+        elif not isinstance(v, ModuleType):
+            value(tag, v)
+
+    def visit(py: Any) -> None:
+        if id(py) in seen:
+            return
+        seen.add(id(py))
+        where = f"{py.__module__}.{py.__qualname__}"
+        try:
+            on_disk = os.path.isfile(inspect.getsourcefile(py) or "")
+        except TypeError:
+            on_disk = False
+        if not on_disk:
+            h.update(marshal.dumps(py.__code__))
+        used = names(py.__code__)
+        for name in sorted(used & py.__globals__.keys()):
+            v = py.__globals__[name]
+            if isinstance(v, ModuleType):  # helper.scale, settings.GAIN: its used names
+                for attr in sorted(used):
+                    if attr in vars(v):
+                        item(f"{where}:{name}.{attr}", vars(v)[attr])
+            else:
+                item(f"{where}:{name}", v)
+        for i, c in enumerate(py.__closure__ or ()):
+            if _filled(c):
+                item(f"{where}:cell{i}", c.cell_contents)
+
+    for part in parts:
+        if part.builtin:
+            continue
+        for fn in (*part.functions.values(), *(part.lanes or {}).values()):
+            visit(getattr(fn, "py_func", fn))
+    return h.hexdigest()[:16] if seen else ""
 
 
 def _filled(cell: Any) -> bool:

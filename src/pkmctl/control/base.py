@@ -31,7 +31,7 @@ from pkmctl.errors import InvalidPoseError, NonFiniteInputError
 from pkmctl.fuzzy import FLC, FuzzySystem, MamdaniSystem
 from pkmctl.fuzzy.term import term_system
 from pkmctl.model.mechanism import Mechanism
-from pkmctl.parts import PartContext, controller_step, get_part, names
+from pkmctl.parts import PartContext, controller_step, get_part, global_values, names
 
 _HALF_PI = math.pi / 2
 
@@ -148,7 +148,8 @@ class Controller:
         self._state = self._initial.copy()
         self._steps = 0
         self._new_buffers()
-        self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False)
+        self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False,
+                                values=global_values([self.part]))  # fmt: skip
 
     @classmethod
     def from_scenario(cls, scenario, name: str = "afsmc") -> Controller:
@@ -261,7 +262,8 @@ class Controller:
     def __setstate__(self, d: dict) -> None:
         self.__dict__.update(d)
         self.part = get_part("controller", self.name)
-        self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False)
+        self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False,
+                                values=global_values([self.part]))  # fmt: skip
         self._new_buffers()  # pickle does not keep _y and _ref as views of _io
 
 

@@ -41,6 +41,7 @@ from pkmctl.parts import (
     actuator_force,
     controller_log,
     controller_step,
+    global_values,
     plant_derivative,
     plant_observe,
     sensor_log,
@@ -318,7 +319,8 @@ def lane_loop_for(parts: dict[str, Part], bundles: dict[str, tuple]):
     key = tuple(type(bundles[k][0]) for k in ("plant", "sensor", "controller", "actuator"))
     key = key + tuple(parts[k].params for k in ("plant", "sensor", "controller", "actuator"))
     sources = [s for p in parts.values() if not p.builtin for s in p.sources]
-    return specialise(_run_lanes, ("lanes", *key), sources, refcount=False)
+    return specialise(_run_lanes, ("lanes", *key), sources, refcount=False,
+                      values=global_values(parts.values()))  # fmt: skip
 
 
 def _is_stack(buffers: list | None, L: int, rows: int, n_log: int, n_slog: int) -> bool:

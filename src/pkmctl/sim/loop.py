@@ -43,6 +43,7 @@ from pkmctl.parts import (
     actuator_force,
     controller_log,
     controller_step,
+    global_values,
     plant_derivative,
     plant_observe,
     sensor_log,
@@ -494,15 +495,16 @@ def _reason(exc: Exception) -> str:
     return ((cause or type(exc).__name__)[:240] + where)[:400]
 
 
-def _key(parts: dict[str, Part]) -> tuple[tuple, list[str]]:
+def _key(parts: dict[str, Part]) -> tuple[tuple, list[str], str]:
     key = tuple(parts[k].params for k in ("plant", "sensor", "controller", "actuator"))
-    return key, [s for p in parts.values() if not p.builtin for s in p.sources]
+    sources = [s for p in parts.values() if not p.builtin for s in p.sources]
+    return key, sources, global_values(parts.values())
 
 
 def loop_for(parts: dict[str, Part]):
     """The compiled loop for this combination of parts (one per process, cached on disk)."""
-    key, sources = _key(parts)
-    return specialise(_run_loop, key, sources, refcount=False)
+    key, sources, values = _key(parts)
+    return specialise(_run_loop, key, sources, refcount=False, values=values)
 
 
 _MARKER = "compiled"
@@ -516,8 +518,8 @@ def is_compiled(parts: dict[str, Part]) -> bool:
         from pkmctl.sim.stepped import _period as compiled
     else:
         compiled = _run_loop
-    key, sources = _key(parts)
-    return (specialised_dir(compiled, key, sources) / _MARKER).exists()
+    key, sources, values = _key(parts)
+    return (specialised_dir(compiled, key, sources, values) / _MARKER).exists()
 
 
 def _mark_compiled(loop) -> None:

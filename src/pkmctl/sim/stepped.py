@@ -119,8 +119,8 @@ def _period(
 
 def period_for(parts: dict[str, Part]):
     """The compiled period of this combination of parts (one per process, cached on disk)."""
-    key, sources = _key(parts)
-    return specialise(_period, key, sources, refcount=False)
+    key, sources, values = _key(parts)
+    return specialise(_period, key, sources, refcount=False, values=values)
 
 
 def run_stepped(
