@@ -306,6 +306,13 @@ def specialise(
         return disp
 
 
+def ready(dispatcher, *args) -> None:
+    """Compile ``dispatcher`` for ``args``, or load it from the disk cache, without
+    running it: what its first call with them would do first (Numba's own dispatch path,
+    ``_compile_for_args``), so that the call itself can be timed alone."""
+    dispatcher._compile_for_args(*args)
+
+
 def specialised_dir(
     py_func: Callable, key: tuple, sources: Iterable[str], values: str = ""
 ) -> Path:

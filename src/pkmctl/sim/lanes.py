@@ -30,7 +30,7 @@ import time
 import numpy as np
 from numba.core.errors import NumbaError
 
-from pkmctl._jit import kernel, specialise
+from pkmctl._jit import kernel, ready, specialise
 from pkmctl.model.lanes import make_lane_work, wide_vectors
 from pkmctl.model.simd import flat_view
 from pkmctl.parts import (
@@ -423,8 +423,11 @@ def run_lanes(
     dt = 0.0
     try:
         for k0, ref, qdes, dist_index in shared.chunks():
+            args = (*head, k0, shared.every, ref, qdes, dist_values, dist_index, *tail)
+            if k0 == 0:  # compiling or loading the loop is not its time
+                ready(loop, *args)
             t0 = time.perf_counter()
-            left = loop(*head, k0, shared.every, ref, qdes, dist_values, dist_index, *tail)
+            left = loop(*args)
             dt += time.perf_counter() - t0
             if left == 0:
                 break
