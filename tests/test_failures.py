@@ -230,6 +230,41 @@ def test_what_does_not_fit_in_memory_is_refused_in_one_line(tmp_path, monkeypatc
     assert not out.exists() and not leftovers(tmp_path)
 
 
+def test_simulate_many_checks_the_memory_of_its_batches(monkeypatch):
+    """simulate_many checked one run, then a batch of lanes allocated the logs of eight
+    at once: a raw MemoryError (or an OOM kill) after seconds of work. Now the runs in
+    flight (threads x lanes), and with keep="results" every run kept, are checked
+    before anything is computed; keep="metrics" logs nothing and still runs."""
+    import pkmctl
+    from pkmctl.errors import InsufficientMemory
+    from pkmctl.sim import simulate as sim
+
+    sc = pkmctl.Scenario.builtin("paper", 0.5)
+    one = sim.memory_needed(sc.timing.periods, 36, disturbance_values=sim.disturbance_count(sc))
+    monkeypatch.setattr(sim, "_available_memory", lambda: int(1.5 * one))
+    pkmctl.simulate(sc, "afsmc", seed=1)  # one run fits ...
+    with pytest.raises(InsufficientMemory) as err:  # ... eight do not
+        pkmctl.simulate_many(sc, "afsmc", seeds=range(8), workers=1, lanes=8)
+    assert "8 runs of 0.5 s" in str(err.value) and "\n" not in str(err.value)
+    done = pkmctl.simulate_many(sc, "afsmc", seeds=range(8), keep="metrics", workers=1, lanes=8)
+    assert [d["seed"] for d in done] == list(range(8))
+
+
+@pytest.mark.parametrize("seeds", [5, "12", None])
+def test_simulate_many_seeds_must_be_a_list(seeds):
+    import pkmctl
+
+    with pytest.raises(TypeError, match=r"seeds = .*: must be a list of integers"):
+        pkmctl.simulate_many("paper", "pd", seeds=seeds, duration=0.01)
+
+
+def test_a_seed_is_an_integer_not_a_bool():
+    import pkmctl
+
+    with pytest.raises(pkmctl.ScenarioError, match="disturbance.seed = True: must be an integer"):
+        pkmctl.simulate("paper", "pd", seed=True, duration=0.01)
+
+
 @pytest.mark.parametrize("value", ["0", "-5", "2.5", '"ten"', "1001", "true"])
 def test_bad_logging_every_is_one_line_with_the_range(tmp_path, value):
     text = f"[timing]\nduration = 0.05\n\n[logging]\nevery = {value}\n"

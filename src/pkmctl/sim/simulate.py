@@ -360,7 +360,9 @@ def metrics_only(scenario: Scenario) -> Scenario:
 
 def _with_seed(scenario: Scenario, seed: int) -> Scenario:
     """The scenario with another disturbance seed (validated here: nothing else changes)."""
-    if not (isinstance(seed, int | np.integer) and 0 <= seed <= 2**63 - 1):
+    if not (
+        isinstance(seed, int | np.integer) and not isinstance(seed, bool) and 0 <= seed <= 2**63 - 1
+    ):
         raise ScenarioError(f"disturbance.seed = {seed!r}: must be an integer in [0, 2^63 - 1]")
     dist = scenario.disturbance.model_copy(update={"seed": int(seed)})
     return scenario.model_copy(update={"disturbance": dist})
@@ -675,21 +677,27 @@ def simulate_many(
 
     if keep not in ("results", "metrics"):
         raise ValueError(f"keep = {keep!r}: must be 'results' or 'metrics'")
+    if isinstance(seeds, (int, np.integer, str, bytes)) or not hasattr(seeds, "__iter__"):
+        raise TypeError(f"seeds = {seeds!r}: must be a list of integers, e.g. range(5)")
     seeds = list(seeds)
     workers = (os.cpu_count() or 1) if workers is None else workers
     if workers < 1:
         raise ValueError(f"workers = {workers}: must be >= 1")
-    if lanes is not None and not (isinstance(lanes, int) and 1 <= lanes <= 64):
+    if lanes is not None and not (
+        isinstance(lanes, int) and not isinstance(lanes, bool) and 1 <= lanes <= 64
+    ):
         raise ValueError(f"lanes = {lanes!r}: must be an integer in [1, 64]")
-    if keep == "results":
-        prep = prepare(scenario, duration)
-    else:  # the metrics alone: no log
-        prep = prepare(metrics_only(_resolve(scenario, duration)), None)
-    parts = resolve_parts(prep.scenario, controller)
+    sc = _resolve(scenario, duration)
+    if keep == "metrics":  # the metrics alone: no log
+        sc = metrics_only(sc)
+    parts = resolve_parts(sc, controller)
     for s in seeds:
-        _with_seed(prep.scenario, s)  # fail fast on a bad seed, before any run
+        _with_seed(sc, s)  # fail fast on a bad seed, before any run
     if lanes is None:
         lanes = lane_count() if lanes_supported(parts) else 1
+    chunks = in_batches(seeds, lanes)
+    _check_many(sc, parts, keep, len(seeds), min(workers, len(chunks)) * padded_lanes(lanes))
+    prep = prepare(sc, None)
     local = threading.local()
     n_log = 0
     if keep == "metrics":
@@ -717,9 +725,30 @@ def simulate_many(
             {"seed": int(s), **summary(r, source="loop")} for s, r in zip(chunk, out, strict=True)
         ]
 
-    chunks = in_batches(seeds, lanes)
     with ThreadPoolExecutor(max_workers=workers) as pool:
         return [r for rs in pool.map(batch, chunks) for r in rs]
+
+
+def _check_many(sc: Scenario, parts: dict[str, Part], keep: str, runs: int, live: int) -> None:
+    """simulate_many's memory, before anything is computed: ``prepare`` checks one run,
+    but the batches in flight log ``live`` runs at once (threads x lanes), and with
+    ``keep="results"`` every one of the ``runs`` runs keeps its logs to the end."""
+    n, every, Tc = sc.timing.periods, sc.logging.every, sc.timing.control_period
+    cols = log_columns(sc, parts) if keep == "results" else 0
+    holds, values = disturbance_count(sc), part_memory(sc)
+    count = max(runs, live) if keep == "results" else live
+
+    def need(e: int) -> int:
+        return memory_needed(n, cols, runs=count, every=e, disturbance_values=holds,
+                             part_values=values)  # fmt: skip
+
+    if count > 1:
+        what = f"{runs} runs of {n * Tc:g} s at T_c = {Tc:g} s" + (
+            f" logged every {every}" if every > 1 else ""
+        ) + (" (keep='results' holds every run's log)" if keep == "results" else
+             f" ({live} at a time)")  # fmt: skip
+        check_memory(need(every), what, decimated=need if keep == "results" else None,
+                     every=every, periods=n)  # fmt: skip
 
 
 def _compile_group(scenario_toml: str, job: tuple[str, list[str]]) -> str:
