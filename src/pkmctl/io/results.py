@@ -3,10 +3,13 @@
 ``save_result(result, directory)`` writes ``<stem>.parquet`` (or ``<stem>.csv`` with
 ``fmt="csv"``): one row per control period with t, X, Xdot, X_desired, Xdot_desired, q,
 q_desired, F, tau, tau_desired, disturbance, the measured q1_m..q4_m when the sensor is
-not ideal and, for AFSMC, theta_hat; and ``<stem>.json`` (the scenario as TOML text, the
-controller, the metrics, the loop's metric accumulators, the column names and the
-table's file name). ``load_result`` reads them back into a :class:`~pkmctl.Result`, bit
-for bit; a decimated run's metrics (``logging.every`` > 1) come back from the
+not ideal (and the pose and velocity it gave, z_m ... betadot_m) and, for AFSMC,
+theta_hat; and ``<stem>.json`` (the scenario as TOML text, the controller, the parts,
+``info``, the metrics, the loop's metric accumulators, the column names and the table's
+file name). ``load_result`` reads them back into a :class:`~pkmctl.Result`, bit for bit
+(the measured columns, where absent, are the true ones, as an ideal sensor gave them),
+but for a user part's own logs (``logs``) and the parts' ``final_state``, which are not
+saved; a decimated run's metrics (``logging.every`` > 1) come back from the
 accumulators, not from the rows it logged.
 
 The JSON is standard JSON (any parser reads it): a number that is not finite is written
@@ -53,6 +56,11 @@ _FIELDS = (
 
 
 _MEASURED = ("q1_m", "q2_m", "q3_m", "q4_m")
+#: What the sensor gave the controller, saved when it differs from the truth.
+_SEEN = (
+    ("X_measured", ("z_m", "alpha_m", "beta_m")),
+    ("Xdot_measured", ("zdot_m", "alphadot_m", "betadot_m")),
+)
 
 
 def _columns(result: Result) -> tuple[list[str], list[np.ndarray]]:
@@ -67,6 +75,11 @@ def _columns(result: Result) -> tuple[list[str], list[np.ndarray]]:
     if result.q_measured is not None and not np.array_equal(result.q_measured, result.q):
         names += list(_MEASURED)  # what an encoder gave (pkmctl identify reads these)
         blocks.append(result.q_measured)
+    for name, cols in _SEEN:
+        seen, true = getattr(result, name), getattr(result, name.removesuffix("_measured"))
+        if seen is not None and not np.array_equal(seen, true):
+            names += list(cols)
+            blocks.append(seen)
     if result.theta_hat is not None:
         names += [f"theta_hat{k}" for k in range(result.theta_hat.shape[1])]
         blocks.append(result.theta_hat)
@@ -130,6 +143,8 @@ def save_result(
         else None,
         "loop_metrics": None if result.loop_metrics is None else result.loop_metrics.to_dict(),
         "scenario_toml": result.scenario.to_toml(),
+        "parts": dict(result.parts),
+        "info": _plain(result.info),
     }
     fis = result.scenario.fuzzy.fis
     if fis is not None:
@@ -140,6 +155,19 @@ def save_result(
     with atomic_write(json_path) as fh:
         json.dump(_finite(meta), fh, indent=2, allow_nan=False)
     return table_path, json_path
+
+
+def _plain(value):
+    """``value`` with NumPy scalars and arrays as Python numbers and lists (for JSON)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
 
 
 def _finite(value):
@@ -203,9 +231,15 @@ def load_result(json_path: Path) -> Result:
     for name, width, _ in _FIELDS:
         fields[name] = data[:, col : col + width]
         col += width
+    fields["q_measured"] = fields["q"]  # the truth, unless the sensor's own was saved
     if names[col : col + 4] == list(_MEASURED):
         fields["q_measured"] = data[:, col : col + 4]
         col += 4
+    for name, cols in _SEEN:
+        fields[name] = fields[name.removesuffix("_measured")]
+        if names[col : col + 3] == list(cols):
+            fields[name] = data[:, col : col + 3]
+            col += 3
     theta = data[:, col:] if col < data.shape[1] else None
     lm = meta.get("loop_metrics")
     return Result(
@@ -215,5 +249,7 @@ def load_result(json_path: Path) -> Result:
         theta_hat=theta,
         success=meta["success"],
         message=meta["message"],
+        parts=dict(meta.get("parts", {})),
+        info=dict(meta.get("info", {})),
         **fields,
     )
