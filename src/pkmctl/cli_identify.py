@@ -4,6 +4,7 @@
     pkmctl excite [--scenario NAME|FILE] [--out FILE] [--harmonics H] [--base-frequency F]
     pkmctl identify LOG [--out DIR] [--scenario NAME|FILE] [--validate LOG2] [--cutoff HZ]
                     [--force-lead auto|SECONDS] [--physical/--no-physical]
+                    [--max-residual PERCENT]
 """
 
 from __future__ import annotations
@@ -35,7 +36,11 @@ from pkmctl.cli import (
 
 def _scenario_for(ctx: typer.Context, spec: str | None, log: Path | None):
     """The named scenario; else the one beside a pkmctl log (its .json); else prototype;
-    and a label saying which and where it came from (for errors and the report)."""
+    and a label saying which and where it came from (for errors and the report). A .json
+    beside the log that is pkmctl's metadata but whose scenario cannot be read is refused
+    (the log is another machine's than the default: guessing it would give a wrong model);
+    one that is not pkmctl's metadata is said so in the label."""
+    why_not = "no pkmctl .json beside the log"
     if spec is None and log is not None:
         meta = log.with_suffix(".json")
         if meta.is_file():
@@ -43,24 +48,40 @@ def _scenario_for(ctx: typer.Context, spec: str | None, log: Path | None):
 
             try:
                 text = json.loads(meta.read_text(encoding="utf-8"))["scenario_toml"]
-                sc = Scenario.from_toml(text)
-                return sc, f"scenario {sc.name!r} (from {str(meta)!r}, beside the log)"
+                if not isinstance(text, str):
+                    raise TypeError("scenario_toml is not a string")
             except (OSError, ValueError, KeyError, TypeError):
-                pass  # not pkmctl's metadata: fall back to the default
+                text = None  # not pkmctl's metadata: fall back to the default
+                why_not = f"{str(meta)!r} beside the log is not pkmctl's metadata"
+            if text is not None:
+                try:
+                    sc = Scenario.from_toml(text)
+                except Exception as exc:  # ScenarioError, a TOML error: one line
+                    first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+                    _fail(
+                        f"log {str(log)!r}: the pkmctl metadata beside it, {str(meta)!r}, holds "
+                        f"a scenario that cannot be read ({first}); give the machine's "
+                        "--scenario"
+                    )
+                return sc, f"scenario {sc.name!r} (from {str(meta)!r}, beside the log)"
     try:
         sc = _interruptible(lambda: _load_scenario(spec or "prototype"), lambda: "nothing done")
     except Exception as exc:
         _handle(ctx, exc)
     if spec is None:
-        return sc, (
-            f"scenario {sc.name!r} (the default: no --scenario and no pkmctl .json beside the log)"
-        )
+        return sc, f"scenario {sc.name!r} (the default: no --scenario and {why_not})"
     return sc, f"scenario {sc.name!r} (--scenario {spec})"
 
 
 def _as_options(message: str) -> str:
-    """The library's keyword ``cutoff`` as the command's option."""
-    return message.replace("cutoff = ", "--cutoff = ").replace("raise the cutoff", "raise --cutoff")
+    """The library's keywords (``cutoff``, ``force_lead``, ``max_residual``) as the
+    command's options."""
+    for word, option in (("cutoff", "--cutoff"), ("force_lead", "--force-lead"),
+                         ("max_residual", "--max-residual")):  # fmt: skip
+        message = message.replace(f"{word} = ", f"{option} = ")
+        message = message.replace(f"raise the {word}", f"raise {option}")
+        message = message.replace(f"raise {word}", f"raise {option}")
+    return message
 
 
 @app.command()
@@ -206,6 +227,15 @@ def identify(
             help="Also a physically consistent estimate (controller_model.toml).", metavar=""
         ),
     ] = True,
+    max_residual: Annotated[
+        float,
+        typer.Option(
+            help="Refuse a log whose physically consistent fit (WLS with --no-physical) leaves "
+            "more than this % of J^T tau unexplained (genuine logs: < 0.2 %; bad signs, units "
+            "or swapped columns: > 12 %). Raise it for a machine with unmodelled effects.",
+            metavar="PERCENT",
+        ),
+    ] = 5.0,  # pkmctl.ident.identify.MAX_RELATIVE_RESIDUAL (not imported: numpy, scipy)
 ) -> None:
     """Identify the base parameters and the joint friction from a logged run (OLS, WLS,
     jackknife standard deviations), optionally validate on a second log; write a report
@@ -228,6 +258,8 @@ def identify(
             _fail(f"--force-lead = {force_lead}: must be 'auto' or a time in (-1, 1) s")
     if not (math.isfinite(cutoff) and cutoff > 0):
         _fail(f"--cutoff = {cutoff:g}: must be > 0 Hz (at most a fiftieth of the sample rate)")
+    if not 0 < max_residual <= 100:  # NaN too
+        _fail(f"--max-residual = {max_residual:g}: must be in (0, 100] %")
     try:  # before the long work (the output first, as every command does)
         out = check_output_folder(out, what="--out")
         check_log_file(log)
@@ -250,7 +282,8 @@ def identify(
                 with warnings.catch_warnings(), np.errstate(all="ignore"):
                     warnings.simplefilter("ignore", RuntimeWarning)
                     idn = run_identify(read_log(log), sc, cutoff=cutoff, force_lead=lead,
-                                       physical=physical, scenario_label=origin)  # fmt: skip
+                                       physical=physical, scenario_label=origin,
+                                       max_residual=max_residual / 100)  # fmt: skip
                     val = None
                     if validate is not None:
                         val = predict(idn, read_log(validate, what="--validate"), sc)

@@ -5,7 +5,8 @@ From limb lengths q(t) and limb forces tau(t):
 1. pose X by least-squares forward kinematics (Gauss-Newton, warm-started at the
    previous sample; quantised lengths fit no pose exactly, but lengths whose residual
    exceeds what quantisation and noise explain, :func:`fk_limit`, are refused: another
-   machine's, or columns swapped);
+   machine's, or neighbouring columns swapped; q1<->q3 and q2<->q4, mirror images, fit
+   a mirrored pose and are left to step 7);
 2. X low-pass filtered (zero-phase Butterworth, order 4, at ``diff_cutoff``, a tenth of
    the sample rate by default, which must be :data:`MIN_POSE_TO_CUTOFF` times the
    cutoff), Xdot and Xddot by sixth-order central differences;
@@ -18,7 +19,8 @@ From limb lengths q(t) and limb forces tau(t):
    2.5 * cutoff; reduced to the base parameters (:mod:`pkmctl.ident.base`). Force timing:
    the force acting at t is the logged one at t - ``force_lead`` (0: instantaneous
    readings; a log of commands each held over a control period T needs +T/2; ``None``
-   estimates it by least misfit over +-:data:`LEAD_SEARCH` samples, refused at the edge);
+   estimates it by least misfit over +-:data:`LEAD_SEARCH` samples, refused at the edge;
+   samples whose filter would read forces from beyond the log's ends are dropped);
 4. ordinary least squares, then weighted least squares with each axis weighted by the
    inverse of its OLS residual standard deviation;
 5. standard deviations from a delete-a-block jackknife (:func:`_jackknife`): the
@@ -28,7 +30,10 @@ From limb lengths q(t) and limb forces tau(t):
    inertias satisfying the triangle inequality (written as I_xx = L_y + L_z, ... with
    L >= 0), rotor masses and friction >= 0, fitted to the same weighted data (bounded
    least squares), the directions the data cannot see taken from a prior (the
-   scenario's controller model).
+   scenario's controller model);
+7. fit-quality gates (:func:`_check_fit`): a WLS mass clearly below 0, a relative
+   residual above ``max_residual`` or an m_platform far from the prior's is refused
+   (forces of the wrong sign or units, swapped columns, another machine).
 """
 
 from __future__ import annotations
@@ -95,6 +100,30 @@ MAX_FK_RESIDUAL = 2e-5
 FK_NOISE_FACTOR = 8.0
 #: ``force_lead=None`` searches this many samples either side of 0.
 LEAD_SEARCH = 10
+#: Largest relative residual |y - W b| / |y| of the physically consistent fit (of WLS
+#: without it) before the log is refused (``max_residual``). Measured (2026-12-06):
+#: genuine logs 0.059-0.12 % (noisy synthetic draws 0.059-0.070 %, PD runs 0.07-0.09 %,
+#: one decimated to 500 Hz 0.12 %); bad logs 12.2-12.9 % (q2<->q4 or tau2<->tau4, mirror
+#: images), 12.4-14.4 % (tau1<->tau2), 22 % (one limb's force negated), 28 % (q1<->q3),
+#: 99.8 % (every force negated). 5 %: 40 x the worst genuine log, 2.4 x below the best
+#: bad one; a real machine's unmodelled effects may need more (the CLI's --max-residual).
+MAX_RELATIVE_RESIDUAL = 0.05
+#: A WLS mass more than this many std below 0 is refused (forces of the wrong sign).
+#: Measured: genuine logs' most negative mass -2.3 std (a limb's ~1 kg mass, std 1.3 kg,
+#: with the friction's v_s mis-modelled), -0.8 std over 20 noisy draws; every force
+#: negated: -22.5 std (m_platform).
+NEGATIVE_MASS_STD = 5.0
+#: Allowed ratio of the identified m_platform to the scenario's prior (its controller
+#: model, the CAD). A CAD mass is right to tens of %, measured 0.97-2.0 x on genuine logs;
+#: forces in kN give 1e-3 x, motor torques (N m) instead of limb forces l / (2 pi eta) x
+#: (measured 0.0018 x at the prototype's 10 mm lead; < 0.1 x for any lead below 0.56 m).
+MASS_RATIO = (0.1, 10.0)
+#: What a log that fits badly, or only with negative masses, most likely has wrong.
+_LIKELY_CAUSES = (
+    "forces of the wrong sign (a drive whose positive force retracts the limb), forces in "
+    "other units, swapped q or tau columns (q1<->q3 and q2<->q4 are mirror images that fit "
+    "the geometry), or another machine (give its --scenario)"
+)
 
 
 class IdentificationError(PkmctlError, ValueError):
@@ -463,12 +492,17 @@ def observe(
     usable: float = 0.0,
     max_fk_residual: float = MAX_FK_RESIDUAL,
     machine: str = "the scenario",
+    max_residual: float | None = None,
 ) -> Observation:
     """The observation of a log (steps 1-3 of the module): see :class:`Observation`.
 
     ``usable``: seconds the caller needs between the filters' supports (checked before
     any work); ``max_fk_residual`` (m): lengths that fit no pose of ``mechanism`` better
-    are refused (``machine`` names it in the error)."""
+    are refused (``machine`` names it in the error). A given ``force_lead`` must leave
+    ``usable`` seconds whose shifted forces were logged (the samples whose filter reaches
+    forces from beyond the log's ends are dropped). ``max_residual``: with ``force_lead``
+    None, a search whose best lead still leaves more than this relative misfit is refused
+    as a problem of the data, not of timing."""
     h, fs, fd = _check_rate(log, cutoff, diff_cutoff)
     where = log.where
     # the filters' support, before anything is built (a tiny cutoff is a huge FIR)
@@ -482,6 +516,18 @@ def observe(
             f"{where}: {n} samples ({span:.4g} s), too short for cutoff = {cutoff:g} Hz: it "
             f"needs >= {need:.4g} s (the filters' support, {(edge + 3) * h:.3g} s at each "
             f"end, and {usable:.3g} s between); log a longer run or raise the cutoff"
+        )
+    # forces shifted by the lead must have been logged: the first (last) kept sample's
+    # FIR reaches back (ahead) to t0 + (edge - half + 3) h, so a lead up to that costs
+    # nothing, and each further sample costs one of the usable ones
+    margin = (edge - half + 3) * h
+    lead_max = margin + (n - 6 - 2 * edge) * h - usable
+    if force_lead is not None and not abs(force_lead) <= lead_max:
+        raise IdentificationError(
+            f"{where}: force_lead = {force_lead:+.4g} s shifts the forces beyond the log's "
+            f"ends: this log ({span:.4g} s) allows |force_lead| <= {lead_max:.3g} s (the "
+            f"forces it reads must be logged ones over the {usable:.3g} s needed between the "
+            "filters' supports); a lead is a fraction of a control period to a few periods"
         )
     X, fk_res = _forward_kinematics(mechanism, log, max_fk_residual, machine)
     Xf = scipy.signal.sosfiltfilt(scipy.signal.butter(4, fd, fs=fs, output="sos"), X, axis=0)
@@ -501,9 +547,10 @@ def observe(
     if dec < 1:
         raise IdentificationError(f"decimation = {dec}: must be >= 1")
     keep = np.arange(edge, m - edge)[::dec]
+    decimated = f"decimation by {dec} (to {fs / dec:g} Hz)"
     discarded = {
         f"filter support and transients ({edge / fs:.3g} s at each end)": int(min(n, 2 * edge + 6)),
-        f"decimation by {dec} (to {fs / dec:g} Hz)": int(max(0, m - 2 * edge) - keep.size),
+        decimated: int(max(0, m - 2 * edge) - keep.size),
     }
     if keep.size == 0:
         raise IdentificationError(
@@ -522,14 +569,23 @@ def observe(
     if force_lead is None:
         A = W.reshape(-1, W.shape[-1])
 
-        def misfit(lead: float) -> float:
+        def misfit(lead: float, relative: bool = False) -> float:
             y = observed(lead).reshape(-1)
             beta, *_ = np.linalg.lstsq(A, y, rcond=1e-10)
-            return float(np.linalg.norm(y - A @ beta))
+            e = float(np.linalg.norm(y - A @ beta))
+            return e / float(np.linalg.norm(y)) if relative else e
 
         # every sample within +-LEAD_SEARCH, then the best one's neighbourhood
         grid = h * np.arange(-LEAD_SEARCH, LEAD_SEARCH + 1)
         k = int(np.argmin([misfit(v) for v in grid]))
+        rel = misfit(grid[k], relative=True)
+        if k in (0, grid.size - 1) and max_residual is not None and rel > max_residual:
+            raise IdentificationError(
+                f"{where}: force lead 'auto': even the best lead searched (+-{LEAD_SEARCH} "
+                f"samples) leaves {100 * rel:.4g} % of J^T tau unexplained (relative residual "
+                f"of least squares; max_residual = {100 * max_residual:g} %): not a timing "
+                f"problem but the data: {_LIKELY_CAUSES}"
+            )
         if k in (0, grid.size - 1):
             raise IdentificationError(
                 f"{where}: force lead 'auto': the misfit is smallest at the edge of the "
@@ -543,6 +599,19 @@ def observe(
                 options={"xatol": 1e-6 * h},
             ).x
         )  # fmt: skip
+    # drop the samples whose filter would read forces from beyond the log's ends (np.interp
+    # would repeat the first or last one): none for a lead within ``margin``
+    shifted = t_in[np.concatenate([keep - half, keep + half])] - force_lead
+    inside = (shifted[: keep.size] >= log.t[0] - 1e-9 * h) & (
+        shifted[keep.size :] <= log.t[-1] + 1e-9 * h
+    )
+    if not inside.all():  # counted in the log's samples: each kept one stood for ``dec``
+        lost = int(np.sum(~inside))
+        discarded[decimated] -= lost * (dec - 1)
+        discarded[f"force lead {force_lead:+.4g} s: its forces from beyond the log's ends"] = (
+            lost * dec
+        )
+        keep, W = keep[inside], W[inside]
     y = observed(force_lead)
     Xk, Xdk, Xddk = Xf[inner][keep], Xd[inner][keep], Xdd[inner][keep]
     return Observation(
@@ -697,11 +766,18 @@ def identify(
     friction_velocity: float | None = None,
     force_lead: float | None = 0.0,
     scenario_label: str | None = None,
+    max_residual: float | None = MAX_RELATIVE_RESIDUAL,
+    mass_ratio: tuple[float, float] | None = MASS_RATIO,
 ) -> Identification:
     """Identify the base parameters (and a physically consistent Theta_ext) from ``log``
     on ``scenario``'s geometry; the prior of the physical estimate is the scenario's
     controller model. ``scenario_label`` names the scenario in errors and the report
-    (default: its name). See the module for the method."""
+    (default: its name). See the module for the method.
+
+    Refused (:func:`_check_fit`) unless ``max_residual`` is None: a WLS mass more than
+    :data:`NEGATIVE_MASS_STD` std below 0, or a relative residual of the physically
+    consistent fit (of WLS without ``physical``) above ``max_residual``; unless
+    ``mass_ratio`` is None, an m_platform outside ``mass_ratio`` x the prior's."""
     t0 = time.perf_counter()
     label = scenario_label or f"scenario {scenario.name!r}"
     _check_rate(log, cutoff, None)  # a bad log is refused before any work
@@ -718,6 +794,7 @@ def identify(
         usable=(base.count + 1) * 2.0 / cutoff,
         max_fk_residual=fk_limit(scenario),
         machine=label,
+        max_residual=max_residual,
     )
     n, r = obs.t.size, base.count
     where = log.where
@@ -756,10 +833,10 @@ def identify(
               _rel(A, y, wls_w.beta))  # fmt: skip
     phys = phys_fit = None
     notes = []
+    cm = scenario.controller_model
+    m_r, fc, fv = cm.machine_terms(scenario.plant_spec.screw_lead)
+    prior = np.concatenate([scenario.controller_mechanism().theta, m_r, fc, fv])
     if physical:
-        cm = scenario.controller_model
-        m_r, fc, fv = cm.machine_terms(scenario.plant_spec.screw_lead)
-        prior = np.concatenate([scenario.controller_mechanism().theta, m_r, fc, fv])
         phys, at_bound = _physical(A * w[:, None], y * w, base, prior)
         lo = _lower_bounds()
         active = tuple(f"{_PHI_NAMES[j]} = {lo[j]:g}" for j in at_bound)
@@ -783,10 +860,74 @@ def identify(
                 "the physically consistent estimate differs from WLS by more than 2 std in "
                 f"{'; '.join(which)} ({why})"
             )
+    # a lead given far from 0 (more than a few samples) is another suspect
+    lead = obs.force_lead if abs(obs.force_lead) > LEAD_SEARCH / obs.sample_rate else None
+    _check_fit(where, base, wls, phys_fit, prior, max_residual, mass_ratio, lead)
     return Identification(
         base, obs, ols, wls, cond, phys, phys_fit, vs, time.perf_counter() - t0, notes,
         label, active if physical else (),
     )  # fmt: skip
+
+
+def _check_fit(
+    where: str,
+    base: BaseParameters,
+    wls: Fit,
+    phys_fit: Fit | None,
+    prior: np.ndarray,
+    max_residual: float | None,
+    mass_ratio: tuple[float, float] | None,
+    lead: float | None = None,
+) -> None:
+    """Refuse a fit that no genuine log gives (one line each): a clearly negative WLS mass,
+    a relative residual above ``max_residual`` (of the physically consistent fit if there
+    is one, else of WLS), an m_platform outside ``mass_ratio`` x the prior's. ``lead``: a
+    force lead given that is itself suspect (named among the causes)."""
+    causes = _LIKELY_CAUSES
+    if lead is not None:
+        causes += f", or a wrong force_lead = {lead:+.4g} s"
+    if max_residual is not None:
+        masses = [k for k, e in enumerate(base.expressions) if e.startswith("m_") and " " not in e]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = wls.beta[masses] / wls.std[masses]
+        if masses and np.nanmin(z) < -NEGATIVE_MASS_STD:
+            k = masses[int(np.nanargmin(z))]
+            raise IdentificationError(
+                f"{where}: WLS gives {base.expressions[k]} = {wls.beta[k]:.4g} kg, "
+                f"{-wls.beta[k] / wls.std[k]:.3g} std below 0 (a mass must be >= 0; allowed: "
+                f"at most {NEGATIVE_MASS_STD:g} std below): {causes}"
+            )
+        fit, which = (phys_fit, "the physically consistent fit") if phys_fit else (wls, "WLS")
+        if not fit.relative_error <= max_residual:
+            hint = (
+                f" (WLS leaves {100 * wls.relative_error:.3g} %: only negative masses, "
+                "inertias or friction fit the data)"
+                if fit is not wls and wls.relative_error <= max_residual
+                else ""
+            )
+            raise IdentificationError(
+                f"{where}: {which} leaves {100 * fit.relative_error:.4g} % of J^T tau "
+                f"unexplained (relative residual; allowed <= max_residual = "
+                f"{100 * max_residual:g} %){hint}: {causes}; a real machine whose "
+                "unmodelled effects leave more: raise max_residual"
+            )
+    m0 = prior[PARAMETER_NAMES.index("m_platform")]
+    if mass_ratio is not None and "m_platform" in base.expressions and m0 > 0:
+        k = base.expressions.index("m_platform")
+        ratio = wls.beta[k] / m0
+        lo, hi = mass_ratio
+        if not lo <= ratio <= hi:
+            causes = (
+                causes
+                if ratio <= 0
+                else "forces in other units (kN instead of N: 1e-3 x), or motor torques in "
+                "N m instead of limb forces (f = 2 pi eta T / lead: lead / (2 pi eta) x); or "
+                "the prior is not this machine's (give its --scenario, with its masses)"
+            )
+            raise IdentificationError(
+                f"{where}: m_platform = {wls.beta[k]:.4g} kg (WLS) is {ratio:.3g} x the "
+                f"scenario's prior {m0:.4g} kg (allowed {lo:g}-{hi:g} x): {causes}"
+            )
 
 
 def fk_limit(scenario: Scenario) -> float:
