@@ -331,3 +331,15 @@ def test_a_step_at_an_invalid_pose_is_refused_and_changes_nothing(robot, name):
     for glitch in ([np.nan, 0.0, 0.0], [0.7, np.inf, 0.0]):  # still named as such
         with pytest.raises(pkmctl.errors.NonFiniteInputError):
             ctrl.step(glitch, z3, home, z3, z3)
+
+
+def test_controller_names_and_gains_are_checked_alike():
+    """make_controller took "SMC" and Controller.from_scenario refused it; a dict of gains
+    failed deep inside with "'dict' object has no attribute 'pd_kp'"."""
+    sc = pkmctl.Scenario.builtin("paper", 0.01)
+    assert pkmctl.Controller.from_scenario(sc, "SMC").name == "smc"
+    assert pkmctl.make_controller("SMC", sc.controller_mechanism(), period=1e-3).name == "smc"
+    with pytest.raises(ValueError, match="controller = 'nope': must be one of"):
+        pkmctl.Controller.from_scenario(sc, "nope")
+    with pytest.raises(TypeError, match="gains: expected a pkmctl.Gains"):
+        pkmctl.make_controller("pd", sc.controller_mechanism(), {"K": [1, 2, 3]}, period=1e-3)

@@ -136,6 +136,11 @@ class Controller:
         self.name = name or type(self).name
         self.part = get_part("controller", self.name)
         self.model = model
+        if gains is not None and not isinstance(gains, Gains):
+            raise TypeError(
+                f"gains: expected a pkmctl.Gains (e.g. Gains(K=...), or "
+                f"scenario.controller_gains()), got {type(gains).__name__} {gains!r:.80}"
+            )
         self.gains = Gains() if gains is None else gains
         self.period = float(period)
         # the fuzzy term's system (two inputs, one output), as the loop compiles it
@@ -167,9 +172,9 @@ class Controller:
             raise TypeError(
                 f"scenario: expected a pkmctl.Scenario or a built-in name, got {scenario!r}"
             )
-        if not isinstance(name, str) or name not in names("controller"):
+        key = name.lower() if isinstance(name, str) and name.lower() in CONTROLLERS else name
+        if not isinstance(key, str) or key not in names("controller"):
             raise ValueError(f"controller = {name!r}: must be one of {names('controller')}")
-        key = name.lower() if name.lower() in CONTROLLERS else name
         kind = CONTROLLERS.get(key, Controller) if cls is Controller else cls
         return kind(scenario.controller_mechanism(), scenario.controller_gains(),
                     period=scenario.timing.control_period, flc=scenario.fuzzy_system(),
