@@ -268,3 +268,10 @@ def test_precompile_plans_each_kernel_once_and_skips_what_is_compiled():
     pkmctl.simulate(sc, controller="smc", duration=0.001)
     assert is_compiled(resolve_parts(sc, "smc"))  # a run leaves its marker ...
     assert precompile(sc, ["smc"]) == []  # ... so nothing is compiled again
+
+
+@pytest.mark.parametrize("name", ["", " x", "my law", "law\tb"])
+def test_a_part_name_has_no_spaces(name):
+    """The message said "without spaces" and let "my law" through."""
+    with pytest.raises(PartError, match="must be a non-empty string without spaces"):
+        pkmctl.register_controller(name, params=tuple)(lambda p, state, work, y, ref, F: None)

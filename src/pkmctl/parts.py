@@ -291,7 +291,7 @@ def _register(
     lane_ok: Callable | None = None,
 ) -> Part:
     reg = _REGISTRY[kind]
-    if not isinstance(name, str) or not name or name != name.strip():
+    if not isinstance(name, str) or not name or any(c.isspace() for c in name):
         raise PartError(f"{kind} name {name!r}: must be a non-empty string without spaces")
     if name in reg:
         raise PartError(f"{kind} {name!r}: a {kind} of that name is already registered")
