@@ -1066,3 +1066,154 @@ def test_the_docs_name_every_built_in_scenario():
     text = (Path(__file__).resolve().parents[1] / "docs" / "campaigns.md").read_text()
     line = next(ln for ln in text.splitlines() if ln.startswith('scenario = "paper"'))
     assert all(name in line or name in text.split(line)[1][:200] for name in BUILTINS), line
+
+
+def test_a_stray_copy_of_a_task_file_is_not_counted_and_a_run_twice_is_refused(tmp_path):
+    import shutil
+
+    from pkmctl.campaign.spec import SpecError
+    from pkmctl.campaign.store import completed_tasks
+
+    text = HEAD.replace('["smc"]', '["smc", "pd"]').replace("seeds = 1", "seeds = 3")
+    spec = _fake_campaign(tmp_path / "a", text)
+    runs = tmp_path / "a" / "runs"
+    # what a file manager makes of a copy: not a file of the campaign's
+    shutil.copy(runs / "task-00001.parquet", runs / "task-00001 (copy).parquet")
+    shutil.copy(runs / "task-00001.parquet", runs / "task-1.parquet")
+    assert read_records(tmp_path / "a").num_rows == spec.n_runs == 6
+    assert query(tmp_path / "a", "SELECT count(*) AS n FROM runs").column("n").to_pylist() == [6]
+    assert completed_tasks(runs) == {0, 1}
+    # a campaign's own file name, another task's records: each of its runs twice
+    shutil.copy(runs / "task-00001.parquet", runs / "task-00000.parquet")
+    said = (
+        f"{runs / 'task-00001.parquet'}: run (cell 0, pd, seed 0) is also in "
+        f"{runs / 'task-00000.parquet'}: a run recorded twice"
+    )
+    with pytest.raises(SpecError) as err:
+        read_records(tmp_path / "a")
+    assert str(err.value).startswith(said)
+    res = runner.invoke(app, ["campaign", "report", str(tmp_path / "a")])
+    assert res.exit_code == 2 and res.stderr.strip() == f"error: {err.value}", res.output
+
+
+def test_seeds_above_2_to_the_53_stay_apart_in_the_statistics(tmp_path):
+    from pkmctl.campaign import stats
+
+    seeds = [2**62 + k for k in range(6)]  # one float for all six
+    text = HEAD.replace('["smc"]', '["smc", "pd"]').replace("seeds = 1", f"seeds = {seeds}")
+
+    def metric(run, column):
+        return (2.0 if run.controller == "pd" else 1.0) + (run.seed - 2**62) ** 2
+
+    spec = _fake_campaign(tmp_path / "a", text, metric=metric)
+    table = read_records(tmp_path / "a")
+    row = next(r for r in stats.paired_differences(spec, table, ["rmse_z_mm"]) if r["cell"] == -1)
+    assert row["pairs"] == 6 and row["mean"] == -1.0 and row["better"] == "a"
+    comp = stats.comparison(spec, table, "pd", "smc", ["rmse_z_mm"])
+    assert [r["pairs"] for r in comp] == [6, 6]
+
+
+def test_fis_files_of_a_factor_count_by_content_and_are_copied(tmp_path):
+    import shutil
+
+    from pkmctl.campaign.spec import SpecError
+
+    src = tmp_path / "src"
+    src.mkdir()
+    a = _paper_fis(src).rename(src / "a.fis")
+    b = _paper_fis(src, sdot="8").rename(src / "b.fis")
+    spec_toml = src / "spec.toml"
+    spec_toml.write_text(  # relative to the spec's folder, not to the working directory
+        HEAD.replace('["smc"]', '["fsmc"]')
+        + 'metrics = ["rmse"]\n[factors."fuzzy.fis"]\nvalues = ["a.fis", "b.fis", "none"]\n'
+    )
+    spec = CampaignSpec.from_toml(spec_toml)
+    assert [c["fuzzy.fis"] for c in spec.cells] == ["a.fis", "b.fis", None]
+    out = tmp_path / "camp"
+    _fake_campaign(out, spec_toml)
+    original = b.read_bytes()
+    b.write_text(b.read_text().replace("Range=[-8 8]", "Range=[-9 9]", 1))
+    edited = CampaignSpec.from_toml(spec_toml)
+    assert edited.digest != spec.digest  # another fuzzy system in cell 1: another campaign
+    with pytest.raises(SpecError, match="a different spec"):
+        run_campaign(edited, out, workers=1, resume=True)
+    # the folder holds what its records were made with: it reads without the originals
+    copies = sorted(p.read_bytes() for p in (out / "fis").iterdir())
+    assert copies == sorted([a.read_bytes(), original])
+    shutil.rmtree(src)
+    moved = tmp_path / "moved"
+    out.rename(moved)
+    assert read_records(moved).num_rows == 3
+    res = runner.invoke(app, ["campaign", "report", str(moved)])
+    assert res.exit_code == 0, res.output
+
+
+def test_two_fis_files_of_the_same_content_are_a_value_named_twice(tmp_path):
+    a = _paper_fis(tmp_path).rename(tmp_path / "a.fis")
+    (tmp_path / "b.fis").write_bytes(a.read_bytes())
+    spec = tmp_path / "bad.toml"
+    text = HEAD + '[factors."fuzzy.fis"]\nvalues = ["a.fis", "b.fis"]\n'
+    spec.write_text(text)
+    res = runner.invoke(app, ["campaign", "show", str(spec)])
+    assert res.exit_code == 2, res.output
+    assert res.stderr.strip() == (
+        "error: factors.'fuzzy.fis'.values = ['a.fis', 'b.fis']: a value named twice "
+        "('b.fis' holds the same fuzzy system as 'a.fis', byte for byte)"
+    )
+
+
+def test_runs_of_1_s_or_less_have_their_headline_over_the_whole_run(tmp_path):
+    from pkmctl.campaign import stats
+
+    line = _refused(tmp_path, HEAD + 'metrics = ["rmse_after_1s"]\n')
+    assert line == (
+        "error: metrics = ['rmse_after_1s'] with duration = 0.05: rmse_after_1s needs runs "
+        "longer than 1 s (a control sample at t >= 1 s); keep rmse too (the whole run) or "
+        "make the runs longer"
+    )
+    line = _refused(tmp_path, HEAD + 'metrics = ["rmse_after_1s"]\n'
+                    '[factors."timing.duration"]\nvalues = [1.5, 1.0]\n')  # fmt: skip
+    assert "with timing.duration = 1.0 (cell 1): rmse_after_1s needs runs longer than" in line
+    # a cell of 0.6 s beside one of 1.5 s: every cell compared over the whole run
+    text = HEAD.replace('["smc"]', '["smc", "pd"]').replace("seeds = 1", "seeds = 6") + (
+        'metrics = ["rmse", "rmse_after_1s"]\n[factors."timing.duration"]\nvalues = [0.6, 1.5]\n'
+    )
+
+    def metric(run, column):  # as the runs record it: no rmse_after_1s in 0.6 s
+        if column.startswith("rmse_after_1s") and run.cell == 0:
+            return None
+        return (1.0 if run.controller == "smc" else 2.0) + run.seed / 10
+
+    spec = _fake_campaign(tmp_path / "a", text, metric=metric)
+    table = read_records(tmp_path / "a")
+    assert spec.past_1s() == [False, True]
+    assert stats.headline_metrics(spec, table) == ["rmse_z_mm", "rmse_alpha_deg", "rmse_beta_deg"]
+    res = runner.invoke(app, ["campaign", "report", str(tmp_path / "a")])
+    assert res.exit_code == 0, res.output
+    md = (tmp_path / "a" / "report" / "report.md").read_text()
+    assert "smc better in 2 of 2 cells" in md and "fewer than" not in md
+
+
+def test_ties_missing_values_and_typos_are_said(tmp_path):
+    import math
+
+    from pkmctl.campaign import stats
+
+    text = HEAD.replace('["smc"]', '["smc", "pd"]').replace("seeds = 1", "seeds = 5")
+
+    def metric(run, column):  # equal controllers, and one ok run without a value
+        return math.nan if (run.controller, run.seed) == ("pd", 0) else 1.0 + run.seed
+
+    spec = _fake_campaign(tmp_path / "a", text, metric=metric)
+    table = read_records(tmp_path / "a")
+    row = next(r for r in stats.paired_differences(spec, table, ["rmse_z_mm"]) if r["cell"] < 0)
+    assert row["pairs"] == 4 and row["ties"] == 4 and row["win_rate_a"] == 0.0
+    assert [r["ties"] for r in stats.comparison(spec, table, "smc", "pd", ["rmse_z_mm"])] == [4, 4]
+    pd = [r for r in stats.cell_stats(spec, table, ["rmse_z_mm"]) if r["controller"] == "pd"]
+    assert (pd[0]["ok"], pd[0]["missing"], pd[0]["mean"]) == (5, 1, 3.5)
+    line = _refused(tmp_path, HEAD + '[factors."payload.mass"]\nvalue = [0.0, 1.0]\n')
+    assert line.startswith("error: factors.'payload.mass': unknown key 'value' (give values")
+    q = '[[compare]]\nname = "x"\ncontroller = "smc"\nbaseline = "pd"\n'
+    two = HEAD.replace('["smc"]', '["smc", "pd"]') + q + q.replace('"x"', '"y"')
+    line = _refused(tmp_path, two)
+    assert "compare[1] = " in line and "the same controller and baseline as compare[0]" in line

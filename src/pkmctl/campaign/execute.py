@@ -402,8 +402,8 @@ def run_campaign(
 def _run(spec, out, client, scheduler, workers, resume, progress, on_client, stop_after):
     """:func:`run_campaign` once connected (``client``: a Dask client, or None: local)."""
     runs_dir = open_store(out, spec, resume=resume)
-    if spec.base.fuzzy.fis is not None:  # the runs read the folder's copy of the .fis file:
-        spec = read_spec(out)  # its content is the spec hash's, whatever becomes of the file
+    if spec.base.fuzzy.fis is not None or spec.fis_files:  # the runs read the folder's
+        spec = read_spec(out)  # copies of the .fis files: their content is the spec hash's
     tasks = spec.tasks(*task_grouping(out))  # the grouping the folder was started with
     done = completed_tasks(runs_dir, spec.digest)  # another campaign's file is refused
     todo = [t for t in tasks if t.index not in done]

@@ -190,6 +190,11 @@ def _factor_values(path: str, body: Any) -> tuple[list, dict[str, list]]:
                 raise _fail(f"{where}.values = {body['values']!r}: a value named twice ({v!r})")
         return values, (_linked(path, body, len(values)) if "with" in body else {})
     kind = body.get("distribution")
+    if kind is None and body:  # neither values nor a distribution: a typo (value = [...])
+        raise _fail(
+            f"{where}: unknown key {sorted(body)[0]!r} (give values = [...], or a "
+            f"distribution = {' | '.join(DISTRIBUTIONS)} with its parameters)"
+        )
     if kind not in DISTRIBUTIONS:
         raise _fail(
             f"{where}.distribution = {kind!r}: must be one of {', '.join(DISTRIBUTIONS)} "
@@ -275,15 +280,70 @@ def fis_digest(path: str) -> str:
         raise ScenarioError(f"fuzzy.fis = {path!r}: {exc.strerror or exc}") from None
 
 
-def _identity(base: Scenario, cells, controllers, seeds, metrics, *, fis_path: bool = False):
+#: The scenario field of a fuzzy system's ``.fis`` file.
+FIS_FIELD = "fuzzy.fis"
+
+
+def _with_fis(cell: dict, fis_files: dict) -> dict:
+    """``cell`` with its ``.fis`` file (if a factor or a ``with`` names one) replaced by
+    ``fis_files[value]``: the file it resolves to, or its content's digest."""
+    v = cell.get(FIS_FIELD)
+    if isinstance(v, str) and v in fis_files:
+        return {**cell, FIS_FIELD: fis_files[v]}
+    return cell
+
+
+def _fis_files(parsed: dict, folder: Path) -> dict[str, str]:
+    """Each ``.fis`` file a factor's values (or a ``with``) name, as written, to its path:
+    relative to the spec's folder, as the scenario file the spec names."""
+    named = []
+    for p, (values, linked) in parsed.items():
+        if p == FIS_FIELD:
+            named += values
+        named += linked.get(FIS_FIELD, [])
+    out = {}
+    for v in named:
+        if isinstance(v, str):
+            path = Path(v).expanduser()
+            out[v] = str(path if path.is_absolute() else folder / path)
+    return out
+
+
+def _same_fis_twice(factors: dict, parsed: dict, fis_files: dict) -> None:
+    """Refuse two values of a ``fuzzy.fis`` factor naming files of the same content:
+    their cells would be identical (as a value named twice)."""
+    if FIS_FIELD not in parsed:
+        return
+    seen: dict[str, str] = {}
+    for v in parsed[FIS_FIELD][0]:
+        if not isinstance(v, str):
+            continue
+        digest = fis_digest(fis_files.get(v, v))
+        if digest in seen:
+            raise _fail(
+                f"factors.{FIS_FIELD!r}.values = {factors[FIS_FIELD]['values']!r}: a value "
+                f"named twice ({v!r} holds the same fuzzy system as {seen[digest]!r}, byte "
+                f"for byte)"
+            )
+        seen[digest] = v
+
+
+def _identity(base: Scenario, cells, controllers, seeds, metrics, *, fis_files=None,
+              fis_path: bool = False, factor_fis_path: bool = False):  # fmt: skip
     """The SHA-256 (16 hex digits) of what determines a campaign's records. A ``.fis``
-    file counts by its content (``fis_path``: by its path, as folders made before did)."""
+    file counts by its content, the base scenario's and those a factor's values name
+    (``fis_files``: each value as written to its file); ``fis_path``: every one by its
+    path or value as written, as folders made before 2026-12 did; ``factor_fis_path``:
+    a factor's by its value as written, as folders made before 2026-12-06 did."""
     # logging.every changes no record (metrics are computed over every period in the
     # loop), so it is not part of what the campaign is: a store made before the option
     # existed, or with another value, still resumes
     dumped = base.model_dump(mode="json", by_alias=True, exclude={"logging"})
     if base.fuzzy.fis is not None and not fis_path:
         dumped["fuzzy"]["fis"] = fis_digest(base.fuzzy.fis)
+    if fis_files and not (fis_path or factor_fis_path):
+        digests = {v: fis_digest(f) for v, f in fis_files.items()}
+        cells = [_with_fis(c, digests) for c in cells]
     identity = {
         "base": dumped,
         "cells": cells,
@@ -335,6 +395,8 @@ class CampaignSpec:
     design: str = "grid"
     center: dict | None = None
     compare: tuple[Comparison, ...] = ()
+    #: The ``.fis`` files a factor's values name: each value as written to its file.
+    fis_files: dict | None = None
 
     @classmethod
     def from_toml(cls, source: str | Path) -> CampaignSpec:
@@ -369,8 +431,11 @@ class CampaignSpec:
         return cls.from_dict(data, text=text, folder=folder)
 
     @classmethod
-    def from_dict(cls, data: dict, *, text: str = "", folder: Path | None = None) -> CampaignSpec:
-        """Validate a spec given as a dict (the TOML's content)."""
+    def from_dict(cls, data: dict, *, text: str = "", folder: Path | None = None,
+                  fis_files: dict | None = None) -> CampaignSpec:  # fmt: skip
+        """Validate a spec given as a dict (the TOML's content). ``fis_files`` maps the
+        ``.fis`` files a factor's values name, as written, to the files to read (a campaign
+        folder's copies); by default they are relative to ``folder``."""
         extra = set(data) - _TOP
         if extra:
             raise _fail(f"{sorted(extra)[0]}: unknown key (allowed: {', '.join(sorted(_TOP))})")
@@ -422,6 +487,9 @@ class CampaignSpec:
             raise _fail(f"design = {design!r}: must be one of {', '.join(DESIGNS)}")
         parsed = {p: _factor_values(p, body) for p, body in factors.items()}
         _check_fields(parsed)
+        if fis_files is None:
+            fis_files = _fis_files(parsed, folder or Path.cwd())
+        _same_fis_twice(factors, parsed, fis_files)
         base = base.replace(**{"timing.duration": float(duration)})
         center = None
         if design == "grid":
@@ -443,7 +511,9 @@ class CampaignSpec:
         else:
             cells = _one_at_a_time(base, parsed, center)
         for cell in cells:
-            _cell_scenario(base, cell)  # raises the scenario's one-line error
+            _cell_scenario(base, _with_fis(cell, fis_files))  # raises its one-line error
+        if "rmse_after_1s" in metrics and "rmse" not in metrics:
+            _check_after_1s(base, cells, float(duration), metrics)
         compare = _comparisons(data.get("compare", []), controllers)
         name = data.get("name", "campaign")
         if not isinstance(name, str) or not name:
@@ -459,10 +529,11 @@ class CampaignSpec:
             duration=float(duration),
             metrics=tuple(metrics),
             text=text,
-            digest=_identity(base, cells, controllers, seeds, metrics),
+            digest=_identity(base, cells, controllers, seeds, metrics, fis_files=fis_files),
             design=design,
             center=center,
             compare=compare,
+            fis_files=fis_files,
         )
 
     # ------------------------------------------------------------------ derived
@@ -489,18 +560,37 @@ class CampaignSpec:
 
     def scenario(self, cell: int) -> Scenario:
         """The validated scenario of cell ``cell``."""
-        return _cell_scenario(self.base, self.cells[cell])
+        return _cell_scenario(self.base, _with_fis(self.cells[cell], self.fis_files or {}))
 
     def durations(self) -> list[float]:
         """Each cell's run duration, s (the spec's ``duration``, or a ``timing.duration``
         factor's value)."""
         return [float(c.get("timing.duration", self.duration)) for c in self.cells]
 
+    def past_1s(self) -> list[bool]:
+        """Per cell, whether its runs have control samples at t >= 1 s, so that the
+        ``rmse_after_1s`` metrics exist (:func:`pkmctl.sim.metrics.summary`)."""
+        return [_past_1s(self.base, c, d) for c, d in zip(self.cells, self.durations(),
+                                                             strict=True)]  # fmt: skip
+
     def legacy_digest(self) -> str:
         """The hash a folder made before a ``.fis`` file counted by its content has: with
         the file's path instead (:func:`pkmctl.campaign.store.read_spec` accepts it)."""
         return _identity(self.base, self.cells, list(self.controllers), list(self.seeds),
                          list(self.metrics), fis_path=True)  # fmt: skip
+
+    def legacy_digests(self) -> list[str]:
+        """The hashes folders made before have, when a ``.fis`` file counts in this
+        spec's: every ``.fis`` file by its path (:meth:`legacy_digest`), or the base's by
+        its content and a factor's by its value as written (before 2026-12-06)."""
+        out = []
+        if self.base.fuzzy.fis is not None or self.fis_files:
+            out.append(self.legacy_digest())
+        if self.fis_files:
+            out.append(_identity(self.base, self.cells, list(self.controllers),
+                                 list(self.seeds), list(self.metrics),
+                                 fis_files=self.fis_files, factor_fis_path=True))  # fmt: skip
+        return out
 
     def periods(self) -> int:
         """Control periods of the longest run (the base's period and duration; factors
@@ -580,6 +670,29 @@ def _one_at_a_time(base: Scenario, parsed: dict, center: dict) -> tuple[dict, ..
     return tuple(cells)
 
 
+def _past_1s(base: Scenario, cell: dict, duration: float) -> bool:
+    """Whether the runs of ``cell`` (of ``duration`` s) have a control sample at t >= 1 s:
+    the last is at (periods - 1) T_c, as :func:`pkmctl.sim.metrics.summary` finds it."""
+    period = float(cell.get("timing.control_period", base.timing.control_period))
+    return (int(round(duration / period)) - 1) * period >= 1.0
+
+
+def _check_after_1s(base: Scenario, cells, duration: float, metrics: list) -> None:
+    """Refuse ``rmse_after_1s`` as the only RMSE kept when a cell's runs end before 1 s:
+    its columns would be empty there, and the report would have nothing to compare (with
+    ``rmse`` kept too, the report compares over the whole run instead)."""
+    for i, cell in enumerate(cells):
+        d = float(cell.get("timing.duration", duration))
+        if not _past_1s(base, cell, d):
+            where = (f"timing.duration = {cell['timing.duration']!r} (cell {i})"
+                     if "timing.duration" in cell else f"duration = {duration!r}")  # fmt: skip
+            raise _fail(
+                f"metrics = {metrics!r} with {where}: rmse_after_1s needs runs longer than "
+                f"1 s (a control sample at t >= 1 s); keep rmse too (the whole run) or make "
+                f"the runs longer"
+            )
+
+
 def _comparisons(body: Any, controllers: list[str]) -> tuple[Comparison, ...]:
     if not isinstance(body, list):
         raise _fail(f"compare = {body!r}: must be a list of tables ([[compare]])")
@@ -593,6 +706,15 @@ def _comparisons(body: Any, controllers: list[str]) -> tuple[Comparison, ...]:
                 raise _fail(f"{where}.{k} = {q[k]!r}: not one of the campaign's controllers")
         if q["controller"] == q["baseline"]:
             raise _fail(f"{where}: controller and baseline are both {q['controller']!r}")
+        for j, other in enumerate(out):  # the same question twice: the same answer twice
+            if other.name == str(q["name"]) or (other.controller, other.baseline) == (
+                q["controller"],
+                q["baseline"],
+            ):
+                what = "name" if other.name == str(q["name"]) else "controller and baseline"
+                raise _fail(
+                    f"{where} = {q!r}: the same {what} as compare[{j}] (a question asked twice)"
+                )
         out.append(Comparison(str(q["name"]), q["controller"], q["baseline"]))
     return tuple(out)
 

@@ -6,13 +6,17 @@ Layout of a campaign folder::
     scenario.toml        its base scenario (the spec may name a file elsewhere)
     fuzzy.fis            a copy of the .fis file the base scenario names, if any (the
                          stored scenario names this copy)
+    fis/0123abcd....fis  copies of the .fis files a factor's values name (campaign.json's
+                         fis_copies maps each value as written to its copy)
     campaign.json        its digest, runs, tasks, task size, record columns, and each
                          session that ran tasks (when, where, which versions)
     runs/task-00017.parquet    the records of task 17, written atomically, once
 
 Each file appears whole or not at all (:func:`pkmctl.io.atomic.atomic_write`), and no
 file has two writers, so a crash loses at most the tasks in flight and a resume runs
-exactly the tasks without a file. Read every record with :func:`read_records`
+exactly the tasks without a file. Only files named as one of the campaign's tasks
+count (not a stray ``task-00017 (copy).parquet``), and a run found in two files is
+refused. Read every record with :func:`read_records`
 (pyarrow) or query them with DuckDB (:func:`query`)::
 
     SELECT controller, avg(rmse_after_1s_z_mm) FROM 'DIR/runs/*.parquet' GROUP BY 1
@@ -140,8 +144,8 @@ def _stored_scenario(spec: CampaignSpec) -> str:
     return tomli_w.dumps(data)
 
 
-def _manifest(spec: CampaignSpec) -> dict:
-    return {
+def _manifest(spec: CampaignSpec, fis_copies: dict[str, str] | None = None) -> dict:
+    out = {
         "name": spec.name,
         "spec_hash": spec.digest,
         "runs": spec.n_runs,
@@ -150,6 +154,29 @@ def _manifest(spec: CampaignSpec) -> dict:
         "task_multiple": TASK_MULTIPLE,
         "columns": schema(spec).names,
     }
+    if fis_copies:
+        out["fis_copies"] = fis_copies
+    return out
+
+
+#: The folder of the copies of the .fis files a factor's values name (:func:`open_store`).
+FIS_COPIES = "fis"
+
+
+def _factor_fis(spec: CampaignSpec) -> dict[str, tuple[str, bytes]]:
+    """The ``.fis`` files a factor's values name: each value as written to the name of its
+    copy in the campaign folder (``fis/`` and 16 hex digits of its SHA-256) and its
+    content, read now (the content the spec hash holds)."""
+    import hashlib
+
+    out = {}
+    for value, path in (spec.fis_files or {}).items():
+        try:
+            data = Path(path).read_bytes()
+        except OSError as exc:
+            raise SpecError(f"fuzzy.fis = {value!r}: {exc.strerror or exc}") from None
+        out[value] = (f"{FIS_COPIES}/{hashlib.sha256(data).hexdigest()[:16]}.fis", data)
+    return out
 
 
 def record_session(out: str | Path, where: str) -> dict:
@@ -240,16 +267,21 @@ def open_store(out: Path, spec: CampaignSpec, *, resume: bool) -> Path:
                 fis = Path(spec.base.fuzzy.fis).read_bytes()
             except OSError as exc:
                 raise SpecError(f"fuzzy.fis = {spec.base.fuzzy.fis!r}: {exc.strerror}") from None
+        factor_fis = _factor_fis(spec)
         out.mkdir(parents=True, exist_ok=True)
         with atomic_write(out / "spec.toml") as fh:
             fh.write(spec.text)
         if fis is not None:  # the content the spec hash holds, whatever happens to the file
             with atomic_write(out / FIS_COPY, "wb") as fh:
                 fh.write(fis)
+        for name, data in factor_fis.values():  # the same for a factor's values
+            (out / FIS_COPIES).mkdir(exist_ok=True)
+            with atomic_write(out / name, "wb") as fh:
+                fh.write(data)
         with atomic_write(out / "scenario.toml") as fh:
             fh.write(_stored_scenario(spec))
         with atomic_write(manifest) as fh:
-            json.dump(_manifest(spec), fh, indent=2)
+            json.dump(_manifest(spec, {v: n for v, (n, _) in factor_fis.items()}), fh, indent=2)
     runs = out / "runs"
     runs.mkdir(exist_ok=True)
     return runs
@@ -264,17 +296,21 @@ def read_spec(out: str | Path) -> CampaignSpec:
     try:
         text = (out / "spec.toml").read_text(encoding="utf-8")
         data = tomllib.loads(text)
-        digest = json.loads((out / "campaign.json").read_text(encoding="utf-8"))["spec_hash"]
+        manifest = json.loads((out / "campaign.json").read_text(encoding="utf-8"))
+        digest = manifest["spec_hash"]
     except (OSError, ValueError, KeyError) as exc:
         raise SpecError(f"{str(out)!r}: not a readable campaign folder ({exc})") from None
     data["scenario"] = str((out / "scenario.toml").absolute())
-    spec = CampaignSpec.from_dict(data, text=text, folder=out)
-    if spec.digest != digest and spec.base.fuzzy.fis is not None:
+    # the .fis files a factor's values name: the copies here (a folder made before they
+    # were copied: as they were read then, relative to the working directory)
+    copies = manifest.get("fis_copies", {})
+    fis_files = {v: str((out / name).absolute()) for v, name in copies.items()}
+    spec = CampaignSpec.from_dict(data, text=text, folder=out, fis_files=fis_files)
+    if spec.digest != digest and digest in spec.legacy_digests():
         # a folder made before a .fis file counted by its content (and was copied here)
-        if spec.legacy_digest() == digest:
-            import dataclasses
+        import dataclasses
 
-            spec = dataclasses.replace(spec, digest=digest)
+        spec = dataclasses.replace(spec, digest=digest)
     if spec.digest != digest:
         raise SpecError(
             f"{str(out)!r}: its spec hashes to {spec.digest!r}, its records to {digest!r} "
@@ -295,16 +331,28 @@ def _foreign(path: Path, hashes, digest: str) -> SpecError:
     )
 
 
+def _own_files(runs: Path, n_tasks: int | None = None) -> dict[int, Path]:
+    """The campaign's own task files in ``runs``, by task index: ``task-00017.parquet``
+    exactly (below ``n_tasks`` if given). Anything else there, such as a copy a file
+    manager made (``task-00017 (copy).parquet``), is not a record of the campaign."""
+    own = {}
+    for p in runs.glob("task-*.parquet"):
+        digits = p.stem.removeprefix("task-")
+        if not (digits.isascii() and digits.isdigit()):
+            continue
+        index = int(digits)
+        if p.name == _task_path(runs, index).name and (n_tasks is None or index < n_tasks):
+            own[index] = p
+    return dict(sorted(own.items()))
+
+
 def completed_tasks(runs: Path, digest: str | None = None) -> set[int]:
-    """Indices of the tasks whose file exists (a file is whole, or absent). With
-    ``digest``, a file holding records of another campaign (another spec hash) is a
+    """Indices of the tasks whose file exists (a file is whole, or absent); only files
+    named as the campaign's task files count (:func:`_own_files`). With ``digest``, a
+    file holding records of another campaign (another spec hash) is a
     :class:`SpecError` naming it: it would count as done and mix into the report."""
     done = set()
-    for p in runs.glob("task-*.parquet"):
-        try:
-            index = int(p.stem.removeprefix("task-"))
-        except ValueError:
-            continue
+    for index, p in _own_files(runs).items():
         if digest is not None:
             hashes = pq.read_table(p, columns=["spec_hash"]).column("spec_hash").unique()
             if set(hashes.to_pylist()) != {digest}:
@@ -328,14 +376,23 @@ def read_records(out: str | Path, *, timing: bool = True) -> pa.Table:
     and seed; without the :data:`TIMING_COLUMNS` if ``timing`` is False."""
     out = Path(out)
     spec = read_spec(out)
-    files = sorted((out / "runs").glob("task-*.parquet"))
+    files = _own_files(out / "runs", len(spec.tasks(*task_grouping(out))))
     sch = schema(spec)
     tables = []
-    for f in files:
+    seen: dict[tuple, Path] = {}
+    for f in files.values():
         t = pq.read_table(f, schema=sch)
         hashes = t.column("spec_hash").unique().to_pylist()
         if hashes and set(hashes) != {spec.digest}:
             raise _foreign(f, hashes, spec.digest)
+        keys = zip(*(t.column(k).to_pylist() for k in ("cell", "controller", "seed")), strict=True)
+        for key in keys:
+            if key in seen:  # counted twice, it would weigh twice in every statistic
+                raise SpecError(
+                    f"{f}: run (cell {key[0]}, {key[1]}, seed {key[2]}) is also in "
+                    f"{seen[key]}: a run recorded twice (move the stray file out of runs/)"
+                )
+            seen[key] = f
         tables.append(t)
     table = pa.concat_tables(tables) if tables else sch.empty_table()
     table = _plain_strings(spec, table)
@@ -372,8 +429,12 @@ def query(out: str | Path, sql: str):
 
     con = duckdb.connect()
     try:
-        pattern = str(Path(out) / "runs" / "task-*.parquet").replace("'", "''")
-        con.execute(f"CREATE VIEW runs AS SELECT * FROM read_parquet('{pattern}')")
+        own = [str(p) for p in _own_files(Path(out) / "runs").values()]
+        if own:  # the campaign's task files only, not a stray copy beside them
+            files = "[" + ", ".join("'" + p.replace("'", "''") + "'" for p in own) + "]"
+        else:  # none: DuckDB says so
+            files = "'" + str(Path(out) / "runs" / "task-*.parquet").replace("'", "''") + "'"
+        con.execute(f"CREATE VIEW runs AS SELECT * FROM read_parquet({files})")
         rel = con.sql(sql)
         fetch = getattr(rel, "to_arrow_table", None) or rel.arrow  # DuckDB 2 / 1
         return fetch()
