@@ -1211,6 +1211,12 @@ def test_ties_missing_values_and_typos_are_said(tmp_path):
     assert [r["ties"] for r in stats.comparison(spec, table, "smc", "pd", ["rmse_z_mm"])] == [4, 4]
     pd = [r for r in stats.cell_stats(spec, table, ["rmse_z_mm"]) if r["controller"] == "pd"]
     assert (pd[0]["ok"], pd[0]["missing"], pd[0]["mean"]) == (5, 1, 3.5)
+    # and report.md says both: ties are not losses, a missing value is not silent
+    res = runner.invoke(app, ["campaign", "report", str(tmp_path / "a")])
+    assert res.exit_code == 0, res.output
+    md = (tmp_path / "a" / "report" / "report.md").read_text()
+    assert "smc lower in 0 % of pairs, equal in 100 %" in md
+    assert "- pd, rmse_z_mm: 1 of 5 at" in md
     line = _refused(tmp_path, HEAD + '[factors."payload.mass"]\nvalue = [0.0, 1.0]\n')
     assert line.startswith("error: factors.'payload.mass': unknown key 'value' (give values")
     q = '[[compare]]\nname = "x"\ncontroller = "smc"\nbaseline = "pd"\n'

@@ -225,11 +225,13 @@ def _plot(spec, table, metric: str, factor: str, path: Path) -> int:
             if math.isfinite(r["mean"]):
                 ax.annotate(f"{r['failed']} failed", (x, r["mean"]), xytext=(4, 4),
                             textcoords="offset points", fontsize=7, color=color)  # fmt: skip
-            else:  # no run ended ok: no mean to draw, an x on the axis says so
-                ax.plot([x], [0.02], marker="x", color=color, transform=on_axis,
+            else:  # no run ended ok: no mean to draw, an x on the axis says so, one
+                # controller above the other (at one x they would hide each other)
+                y = 0.02 + 0.06 * k
+                ax.plot([x], [y], marker="x", color=color, transform=on_axis,
                         clip_on=False, linestyle="none")  # fmt: skip
-                ax.annotate(f"all {r['failed']} failed", (x, 0.02), xycoords=on_axis,
-                            xytext=(4, 4), textcoords="offset points", fontsize=7,
+                ax.annotate(f"{ctrl}: all {r['failed']} failed", (x, y), xycoords=on_axis,
+                            xytext=(4, -3), textcoords="offset points", fontsize=7,
                             color=color)  # fmt: skip
     if not numeric:
         ax.set_xticks(range(len(values)), [_level(r["value"]) for r in rows[: len(values)]])
@@ -261,10 +263,12 @@ def _words(spec, paired: list[dict], metric: str) -> list[str]:
         if r["pairs"] == 0:
             out.append(f"- {a} vs {b}: no pair of runs where both ended ok.")
             continue
+        ties = int(r.get("ties", 0))
+        tied = f", equal in {100 * ties / r['pairs']:.0f} %" if ties else ""
         head = (
             f"- **{a} vs {b}** over all cells ({r['pairs']} pairs): mean difference "
             f"{_g(r['mean'])} [{_g(r['lo'])}, {_g(r['hi'])}], {a} lower in "
-            f"{100 * r['win_rate_a']:.0f} % of pairs: "
+            f"{100 * r['win_rate_a']:.0f} % of pairs{tied}: "
         )
         if r["better"] == "a":
             head += f"{a} is better."
@@ -393,6 +397,12 @@ def write_report(out: str | Path, cancel=None) -> list[Path]:
                     f"({r['diverged']} diverged) at {_cell_name(spec, r['cell'])}"
                     + "".join(f"; {n} error: {m}" for m, n in why)
                 )
+    missing = [r for r in summary if r.get("missing")]
+    if missing:
+        lines += ["", "Runs that ended ok without a finite value of a metric (left out of its "
+                  "mean, interval and pairs):"]  # fmt: skip
+        lines += [f"- {r['controller']}, {r['metric']}: {r['missing']} of {r['ok']} at "
+                  f"{_cell_name(spec, r['cell'])}" for r in missing]  # fmt: skip
     lines += ["", "## Per cell and controller", ""]
     cols = ["controller", "n", "ok", "mean", "median", "95 % interval"]
     for m in metrics:
