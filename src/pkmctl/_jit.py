@@ -309,8 +309,11 @@ def specialise(
 def ready(dispatcher, *args) -> None:
     """Compile ``dispatcher`` for ``args``, or load it from the disk cache, without
     running it: what its first call with them would do first (Numba's own dispatch path,
-    ``_compile_for_args``), so that the call itself can be timed alone."""
-    dispatcher._compile_for_args(*args)
+    ``_compile_for_args``), so that the call itself can be timed alone. Anything else
+    callable (a wrapper) has nothing to compile here."""
+    compile_for = getattr(dispatcher, "_compile_for_args", None)
+    if compile_for is not None:
+        compile_for(*args)
 
 
 def specialised_dir(
