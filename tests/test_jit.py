@@ -178,6 +178,15 @@ def scale():
     return {factor!r}
 """
 
+_BUNDLE = """class Law(NamedTuple):
+    kp: np.ndarray
+    kd: np.ndarray
+
+    @classmethod
+    def from_context(cls, ctx):
+        return cls(ctx.gains.pd_kp, ctx.gains.pd_kd)
+"""  # the PD gains, as a user's law takes them
+
 _LAW = """
 from typing import NamedTuple
 
@@ -185,23 +194,14 @@ import numpy as np
 
 import pkmctl
 from helper import scale  # the step calls a compiled function of another user file
-
-
-class Law(NamedTuple):
-    kp: np.ndarray
-    kd: np.ndarray
-
-    @classmethod
-    def from_context(cls, ctx):
-        return cls(ctx.gains.pd_kp, ctx.gains.pd_kd)
-
+{bundle}
 
 @pkmctl.register_controller("helped-law", params=Law)
 def helped_law(p, state, work, y, ref, F):
     s = scale()
     for i in range(3):
         F[i] = s * (p.kp[i] * (ref[i] - y[i]) + p.kd[i] * (ref[3 + i] - y[3 + i]))
-"""
+""".replace("{bundle}", _BUNDLE)
 
 _RUN_LAW = """
     import numpy as np
@@ -261,23 +261,14 @@ import pkmctl
 
 FEED_FORWARD = float(os.environ["LAW_FEED_FORWARD"])  # N on z, e.g. a payload's weight
 SHAPE = (1.0, np.array([0.5, 0.25]))  # a tuple holding an array: also frozen in
-
-
-class Law(NamedTuple):
-    kp: np.ndarray
-    kd: np.ndarray
-
-    @classmethod
-    def from_context(cls, ctx):
-        return cls(ctx.gains.pd_kp, ctx.gains.pd_kd)
-
+{bundle}
 
 @pkmctl.register_controller("setting-law", params=Law)
 def setting_law(p, state, work, y, ref, F):
     for i in range(3):
         F[i] = p.kp[i] * (ref[i] - y[i]) + p.kd[i] * (ref[3 + i] - y[3 + i])
     F[0] += FEED_FORWARD * SHAPE[0]
-"""
+""".replace("{bundle}", _BUNDLE)
 
 _RUN_SETTING = """
     import numpy as np

@@ -580,34 +580,25 @@ def _continuous(kind, par, nt, pk, pneg, ph, na, imp, agg, lo, hi, bp, nbp, poly
 @_jit
 def _golden(kind, par, nt, pk, pneg, ph, na, imp, agg, a, m, b, vm, mu):
     """(y, aggregate(y)) of the maximum of the aggregate in [a, b], given an inner point m
-    where it is vm and higher than at a and b: golden-section search down to rounding,
-    keeping the best point seen (so never below vm)."""
-    g = 0.3819660112501051
-    by = m
-    bv = vm
+    where it is vm and higher than at a and b: golden-section search down to rounding. m
+    moves only to a higher point, so it is always the best seen (never below vm)."""
     for _ in range(200):
-        if b - m > m - a:
-            t = m + g * (b - m)
-            if not m < t < b:
-                break
-            vt = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, t, mu)[0]
-            if vt > vm:
-                a, m, vm = m, t, vt
+        right = b - m > m - a  # probe the longer side
+        t = m + 0.3819660112501051 * ((b - m) if right else (a - m))
+        if not (a < t < b and t != m):
+            break
+        vt = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, t, mu)[0]
+        if vt > vm:  # t is the new inner point; m bounds the side it came from
+            if right:
+                a = m
             else:
-                b = t
+                b = m
+            m, vm = t, vt
+        elif right:
+            b = t
         else:
-            t = m - g * (m - a)
-            if not a < t < m:
-                break
-            vt = _aggregate(kind, par, nt, pk, pneg, ph, na, imp, agg, t, mu)[0]
-            if vt > vm:
-                b, m, vm = m, t, vt
-            else:
-                a = t
-        if vm > bv:
-            by = m
-            bv = vm
-    return by, bv
+            a = t
+    return m, vm
 
 
 @_jit
