@@ -343,3 +343,20 @@ def test_controller_names_and_gains_are_checked_alike():
         pkmctl.Controller.from_scenario(sc, "nope")
     with pytest.raises(TypeError, match="gains: expected a pkmctl.Gains"):
         pkmctl.make_controller("pd", sc.controller_mechanism(), {"K": [1, 2, 3]}, period=1e-3)
+
+
+def test_a_step_whose_force_is_not_finite_is_refused_and_undone():
+    """A finite but absurd velocity (1e300) made CTC return [nan nan nan], and a hardware
+    loop would have sent it on; now it is refused, the state as before the step."""
+    from pkmctl.errors import NonFiniteOutputError
+
+    sc = pkmctl.Scenario.builtin("paper", 0.01)
+    ctrl = pkmctl.Controller.from_scenario(sc, "ctc")
+    ctrl.step([0.7, 0, 0], [0.01, 0, 0], [0.7, 0, 0], [0, 0, 0], [0, 0, 0])
+    before, steps = ctrl._state.copy(), ctrl._steps
+    with pytest.raises(NonFiniteOutputError, match=r"ctc step: the force F = \[nan"):
+        ctrl.step([0.7, 0, 0], [1e300, 0, 0], [0.7, 0, 0], [0, 0, 0], [0, 0, 0])
+    np.testing.assert_array_equal(ctrl._state, before)
+    assert ctrl._steps == steps
+    F = ctrl.step([0.7, 0, 0], [0.01, 0, 0], [0.7, 0, 0], [0, 0, 0], [0, 0, 0])
+    assert np.isfinite(F).all()

@@ -11,6 +11,7 @@ __all__ = [
     "InsufficientMemory",
     "InvalidPoseError",
     "NonFiniteInputError",
+    "NonFiniteOutputError",
     "OutputError",
     "PkmctlError",
     "SimulationDiverged",
@@ -27,6 +28,11 @@ class InvalidPoseError(PkmctlError, ValueError):
 
 class NonFiniteInputError(PkmctlError, ValueError):
     """An input holding NaN or inf (e.g. to :meth:`Controller.step`); nothing was changed."""
+
+
+class NonFiniteOutputError(PkmctlError, ValueError):
+    """Finite inputs that gave a force of NaN or inf (e.g. :meth:`Controller.step` at an
+    absurd velocity); the controller's state was restored."""
 
 
 class OutputError(PkmctlError, OSError):

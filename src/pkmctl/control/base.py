@@ -27,7 +27,7 @@ import numpy as np
 from pkmctl._jit import specialise
 from pkmctl.control.gains import Gains
 from pkmctl.control.sliding import SLIDING_STATE
-from pkmctl.errors import InvalidPoseError, NonFiniteInputError
+from pkmctl.errors import InvalidPoseError, NonFiniteInputError, NonFiniteOutputError
 from pkmctl.fuzzy import FLC, FuzzySystem, MamdaniSystem
 from pkmctl.fuzzy.term import term_system
 from pkmctl.model.mechanism import Mechanism
@@ -212,10 +212,12 @@ class Controller:
         """One control period: the task-space force F (3,) for the measured (X, Xdot).
 
         Raises :class:`~pkmctl.errors.NonFiniteInputError` (the state unchanged) if any
-        input holds NaN or inf, :class:`~pkmctl.errors.InvalidPoseError` (the state
-        unchanged) if X or X_d is outside the valid set (z > 0, |alpha|, |beta| < pi/2: a
-        sensor glitch must not become a 70 kN command, nor move Theta^), and ``ValueError``
-        if one is not of shape (3,).
+        input holds NaN or inf, :class:`~pkmctl.errors.NonFiniteOutputError` (the state
+        unchanged) if finite inputs give a force that is not (a velocity of 1e300),
+        :class:`~pkmctl.errors.InvalidPoseError` (the state unchanged) if X or X_d is
+        outside the valid set (z > 0, |alpha|, |beta| < pi/2: a sensor glitch must not
+        become a 70 kN command, nor move Theta^), and ``ValueError`` if one is not of
+        shape (3,).
         """
         args = (
             self.params, self._state, self._work, self._y, self._ref,
@@ -231,6 +233,7 @@ class Controller:
                 )
         # The compiled entry checks the 15 inputs before it steps (a few ns; the loop
         # has its own fast path and never calls it).
+        before = self._state.copy()  # for a step whose force is not finite (below)
         if self._fast is None:
             ok = self._step(*args)
             # Every later call has the same argument types (the vectors are made so by
@@ -246,8 +249,16 @@ class Controller:
                 f"{self.name} step: {_non_finite(self._io)} is not finite "
                 f"(the controller's state is unchanged)"
             )
+        F = args[-1]
+        if not np.isfinite(F).all():  # finite inputs too large for the law (Xdot = 1e300)
+            self._state[:] = before
+            raise NonFiniteOutputError(
+                f"{self.name} step: the force F = {F.tolist()} is not finite for these finite "
+                f"inputs (X = {args[5].tolist()}, Xdot = {args[6].tolist()}); the "
+                "controller's state is unchanged"
+            )
         self._steps += 1
-        return args[-1]
+        return F
 
     def __deepcopy__(self, memo) -> Controller:
         """An independent controller: its own state and work, the same (immutable) params."""
