@@ -64,21 +64,29 @@ class ControllerState:
     raw: np.ndarray
 
 
-def _entry(p, state, work, y, ref, X, Xdot, X_d, Xdot_d, Xddot_d, F):
-    """One step from Python's five vectors, or none (returns False) if an input is
-    non-finite: the state untouched. The vectors are copied into y and ref here, in
+def _entry(p, state, work, y, ref, X, Xdot, X_d, Xdot_d, Xddot_d, F, saved):
+    """One step from Python's five vectors: 1; or none (0) if an input is non-finite, the
+    state untouched; or 2 if finite inputs gave a force that is not, the state restored
+    from ``saved`` (scratch of its size). The vectors are copied into y and ref here, in
     compiled code (cheaper than five NumPy slice assignments)."""
     for i in range(3):
         y[i], y[3 + i] = X[i], Xdot[i]
         ref[i], ref[3 + i], ref[6 + i] = X_d[i], Xdot_d[i], Xddot_d[i]
     for i in range(y.shape[0]):
         if not math.isfinite(y[i]):
-            return False
+            return 0
     for i in range(ref.shape[0]):
         if not math.isfinite(ref[i]):
-            return False
+            return 0
+    for i in range(state.shape[0]):
+        saved[i] = state[i]
     controller_step(p, state, work, y, ref, F)
-    return True
+    for i in range(3):
+        if not math.isfinite(F[i]):
+            for j in range(state.shape[0]):
+                state[j] = saved[j]
+            return 2
+    return 1
 
 
 def _as_vec3(a, name: str) -> np.ndarray:
@@ -184,6 +192,7 @@ class Controller:
         # One buffer [y | ref], so a message can name the first non-finite input.
         self._io = np.empty(15)
         self._y, self._ref = self._io[0:6], self._io[6:15]
+        self._saved = np.empty_like(self._state)  # the state before a step (see _entry)
         self._fast = None  # the compiled entry point, once known (see step)
 
     @property
@@ -223,6 +232,7 @@ class Controller:
             self.params, self._state, self._work, self._y, self._ref,
             _as_vec3(X, "X"), _as_vec3(Xdot, "Xdot"), _as_vec3(X_d, "X_d"),
             _as_vec3(Xdot_d, "Xdot_d"), _as_vec3(Xddot_d, "Xddot_d"), np.empty(3),
+            self._saved,
         )  # fmt: skip
         for name, x in (("X", args[5]), ("X_d", args[7])):
             bad = x[0] <= 0.0 or abs(x[1]) >= _HALF_PI or abs(x[2]) >= _HALF_PI
@@ -233,7 +243,6 @@ class Controller:
                 )
         # The compiled entry checks the 15 inputs before it steps (a few ns; the loop
         # has its own fast path and never calls it).
-        before = self._state.copy()  # for a step whose force is not finite (below)
         if self._fast is None:
             ok = self._step(*args)
             # Every later call has the same argument types (the vectors are made so by
@@ -244,14 +253,13 @@ class Controller:
             self._fast = cres.entry_point if cres is not None else self._step
         else:
             ok = self._fast(*args)
-        if not ok:
+        if ok == 0:
             raise NonFiniteInputError(
                 f"{self.name} step: {_non_finite(self._io)} is not finite "
                 f"(the controller's state is unchanged)"
             )
-        F = args[-1]
-        if not np.isfinite(F).all():  # finite inputs too large for the law (Xdot = 1e300)
-            self._state[:] = before
+        F = args[-2]
+        if ok == 2:  # finite inputs too large for the law (Xdot = 1e300)
             raise NonFiniteOutputError(
                 f"{self.name} step: the force F = {F.tolist()} is not finite for these finite "
                 f"inputs (X = {args[5].tolist()}, Xdot = {args[6].tolist()}); the "
