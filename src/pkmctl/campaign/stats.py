@@ -60,13 +60,19 @@ def expansion(n: int, level: float = LEVEL) -> float:
     return math.sqrt(n / (n - 1)) * float(stats.t.ppf(a, n - 1) / stats.norm.ppf(a))
 
 
+@functools.cache
+def _t_quantile(dof: int) -> float:
+    """Student's t quantile at (1 + LEVEL) / 2 (cached: one per pair count, not per cell)."""
+    from scipy import stats
+
+    return float(stats.t.ppf((1 + LEVEL) / 2, dof))
+
+
 def _expanded(centre, lo, hi, n: int, se):
     """The percentile interval ``lo``, ``hi`` widened about ``centre`` by
     :func:`expansion`, and further if need be to be no narrower than Student's t interval
     of standard error ``se`` (arrays or floats)."""
-    from scipy import stats
-
-    t = float(stats.t.ppf((1 + LEVEL) / 2, n - 1))
+    t = _t_quantile(n - 1)
     width = np.asarray(hi - lo, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
         k = np.fmax(expansion(n), np.where(width > 0, 2 * t * se / width, 0.0))
