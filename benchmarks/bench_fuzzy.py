@@ -1,6 +1,6 @@
 """Speed of the paper's FLC against scikit-fuzzy and simpful (same code as ``pkmctl bench``).
 
-python benchmarks/bench_fuzzy.py [--quick]
+python -m benchmarks.bench_fuzzy [--quick]
 """
 
 import argparse

@@ -1,6 +1,6 @@
 """Time the compiled model kernels from compiled code (issue 2, point 6).
 
-    python benchmarks/bench_model.py
+    python -m benchmarks.bench_model
 
 Prints microseconds per evaluation of M, C and G together, and of the regressor, each
 called in an njit loop as the closed loop calls them. Same code as ``pkmctl bench``.

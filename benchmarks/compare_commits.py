@@ -1,6 +1,6 @@
 """First-run compile time and loop speed of two commits, side by side on this machine.
 
-    python benchmarks/compare_commits.py [--base COMMIT] [--head COMMIT] [--repeats N]
+    python -m benchmarks.compare_commits [--base COMMIT] [--head COMMIT] [--repeats N]
 
 Each commit is exported (``git archive``) into a temporary folder and installed
 (non-editable, ``--no-deps``) into a fresh virtual environment that sees this

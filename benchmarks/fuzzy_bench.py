@@ -1,6 +1,6 @@
 """Speed of the paper's FLC: pkmctl's compiled and batched paths against scikit-fuzzy and simpful.
 
-Run ``python benchmarks/bench_fuzzy.py [--quick]`` or ``pkmctl bench``; both call :func:`run`.
+Run ``python -m benchmarks.bench_fuzzy [--quick]`` or ``pkmctl bench``; both call :func:`run`.
 All engines evaluate the same rule base (DESIGN.md §3, Table 1) on the same inputs; the
 maximum difference to pkmctl's exact centroid is reported beside each time.
 """

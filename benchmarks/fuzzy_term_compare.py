@@ -1,6 +1,6 @@
 """The paper's FLC from compiled code and the FSMC/AFSMC loops, two commits side by side.
 
-    python benchmarks/fuzzy_term_compare.py [--base COMMIT] [--head PATH] [--rounds N]
+    python -m benchmarks.fuzzy_term_compare [--base COMMIT] [--head PATH] [--rounds N]
 
 ``--base`` (default HEAD~1) is exported with ``git archive`` into a temporary folder;
 ``--head`` is a source tree (default: this checkout, as it is on disk). Each round runs

@@ -1,6 +1,6 @@
 """The lane kernels against the scalar ones, per evaluation, side by side in one run.
 
-    python benchmarks/lanes_model.py [--lanes 8] [--repeats 7] [--n 200000] [--peaks]
+    python -m benchmarks.lanes_model [--lanes 8] [--repeats 7] [--n 200000] [--peaks]
 
 Times, from compiled loops, the rigid plant's RK4 stage derivative (the paper's rigid
 machine, and with every option of DESIGN.md §7 on) and the regressor Y: the scalar

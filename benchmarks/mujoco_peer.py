@@ -1,6 +1,6 @@
 """MuJoCo stepping the 2RPU-2SPR machine: timing (DESIGN.md §10).
 
-    python benchmarks/mujoco_peer.py
+    python -m benchmarks.mujoco_peer
 
 The model, its state helpers and the agreement checks live in :mod:`pkmctl.plants.mujoco`
 (the module docstring has the model decisions and measured agreement); this file only

@@ -33,8 +33,8 @@ of the same sources therefore share one cache. If the root cannot be written, ke
 compile in memory on every run (slower, never wrong).
 
 Compilation is announced: inside :func:`announce`, a callback hears when a compilation
-starts and ends (the CLI shows "compiling the control loop (once per machine)…" with
-the elapsed time, on a terminal and as plain lines in a log).
+starts and ends (the CLI shows "compiling the control loop (once per machine; minutes on
+a first run)…" with the elapsed time, on a terminal and as plain lines in a log).
 """
 
 from __future__ import annotations
@@ -370,7 +370,7 @@ def announce(callback: Callable[[str, str, float], None]) -> Iterator[None]:
     ends ("end") inside this block, in any thread; ``what`` is e.g. "the control loop".
 
     A cache hit compiles nothing and says nothing. The CLI shows "compiling the control
-    loop (once per machine)…" with the elapsed time from it.
+    loop (once per machine; minutes on a first run)…" with the elapsed time from it.
     """
     with numba.core.event.install_listener("numba:compile", _Announcer(callback)):
         yield

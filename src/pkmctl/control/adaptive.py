@@ -203,5 +203,5 @@ builtin_part("controller", "afsmc-ext", {"step": afsmc_ext_step, "log": afsmc_lo
              work=lambda p: fuzzy_work(p, p.theta0.shape[0]), initial_state=_initial,
              limb_jacobian=MODEL_JACOBIAN,
              log_size=lambda p: p.theta0.shape[0], log_name="theta_hat",
-             description="AFSMC adapting over Theta_ext = [Theta, m_r, F_c, F_v] (DESIGN.md §7)",
+             description="AFSMC adapting over Theta_ext = [Theta, m_r, F_c, F_v] (docs/machine.md)",
              label="AFSMC-ext", surface_gain=fuzzy_surface_gain, adaptive=True)  # fmt: skip

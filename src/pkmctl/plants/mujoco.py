@@ -254,7 +254,8 @@ def build_mjcf(
     if friction_coulomb != 0.0:
         raise ValueError(
             f"friction_coulomb = {friction_coulomb!r}: MuJoCo's dry friction (frictionloss) is "
-            "a soft constraint, not the tanh force of DESIGN.md §7; only 0 can be modelled"
+            "a soft constraint, not the tanh force of the rigid plant (docs/machine.md); "
+            "only 0 can be modelled"
         )
     for name, v, lo in (("rotor_inertia", rotor_inertia, 0.0), ("friction_viscous",
                         friction_viscous, 0.0)):  # fmt: skip

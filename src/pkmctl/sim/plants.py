@@ -196,7 +196,7 @@ builtin_part(
     build=None,
     state_size=6,
     work=_rigid_work,
-    description="the closed-form rigid machine of DESIGN.md §2 (options of §7)",
+    description="the closed-form rigid machine (docs/model.md; options: docs/machine.md)",
 )
 
 
@@ -247,5 +247,5 @@ builtin_part(
     state_size=6,
     work=_rigid_work,
     stepper=_mujoco_stepper,
-    description="the same machine in MuJoCo, RK4 at the loop's sub-step (DESIGN.md §10)",
+    description="the same machine in MuJoCo, RK4 at the loop's sub-step (docs/machine.md)",
 )

@@ -849,7 +849,7 @@ BUILTINS: dict[str, dict[str, Any]] = {
     "prototype": {
         "name": "prototype",
         "description": "The paper's experiment (trajectory, initial state, disturbance, Table 3 "
-        "gains, 15 % model error) on the machine as built (DESIGN.md §7): 1 kHz motion "
+        "gains, 15 % model error) on the machine as built (docs/machine.md): 1 kHz motion "
         "controller, servo drives on ball screws (peak torque, torque lag), reflected rotor "
         "inertia, joint friction, 17-bit encoders with forward kinematics, one period of "
         "computation delay.",

@@ -308,5 +308,5 @@ builtin_part(
     log_name="q_measured",
     report=_encoder_report,
     memory=lambda sc: 4 if sc.sensor.noise > 0 else 0,  # the noise, drawn up front (n, 4)
-    description="quantised limb lengths, forward kinematics, J^+ rates (DESIGN.md §7)",
+    description="quantised limb lengths, forward kinematics, J^+ rates (docs/machine.md)",
 )
