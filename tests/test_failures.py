@@ -8,6 +8,7 @@ compiling (a fresh, empty kernel cache).
 
 import errno
 import os
+import shutil
 import queue
 import re
 import signal
@@ -187,14 +188,67 @@ def test_simulate_diverged_creates_nothing(tmp_path):
 
 
 def test_a_complete_run_replaces_its_files_and_keeps_the_users(old_results):
+    # the user's own files inside the folders a run writes into stay (until 2026-12-06 a
+    # reproduce removed figures/ and timeseries/ whole, with whatever else they held)
+    for sub in ("figures", "timeseries"):
+        (old_results / sub).mkdir()
+        (old_results / sub / "mine.txt").write_text(sub)
+    (old_results / "figures" / "fig26.png").write_text("old figure")
     res = runner.invoke(
         app, ["reproduce", "--out", str(old_results), "--duration", "0.05", "--seed", "3"]
     )
     assert res.exit_code == 0, res.output
     assert (old_results / "notes.txt").read_text() == "mine\n"
+    for sub in ("figures", "timeseries"):
+        assert (old_results / sub / "mine.txt").read_text() == sub
+    assert (old_results / "figures" / "fig26.png").read_bytes().startswith(b"\x89PNG")
     assert "old report" not in (old_results / "report.md").read_text()
     assert (old_results / "figures" / "fig26.png").is_file()
     assert not leftovers(old_results.parent)
+
+
+def test_a_folder_where_a_run_writes_a_file_is_refused_and_kept(tmp_path):
+    out = tmp_path / "clash"
+    (out / "pd.parquet").mkdir(parents=True)
+    (out / "pd.parquet" / "important.txt").write_text("precious")
+    args = ["simulate", "paper", "--controller", "pd", "--duration", "0.02", "--out", str(out)]
+    line = one_line(runner.invoke(app, args), 2)
+    assert "pd.parquet' is a folder, where this run writes a file" in line
+    assert (out / "pd.parquet" / "important.txt").read_text() == "precious"
+    assert sorted(p.name for p in out.rglob("*")) == ["important.txt", "pd.parquet"]
+
+
+def test_publish_merges_folders_and_refuses_a_file_for_a_folder(tmp_path):
+    from pkmctl.errors import OutputError
+    from pkmctl.io.atomic import publish
+
+    dest, stage = tmp_path / "dest", tmp_path / "stage"
+    for root, names in ((dest, ["a/keep", "a/x", "b", "link_target/t"]), (stage, ["a/x", "b"])):
+        for n in names:
+            (root / n).parent.mkdir(parents=True, exist_ok=True)
+            (root / n).write_text(f"{root.name} {n}")
+    (dest / "c").symlink_to(dest / "link_target")  # a link is replaced, its target kept
+    (stage / "c").mkdir()
+    (stage / "c" / "t").write_text("new")
+    publish(stage, dest)
+    assert not stage.exists() and not leftovers(tmp_path)
+    assert (dest / "a" / "keep").read_text() == "dest a/keep"
+    assert (dest / "a" / "x").read_text() == "stage a/x"
+    assert (dest / "b").read_text() == "stage b"
+    assert not (dest / "c").is_symlink() and (dest / "c" / "t").read_text() == "new"
+    assert (dest / "link_target" / "t").read_text() == "dest link_target/t"
+    for mine, theirs in ((lambda p: p.mkdir(), lambda p: p.write_text("file")),
+                         (lambda p: p.write_text("file"), lambda p: p.mkdir())):  # fmt: skip
+        stage.mkdir()
+        (stage / "ok").write_text("new")
+        mine(stage / "d")
+        shutil.rmtree(dest)
+        dest.mkdir()
+        theirs(dest / "d")
+        with pytest.raises(OutputError, match="'d' is a|d' is a"):
+            publish(stage, dest)
+        assert sorted(p.name for p in dest.iterdir()) == ["d"]  # nothing moved
+        shutil.rmtree(stage)
 
 
 @pytest.mark.parametrize(

@@ -124,8 +124,8 @@ def _stage_parent(dest: Path) -> Path:
 @contextmanager
 def staged_folder(dest: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield an empty temporary folder to write a set of files into; when the block ends
-    without an error, its entries replace those of the same name in ``dest`` (created if
-    needed) in a few renames. On an error or Ctrl-C the temporary folder is removed and
+    without an error, its files replace those of the same name in ``dest`` (created if
+    needed) in a few renames, its folders merged into those of ``dest`` (:func:`publish`). On an error or Ctrl-C the temporary folder is removed and
     ``dest`` is untouched: never a mix of old and new files.
 
     ``dest`` is checked first (:func:`check_output_folder`), so a bad location fails
@@ -170,24 +170,65 @@ def discard(stage: Path) -> None:
 
 
 def publish(stage: Path, dest: Path) -> None:
-    """Move every entry of ``stage`` into ``dest``, replacing entries of the same name,
-    then remove ``stage``. A new ``dest`` is one rename; an existing one two renames per
-    entry, with Ctrl-C held off until the set is in place."""
+    """Move every entry of ``stage`` into ``dest``, replacing files of the same name, then
+    remove ``stage``. A folder of ``stage`` (``figures/``) is merged into a folder of
+    the same name in ``dest`` file by file, so what else that folder holds stays. A new
+    ``dest`` is one rename; an existing one two renames per file, with Ctrl-C held off
+    until the set is in place.
+
+    Raises :class:`~pkmctl.errors.OutputError`, before anything is moved, where a file
+    would replace a folder of ``dest`` or a folder a file (a run's ``pd.parquet`` where
+    ``dest`` has a folder ``pd.parquet/``): such an entry is not one of ours to replace.
+    A symbolic link of ``dest`` is replaced, never followed.
+    """
     import shutil
 
+    if dest.exists():
+        _check_kinds(stage, dest)
     with _sigint_deferred():
         if not dest.exists():
             dest.parent.mkdir(parents=True, exist_ok=True)
             os.rename(stage, dest)
             return
         trash = Path(tempfile.mkdtemp(prefix=_STAGE_PREFIX + "old-", suffix=".tmp", dir=dest))
-        for entry in sorted(stage.iterdir()):
-            target = dest / entry.name
-            if target.exists() or target.is_symlink():
-                os.rename(target, trash / entry.name)
-            os.rename(entry, target)
-        stage.rmdir()
+        _merge(stage, dest, trash, [0])
     shutil.rmtree(trash, ignore_errors=True)
+
+
+def _is_folder(path: Path) -> bool:
+    return path.is_dir() and not path.is_symlink()
+
+
+def _check_kinds(stage: Path, dest: Path) -> None:
+    from pkmctl.errors import OutputError
+
+    for entry in stage.iterdir():
+        target = dest / entry.name
+        if target.is_symlink() or not target.exists():  # a link is replaced, not followed
+            continue
+        if _is_folder(entry) and _is_folder(target):
+            _check_kinds(entry, target)
+        elif _is_folder(entry) != _is_folder(target):
+            mine, theirs = ("a folder", "file") if _is_folder(entry) else ("a file", "folder")
+            raise OutputError(
+                f"output folder: {str(target)!r} is a {theirs}, where this run writes "
+                f"{mine}: move it away or choose another output folder"
+            )
+
+
+def _merge(stage: Path, dest: Path, trash: Path, count: list[int]) -> None:
+    """Move ``stage``'s entries into the existing folder ``dest`` (see :func:`publish`);
+    replaced files go to ``trash`` under numbered names. Removes ``stage``."""
+    for entry in sorted(stage.iterdir()):
+        target = dest / entry.name
+        if _is_folder(entry) and _is_folder(target):
+            _merge(entry, target, trash, count)
+            continue
+        if target.exists() or target.is_symlink():
+            count[0] += 1
+            os.rename(target, trash / f"{count[0]}-{entry.name}")
+        os.rename(entry, target)
+    stage.rmdir()
 
 
 @contextmanager
