@@ -8,9 +8,9 @@ compiling (a fresh, empty kernel cache).
 
 import errno
 import os
-import shutil
 import queue
 import re
+import shutil
 import signal
 import stat
 import subprocess

@@ -249,8 +249,8 @@ def test_render_report_links_every_figure_and_contains_the_table(results, figure
     assert "continuous time" in text
     assert "unbounded" in text
     assert "not directly comparable" in text  # 0.3 s against the paper's 10 s
-    said = "Plant `rigid`: the closed-form rigid machine (docs/model.md; options: docs/machine.md); "
-    assert said + "sensor `ideal`, actuator `ideal`." in text  # which machine ran
+    said = "Plant `rigid`: the closed-form rigid machine (docs/model.md; options: "
+    assert said + "docs/machine.md); sensor `ideal`, actuator `ideal`." in text  # which machine ran
 
 
 def test_render_report_gives_a_drives_force_limit() -> None:

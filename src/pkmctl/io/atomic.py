@@ -125,8 +125,9 @@ def _stage_parent(dest: Path) -> Path:
 def staged_folder(dest: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield an empty temporary folder to write a set of files into; when the block ends
     without an error, its files replace those of the same name in ``dest`` (created if
-    needed) in a few renames, its folders merged into those of ``dest`` (:func:`publish`). On an error or Ctrl-C the temporary folder is removed and
-    ``dest`` is untouched: never a mix of old and new files.
+    needed) in a few renames, its folders merged into those of ``dest`` (:func:`publish`).
+    On an error or Ctrl-C the temporary folder is removed and ``dest`` is untouched: never
+    a mix of old and new files.
 
     ``dest`` is checked first (:func:`check_output_folder`), so a bad location fails
     before any work. Other entries of an existing ``dest`` are left alone.
