@@ -47,6 +47,21 @@ def test_drive_step_reaches_63_percent_in_tau_d():
     np.testing.assert_allclose(r.tau[4 * k] / wanted, 1 - np.exp(-4), rtol=2e-4)
 
 
+def test_drive_lag_below_the_substep_is_refused_and_one_substep_is_followed():
+    Tc, sub = 1e-4, 5  # h = 20 us
+    drive = {"actuators.kind": "drive", "timing.control_period": Tc, "timing.substeps": sub,
+             "timing.duration": 2e-3}  # fmt: skip
+    with pytest.raises(pkmctl.ScenarioError, match=r"actuators\.lag = 1e-05: must be 0 .*>= 2e-05"):
+        _scenario(**drive, **{"actuators.lag": 1e-5})  # RK4: a third a sub-step, not exp(-2)
+    lag = 2e-5  # h, the shortest allowed
+    sc = _scenario(**drive, **{"actuators.lag": lag})
+    r = pkmctl.simulate(sc, controller="test-constant-force")
+    wanted = sc.plant().actuator_forces(r.X_measured[1], np.array([300.0, 5.0, -5.0]))
+    # after one period (5 lags) the force's gap to the command is RK4's 0.375^5 = 0.0074
+    # of the step where the exact lag leaves exp(-5) = 0.0067 (at h / 2: 0.0041 for 5e-5)
+    np.testing.assert_allclose(r.tau[1] / wanted, 1 - np.exp(-Tc / lag), atol=1e-3)
+
+
 def test_drive_never_exceeds_the_peak_force_and_counts_speed():
     sc = pkmctl.Scenario.builtin("prototype").replace(**{"timing.duration": 0.3})
     r = pkmctl.simulate(sc, controller="smc")

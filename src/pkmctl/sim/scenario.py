@@ -602,6 +602,20 @@ class Scenario(_Model):
                 f"timing.control_period ({t.control_period:g} s): the loop holds one value "
                 "over each control period"
             )
+        h = t.control_period / t.substeps
+        lag = self.actuators.lag
+        if self.actuators.kind == "drive" and 0.0 < lag < h * (1 - 1e-9):
+            # RK4 follows the drive's first-order lag (rate -1/lag) well only for lag >= h:
+            # a step's gap decays by 0.375 a sub-step for exp(-1) = 0.368 there, by 0.333
+            # for 0.135 at h/2, and at h/2.79 not at all (a run with 10 us at h = 0.1 ms
+            # "diverged" in 2 ms). A shorter lag is an ideal torque loop at this step
+            # (lag 0), or needs a finer one.
+            raise ValueError(
+                f"actuators.lag = {lag:g}: must be 0 (no lag) or >= {h:g} s, the plant's "
+                f"RK4 sub-step (timing.control_period / substeps), which cannot follow a "
+                f"shorter lag; or raise timing.substeps to >= "
+                f"{math.ceil(t.control_period / lag * (1 - 1e-9))}"
+            )
         every = self.logging.every
         if not (isinstance(every, int) and not isinstance(every, bool) and 1 <= every <= t.periods):
             raise ValueError(
