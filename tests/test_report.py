@@ -7,6 +7,7 @@ import dataclasses
 import io
 import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -330,6 +331,24 @@ def test_render_report_estimates_the_beta_transient(results) -> None:
     # 30° / sqrt(2 * 20 * 0.3 s) = 8.66°
     assert "β starts 30° off its trajectory" in text
     assert "= 8.66°" in text
+
+
+def test_render_report_names_every_coordinate_that_starts_off() -> None:
+    """Until 2026-12-06 only β was checked: a run starting 50 mm and 23° off in z and α,
+    on its trajectory in β, was said to have "no initial transient"."""
+    start = {"initial.X": [0.75, 0.4, 0.5235987755982988], "timing.duration": 0.3}
+    sc = pkmctl.Scenario.builtin("paper").replace(**start)
+    runs = {c: pkmctl.simulate(sc, controller=c) for c in ("smc", "afsmc")}
+    text = render_report(runs, figures=[], scenario_name="custom")
+    assert "no initial transient" not in text and "β starts" not in text
+    assert "starts z 50 mm and α 22.9° off its trajectory" in text
+    for q in ("z", "α"):
+        shares = re.search(rf"The first 0.2 s hold (.*?) of the squared {q} error", text)
+        assert shares and all(float(v) > 90 for v in re.findall(r"([\d.]+) % \(", shares[1]))
+    on_track = sc.replace(**{"initial.X": [0.7, 0.0, 0.5235987755982988]})
+    runs = {c: pkmctl.simulate(on_track, controller=c) for c in ("smc", "afsmc")}
+    text = render_report(runs, figures=[], scenario_name="custom")
+    assert "the run starts on its trajectory, so no initial transient dominates" in text
 
 
 def test_render_report_rejects_empty_input() -> None:

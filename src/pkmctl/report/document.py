@@ -142,14 +142,67 @@ def _ranking_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
     return lines
 
 
+#: The task coordinates' RMSE keys, their column in X and how an offset is shown.
+_START = (("z_mm", 0, 1e3, " mm"), ("alpha_deg", 1, 180 / math.pi, "°"),
+          ("beta_deg", 2, 180 / math.pi, "°"))  # fmt: skip
+
+
+def _start_shares(pairs: list[tuple[str, Result]], key: str) -> dict[str, float]:
+    """Per controller, the share (%) of the whole run's squared error in ``key`` that the
+    first :data:`_T_TRANSIENT` s hold (runs not longer than that are left out)."""
+    shares: dict[str, float] = {}
+    for c, r in pairs:
+        if last_time(r) <= _T_TRANSIENT:
+            continue
+        n_all, n_after = sample_count(r), sample_count(r, t_from=_T_TRANSIENT)
+        sse_all = n_all * rmse(r)[key] ** 2
+        sse_after = n_after * rmse(r, t_from=_T_TRANSIENT)[key] ** 2
+        if sse_all > 0:
+            shares[c] = 100 * (1 - sse_after / sse_all)
+    return shares
+
+
+def _shares_words(shares: dict[str, float], quantity: str) -> str:
+    words = _words([f"{v:.4g} % ({controller_label(c)})" for c, v in shares.items()])
+    text = f" The first {_T_TRANSIENT:g} s hold {words} of the squared {quantity} error"
+    start = [controller_label(c) for c, v in shares.items() if v >= 50.0]
+    if len(start) == len(shares):
+        return text + ", so the whole-run RMSE measures the start, not the tracking."
+    if start:
+        rest = [controller_label(c) for c, v in shares.items() if v < 50.0]
+        return text + (
+            f": for {_words(start)} the whole-run RMSE measures mostly the start, for "
+            f"{_words(rest)} mostly the tracking."
+        )
+    return text + ": the whole-run RMSE measures mostly the tracking here."
+
+
 def _transient_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
     ref = pairs[0][1]
     sc = ref.scenario
-    e0 = math.degrees(abs(ref.X_desired[0, 2] - ref.X[0, 2]))
+    offsets = {
+        key: (abs(ref.X_desired[0, col] - ref.X[0, col]) * scale, unit)
+        for key, col, scale, unit in _START
+        if abs(ref.X_desired[0, col] - ref.X[0, col]) >= 1e-9 * (1e3 if col == 0 else 1)
+    }  # z in m: 1 um; angles in rad: ~6e-8 degrees
+    lines = []
+    others = [k for k in offsets if k != "beta_deg"]
+    if others:
+        said = _words([f"{_QUANTITY[k]} {offsets[k][0]:.3g}{offsets[k][1]}" for k in others])
+        line = f"- **Start off the trajectory**: the run starts {said} off its trajectory."
+        for k in others:
+            shares = _start_shares(pairs, k)
+            if shares:
+                line += _shares_words(shares, _QUANTITY[k])
+        lines.append(line)
+    if "beta_deg" not in offsets:
+        if not offsets:
+            lines.append("- **Start**: the run starts on its trajectory, so no initial "
+                         "transient dominates.")  # fmt: skip
+        return lines
+    e0 = offsets["beta_deg"][0]
     lam = float(sc.gains.lam[2])
     T = last_time(ref) - float(ref.t[0]) + sc.timing.control_period  # a decimated log too
-    if e0 < 1e-9:
-        return ["- **Start**: β starts on its trajectory, so no initial transient dominates."]
     estimate = e0 / math.sqrt(2.0 * lam * T)
     paper_estimate = e0 / math.sqrt(2.0 * lam * PAPER_DURATION_S)
     ours = [r.rmse()["beta_deg"] for _, r in pairs]
@@ -169,30 +222,10 @@ def _transient_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
             else "."
         )
     )
-    shares: dict[str, float] = {}
-    for c, r in pairs:
-        if last_time(r) <= _T_TRANSIENT:
-            continue
-        n_all, n_after = sample_count(r), sample_count(r, t_from=_T_TRANSIENT)
-        sse_all = n_all * rmse(r)["beta_deg"] ** 2
-        sse_after = n_after * rmse(r, t_from=_T_TRANSIENT)["beta_deg"] ** 2
-        if sse_all > 0:
-            shares[c] = 100 * (1 - sse_after / sse_all)
+    shares = _start_shares(pairs, "beta_deg")
     if shares:
-        words = _words([f"{v:.4g} % ({controller_label(c)})" for c, v in shares.items()])
-        line += f" The first {_T_TRANSIENT:g} s hold {words} of the squared β error"
-        start = [controller_label(c) for c, v in shares.items() if v >= 50.0]
-        if len(start) == len(shares):
-            line += ", so the whole-run RMSE measures the start, not the tracking."
-        elif start:
-            rest = [controller_label(c) for c, v in shares.items() if v < 50.0]
-            line += (
-                f": for {_words(start)} the whole-run RMSE measures mostly the start, for "
-                f"{_words(rest)} mostly the tracking."
-            )
-        else:
-            line += ": the whole-run RMSE measures mostly the tracking here."
-    return [line]
+        line += _shares_words(shares, "β")
+    return [*lines, line]
 
 
 def _after_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
