@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from numba import njit
+from numba.core.errors import TypingError
 from numba.core.registry import CPUDispatcher
 
 import pkmctl
@@ -167,6 +168,14 @@ def test_compilations_are_announced_with_their_time():
         assert fresh(1.5) == 3.0  # compiled already: says nothing more
     assert [e for e, _, _ in heard] == ["start", "end"]
     assert heard[0][1] == "the model kernels" and heard[1][2] > 0.0
+    # one that does not compile ends "failed" (the CLI printed "compiled ... (cached)"
+    # before the error until 2026-12-06)
+    heard.clear()
+    broken = njit(cache=False)(lambda x: undefined_name * x)  # noqa: F821
+    with announce(lambda event, what, seconds: heard.append((event, what, seconds))):
+        with pytest.raises(TypingError):
+            broken(1.5)
+    assert [e for e, _, _ in heard] == ["start", "failed"]
 
 
 _HELPER = """

@@ -153,7 +153,7 @@ def test_a_step_that_does_not_compile_names_the_part():
     def bad(p, state, work, y, ref, F):
         F[0] = p.no_such_field
 
-    with pytest.raises(PartError, match=r"the parts controller 'x-bad' do not compile: ") as info:
+    with pytest.raises(PartError, match=r"the part controller 'x-bad' does not compile: ") as info:
         pkmctl.simulate("paper", controller="x-bad", duration=0.001)
     assert "\n" not in str(info.value)
     # the cause and where, not "No implementation of function controller_step found"

@@ -361,13 +361,17 @@ class _Announcer(numba.core.event.Listener):
     def on_end(self, event) -> None:
         self._local.depth -= 1
         if self._local.depth == 0:
-            self._callback("end", self._what(event), time.perf_counter() - self._local.t0)
+            # (Numba's own ``is_failed`` is inverted in 0.58-0.61: read the details)
+            failed = getattr(event, "_exc_details", None) is not None
+            dt = time.perf_counter() - self._local.t0
+            self._callback("failed" if failed else "end", self._what(event), dt)
 
 
 @contextlib.contextmanager
 def announce(callback: Callable[[str, str, float], None]) -> Iterator[None]:
     """Call ``callback(event, what, seconds)`` when a compilation starts ("start") and
-    ends ("end") inside this block, in any thread; ``what`` is e.g. "the control loop".
+    ends ("end", or "failed" for one that raised) inside this block, in any thread;
+    ``what`` is e.g. "the control loop".
 
     A cache hit compiles nothing and says nothing. The CLI shows "compiling the control
     loop (once per machine; minutes on a first run)…" with the elapsed time from it.

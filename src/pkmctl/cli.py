@@ -289,6 +289,8 @@ class _Compiles:
         self.t0 = time.perf_counter()
 
     def __call__(self, event: str, what: str, seconds: float) -> None:
+        if event == "failed":  # its error follows in one line
+            return
         if event == "start":
             msg = f"compiling {what} (once per machine; minutes on a first run)…"
         else:

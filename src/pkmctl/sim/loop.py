@@ -452,7 +452,8 @@ LOG_NAMES = ("X", "Xdot", "y", "F", "tau", "q", "disturbance")
 
 def _describe(parts: dict[str, Part]) -> str:
     users = [p for p in parts.values() if not p.builtin] or list(parts.values())
-    return "the parts " + ", ".join(f"{p.kind} {p.name!r}" for p in users)
+    named = ", ".join(f"{p.kind} {p.name!r}" for p in users)
+    return ("the part " if len(users) == 1 else "the parts ") + named
 
 
 def _reason(exc: Exception) -> str:
@@ -587,7 +588,9 @@ def setup(
 
 def compile_error(parts: dict[str, Part], exc: Exception) -> PartError:
     """One line for a combination of parts that Numba cannot compile."""
-    return PartError(f"{_describe(parts)} do not compile: {_reason(exc)}")
+    users = [p for p in parts.values() if not p.builtin] or list(parts.values())
+    verb = "does" if len(users) == 1 else "do"
+    return PartError(f"{_describe(parts)} {verb} not compile: {_reason(exc)}")
 
 
 def run_parts(
