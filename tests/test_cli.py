@@ -77,14 +77,22 @@ def test_scenario_and_simulate_commands(tmp_path):
     )
     assert res.exit_code == 0, res.output
     assert load_result(tmp_path / "fsmc.json").t.size == 50
+    # the same run as CSV replaces the Parquet table its new fsmc.json no longer names
+    args = ["simulate", str(path), "--controller", "fsmc", "--out", str(tmp_path)]
+    res = runner.invoke(app, [*args, "--format", "csv"])
+    assert res.exit_code == 0, res.output
+    assert "removed fsmc.parquet of an earlier run" in res.output
+    assert not (tmp_path / "fsmc.parquet").exists()
+    assert load_result(tmp_path / "fsmc.json").t.size == 50
 
 
 @pytest.mark.parametrize(
     ("args", "match"),
     [
         (["reproduce", "--scenario", "nope"], "unknown built-in"),
-        (["reproduce", "--duration", "-1"], "timing.duration = -1.0"),
-        (["reproduce", "--seed", "-3"], "disturbance.seed = -3"),
+        (["reproduce", "--duration", "-1"], "--duration = -1.0 (timing.duration): "),
+        (["reproduce", "--seed", "-3"], "--seed = -3 (disturbance.seed): "),
+        (["simulate", "paper", "--seed", "-3"], "--seed = -3 (disturbance.seed): "),
         (["scenario", "nope"], "unknown built-in"),
         (["simulate", "missing.toml"], "No such file"),
         (["simulate", "paper", "--controller", "pid"], "--controller = 'pid'"),

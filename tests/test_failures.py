@@ -349,8 +349,8 @@ def test_memory_estimate_is_the_size_of_the_logs():
         (["reproduce", "--bogus"], "No such option: --bogus"),
         (["simulate"], "Missing argument"),
         (["simulate", "paper", "--format", "xls"], "--format = 'xls'"),
-        (["reproduce", "--duration", "1e300"], "timing.duration = 1e+300"),
-        (["reproduce", "--duration", "nan"], "timing.duration = nan"),
+        (["reproduce", "--duration", "1e300"], "--duration = 1e+300 (timing.duration): "),
+        (["reproduce", "--duration", "nan"], "--duration = nan (timing.duration): "),
         (["simulate", "[abc].toml"], "'[abc].toml': No such file"),
     ],
 )

@@ -276,6 +276,13 @@ def _scenario(ctx: typer.Context, spec: str, seed, duration, kept: str):
                 lambda: kept + compiles.kept(),
             )
     except Exception as exc:
+        # a value given as an option is named as the option the user typed
+        text = str(exc)
+        for option, field, given in (("--seed", "disturbance.seed", seed),
+                                     ("--duration", "timing.duration", duration)):  # fmt: skip
+            if given is not None and text.startswith(f"{field} = ") and ": " in text:
+                why = text.split(": ", 1)[1]
+                exc = type(exc)(f"{option} = {given!r} ({field}): {why}")
         _handle(ctx, exc)
 
 
@@ -439,7 +446,12 @@ def simulate(
     controller: Annotated[
         str, typer.Option(help=f"A registered controller (built in: {_CONTROLLERS}).")
     ] = "afsmc",
-    out: Annotated[str, typer.Option(help="Output folder for the time series (created).")] = (
+    out: Annotated[
+        str,
+        typer.Option(
+            help="Output folder for the time series (created; this controller's files replaced)."
+        ),
+    ] = (
         "pkmctl-out"  # a str: typer would make --out '' the Path '.', the current folder
     ),
     fmt: Annotated[
@@ -488,8 +500,19 @@ def simulate(
             result, paths = _interruptible(work, interrupted)
     except Exception as exc:
         _handle(ctx, exc, suffix="; " + _untouched(out, existed))
+    # the run's time series in the other format, of an earlier run, would now disagree
+    # with the metadata beside it
+    stale = [out / f"{controller}.{f}" for f in FORMATS if f != fmt]
+    stale = [p for p in stale if p.is_file() or p.is_symlink()]
+    for path in stale:
+        path.unlink()
     console.print(_rmse_table({controller: result}, f"RMSE, scenario {sc.name!r}"))
-    console.print(Text(f"wrote {out / paths[0].name} and {out / paths[1].name}"))
+    console.print(
+        Text(
+            f"wrote {out / paths[0].name} and {out / paths[1].name}"
+            + "".join(f"; removed {p.name} of an earlier run" for p in stale)
+        )
+    )
 
 
 @app.command()
