@@ -452,6 +452,35 @@ def _d2(x: np.ndarray, h: float) -> np.ndarray:
     return d
 
 
+#: Largest cutoff of the limb rates in the Coulomb columns, a fraction of the sample rate.
+RATE_CUTOFF_RATIO = 0.4
+#: The rates' noise allowed in the Coulomb columns, a fraction of v_s (tanh(qdot / v_s)):
+#: more smoothing moves the reversals, more noise blurs them. Measured 2026-12-06 (PD runs
+#: of the prototype with 1 um of encoder noise, 8 seeds, the 95 % intervals' coverage of
+#: the 30 base parameters, on `pkmctl excite`'s trajectory / on another of cond 4,569):
+#: the pose filter's 100 Hz as before 82.9 / 52.5 %; 0.25 (133 Hz) 90.0 / 71.2 %; 0.5
+#: (210 Hz) 88.8 / 87.9 %; 1.0 (334 Hz) 82.5 / 95.8 %, with force leads near 0 on the
+#: first (the drive's is -0.30 ms). With 5 um (5 v_s at 400 Hz) unfiltered rates gave a
+#: rotor contrast of -12 kg. Quantisation alone: 400 Hz, 93.3 % (89.4 % before).
+RATE_NOISE = 0.5
+
+
+def _rate_cutoff(q: np.ndarray, fs: float, fd: float, vs: float) -> float:
+    """Cutoff (Hz) of the limb rates for the Coulomb columns: the highest, up to
+    :data:`RATE_CUTOFF_RATIO` x fs, at which white noise of the lengths (its std estimated
+    from what the pose filter at ``fd`` removes from them) leaves rates of at most
+    :data:`RATE_NOISE` x v_s; never below ``fd``. (Rate noise of a zero-phase filter at f
+    on noise of std s: s 2 pi sqrt(2 f^3 / (3 fs)).)"""
+    sos = scipy.signal.butter(4, fd, fs=fs, output="sos")
+    removed = q - scipy.signal.sosfiltfilt(sos, q, axis=0)
+    s2 = float(np.median(np.mean(removed * removed, axis=0))) / max(1e-9, 1.0 - 2.0 * fd / fs)
+    top = RATE_CUTOFF_RATIO * fs
+    if s2 <= 0.0:
+        return top
+    f = (3.0 * fs * (RATE_NOISE * vs) ** 2 / (2.0 * (2.0 * math.pi) ** 2 * s2)) ** (1.0 / 3.0)
+    return float(min(top, max(fd, f)))
+
+
 def _check_rate(log: Log, cutoff: float, diff_cutoff: float | None) -> tuple[float, float, float]:
     """The log's interval h (s), sample rate fs and pose filter cutoff fd (Hz), after the
     checks of :func:`_check_times` and of the cutoff against the sample rate."""
@@ -538,6 +567,23 @@ def observe(
     Xi, Xdi, Xddi = (np.ascontiguousarray(a[inner]) for a in (Xf, Xd, Xdd))
     J = _check_poses(where, mechanism, Xi)
     W = extended_regressor_batch(mechanism.geometry, Xi, Xdi, Xdi, Xddi, friction_velocity)
+    # The Coulomb columns J_i^T tanh(qdot_i / v_s) from the limb rates of the measured
+    # lengths themselves, not from the pose filtered at fd: the friction makes every
+    # reversal a kink in qdot (deceleration before it stronger than the acceleration after
+    # it), the pose filter rounds the kink, and the filtered rate crossed zero 0.2-1.3 ms
+    # late (by 0.6-1.5 mm/s, against v_s = 1 mm/s). Each late step of the regressor left
+    # an impulse of ~2 F_c x 0.5 ms per reversal that least squares put into the rotor
+    # masses' mirror contrast (m_r1 + m_r3 - m_r2 - m_r4), the friction and, through
+    # force_lead 'auto', the force timing (found -0.16 ms for the drive's -0.30 ms).
+    # The rates are filtered only as much as the lengths' noise needs (:func:`_rate_cutoff`:
+    # quantisation alone, 0.4 fs; noisier encoders down to the pose filter's fd, as before).
+    q = np.asarray(log.q, dtype=float)
+    fq = _rate_cutoff(q, fs, fd, friction_velocity)
+    qf = scipy.signal.sosfiltfilt(scipy.signal.butter(4, fq, fs=fs, output="sos"), q, axis=0)
+    qd = np.ascontiguousarray(_d1(qf, h)[inner])
+    W[:, :, N_THETA_EXT - 8 : N_THETA_EXT - 4] = np.einsum(
+        "nia,ni->nai", J, np.tanh(qd / friction_velocity)
+    )
     # Parallel filtering (Gautier): the same linear filter on y and on every column of W
     # keeps y = W Theta exact, also for the friction's steps at velocity reversals. A
     # zero-phase FIR, evaluated only at the samples kept after decimation.
