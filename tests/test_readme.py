@@ -15,6 +15,7 @@ def test_readme_python_blocks_run():
     assert namespace["Y"].shape == (3, 36)
     assert set(namespace["result"].rmse()) >= {"z_mm", "alpha_deg", "beta_deg"}
     assert namespace["F"].shape == (3,)
+    assert (namespace["again"].X == namespace["result"].X).all()
     assert namespace["baseline"].parts["controller"] == "ctc"
 
 

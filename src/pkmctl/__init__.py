@@ -25,6 +25,7 @@ from pkmctl.control import (
 )
 from pkmctl.control import lanes as _control_lanes  # noqa: F401, I001
 from pkmctl.errors import ConvergenceError, InvalidPoseError, PkmctlError, SimulationDiverged
+from pkmctl.io.results import load_result, save_result
 from pkmctl.model.mechanism import Body, Mechanism
 from pkmctl.parts import (
     PartContext,
@@ -66,12 +67,14 @@ __all__ = [
     "ScenarioError",
     "SimulationDiverged",
     "fuzzy",
+    "load_result",
     "make_controller",
     "metrics",
     "register_actuator",
     "register_controller",
     "register_plant",
     "register_sensor",
+    "save_result",
     "simulate",
     "simulate_many",
 ]
