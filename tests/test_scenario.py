@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 
 import pkmctl
@@ -59,6 +60,19 @@ def test_an_identified_model_block_round_trips():
         sc.replace(**{"controller_model.rotor_inertia": 1e-5})
 
 
+def test_replace_takes_numpy_values():
+    """``replace`` with NumPy arrays and scalars (a loop over np.arange seeds, gains as an
+    array): pydantic took neither ("Input should be a valid integer") until 2026-12-06."""
+    sc = Scenario.builtin("paper")
+    seeds = [sc.replace(**{"disturbance.seed": s}).disturbance.seed for s in np.arange(3)]
+    assert seeds == [0, 1, 2] and all(type(s) is int for s in seeds)
+    K = np.array([900.0, 150.0, 180.0])
+    assert sc.replace(**{"gains.K": K}).gains.K == K.tolist()
+    assert sc.replace(**{"initial.X": np.array([0.7, 0.0, 0.1])}).initial.X == [0.7, 0.0, 0.1]
+    with pytest.raises(ScenarioError, match="disturbance.seed = True"):
+        sc.replace(**{"disturbance.seed": np.bool_(True)})  # a flag is no seed
+
+
 def test_toml_file_round_trip(tmp_path):
     sc = Scenario.builtin("paper").replace(**{"disturbance.seed": 42, "timing.duration": 1.5})
     path = tmp_path / "s.toml"
@@ -89,6 +103,7 @@ BAD = [
     ({"trajectory": {"offset": [0.7, 1.3, 0.0], "amplitude": [0.0, 0.0, 0.0]}}, "singularity"),
     ({"trajectory": {"kind": "spline"}}, "trajectory.kind = 'spline'"),
     ({"actuators": {"force_limit": -5.0}}, "actuators.force_limit = -5.0"),
+    ({"name": "../x\n# heading"}, "name = '../x\\n# heading': must be one line of printable"),
 ]
 
 

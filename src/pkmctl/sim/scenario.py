@@ -534,12 +534,25 @@ def reference_outside(t: np.ndarray, X: np.ndarray) -> str:
     )
 
 
+def _plain(value: Any) -> Any:
+    """NumPy arrays and scalars as the lists and numbers TOML holds (``replace`` with
+    ``np.arange`` seeds or an array of gains; a NumPy integer is no ``int`` to pydantic)."""
+    if isinstance(value, np.ndarray | np.generic):
+        return value.tolist()
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    return value
+
+
 def _changed(data: dict[str, Any], changes: dict[str, Any], known: dict | None = None) -> dict:
     """``data`` (a scenario's fields, nested) with the dotted ``changes`` made. A section
     absent from ``data`` is made if ``known`` (the defaults) has it; an unknown section or
     a field of no section is refused here, a new name in a known section is left to
     validation, which lists the section's fields."""
     for key, value in changes.items():
+        value = _plain(value)
         *path, last = key.split(".")
         node = data
         for i, p in enumerate(path):
@@ -576,6 +589,18 @@ class Scenario(_Model):
     plant_spec: PlantSpec = Field(PlantSpec(), alias="plant")
     payload: PayloadSpec = PayloadSpec()
     sensor: SensorSpec = SensorSpec()
+
+    @field_validator("name")
+    @classmethod
+    def _one_line_name(cls, v: str) -> str:
+        # the name heads reports and tables: a newline in it broke report.md's heading
+        if any(ord(c) < 32 or ord(c) == 127 for c in v):
+            shown = repr(v) if len(repr(v)) <= 60 else repr(v)[:57] + "..."
+            raise ValueError(
+                f"= {shown}: must be one line of printable text (no newline, tab or "
+                "control character)"
+            )
+        return v
 
     @model_validator(mode="after")
     def _physics(self) -> Scenario:
