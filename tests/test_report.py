@@ -12,6 +12,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import pkmctl
@@ -269,6 +270,27 @@ def test_render_report_gives_a_drives_force_limit() -> None:
     assert "applied through the `drive` actuator's own dynamics" in text
 
 
+def test_render_report_says_when_the_drives_saturate_and_overspeed() -> None:
+    """A prototype start saturates limbs 2 and 4 for milliseconds and drives the limbs
+    past the drives' 0.833 m/s; the report gave the instant of one rounding's maximum
+    and neither the time at the limit nor the speed until 2026-12-06."""
+    from pkmctl.sim.metrics import limb_speed, time_at_force_limit, time_over_speed_limit
+
+    sc = pkmctl.Scenario.builtin("prototype")
+    r = pkmctl.simulate(sc, controller="pd", duration=0.1)
+    text = render_report({"pd": r}, figures=[], scenario_name="prototype")
+    limit = 2 * math.pi * 0.9 * 3.82 / 0.01
+    at = np.flatnonzero(np.any(np.abs(r.tau) >= limit * (1 - 1e-9), axis=1))
+    assert at.size >= 2  # the case this test is about
+    t0, t1 = (f"{1e3 * r.t[k]:.0f} ms" for k in at[[0, -1]])
+    assert f"at the limit from {t0} to {t1})" in text
+    assert f"at the limit for {1e3 * time_at_force_limit(r):.0f} ms (PD)" in text
+    speed, over = float(np.max(limb_speed(r))), time_over_speed_limit(r)
+    assert speed > 0.833 and over > 0
+    assert f"peak true limb speed is {speed:.3g} m/s (PD) against the drives' 0.833 m/s" in text
+    assert f"exceeded for {1e3 * over:.0f} ms (PD)" in text
+
+
 def test_render_report_of_the_prototype_is_true_to_its_runs() -> None:
     """On the machine as built the gravity estimate misses in sign and size (rotor inertia,
     friction, the drive): the report must not say "as predicted"; CTC spends most of its
@@ -349,6 +371,24 @@ def test_render_report_names_every_coordinate_that_starts_off() -> None:
     runs = {c: pkmctl.simulate(on_track, controller=c) for c in ("smc", "afsmc")}
     text = render_report(runs, figures=[], scenario_name="custom")
     assert "the run starts on its trajectory, so no initial transient dominates" in text
+
+
+def test_render_report_explains_the_z_errors_and_says_when_one_swings() -> None:
+    """SMC's steady z error ~ dG / (gain lam), measured as its mean after 1 s; PD's error
+    follows the trajectory (no feedforward), so its mean is not a steady value: said."""
+    from pkmctl.sim.metrics import _errors
+
+    sc = pkmctl.Scenario.builtin("paper", 4.2)  # a period of the trajectory (pi s) after 1 s
+    runs = {c: pkmctl.simulate(sc, controller=c) for c in ("smc", "pd")}
+    text = render_report(runs, figures=[], scenario_name="paper")
+    assert "(each measured as its mean z error after 1 s)" in text
+    smc = re.search(
+        r"SMC \(gain near s = 0: [^)]*\) predicts ([\d.]+) mm and shows ([\d.]+) mm;", text
+    )
+    assert smc and 0.8 < float(smc[2]) / float(smc[1]) < 1.2  # measured 0.0303 for 0.0315
+    e = _errors(runs["pd"], 1.0)[:, 0]
+    assert np.ptp(e) > abs(e.mean())
+    assert f"(its error swings from {e.min():.3g} to {e.max():.3g} mm with the trajectory)" in text
 
 
 def test_render_report_rejects_empty_input() -> None:

@@ -190,7 +190,9 @@ def _machine_images(results: dict[str, Result], folder: Path) -> tuple[list[Path
     except ImportError as exc:
         return [], f"No images of the machine: {exc}."
     res = results.get("afsmc") or next(iter(results.values()))
-    tilt = np.abs(res.X[:, 1]) + np.abs(res.X[:, 2])
+    # the platform normal's angle from vertical: R = Rx(alpha) Ry(beta) takes e_z to
+    # (sin b, -sin a cos b, cos a cos b) (|a| + |b| picked 29.6 deg over 30.0 here)
+    tilt = np.arccos(np.clip(np.cos(res.X[:, 1]) * np.cos(res.X[:, 2]), -1.0, 1.0))
     picks = {"home": 0, "largest-tilt": int(np.argmax(tilt)), "end": res.t.size - 1}
     try:
         images = render_poses(res.scenario.plant(), res.X[list(picks.values())])

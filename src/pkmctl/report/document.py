@@ -15,12 +15,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pkmctl.sim.metrics import (
+    LIMIT_MARGIN,
     RMSE_KEYS,
     chattering_index,
     last_time,
+    limb_speed,
     peak_forces,
     rmse,
     sample_count,
+    time_at_force_limit,
+    time_over_speed_limit,
 )
 
 from .figures import FIGURES
@@ -280,10 +284,13 @@ def _force_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
         if every > 1:  # the log does not hold the peak's period: no time to give
             peaks.append(f"{p[i]:.4g} N ({controller_label(c)}, τ{i + 1})")
             continue
-        k = int(np.argmax(np.abs(r.tau[:, i])))
-        peaks.append(
-            f"{p[i]:.4g} N ({controller_label(c)}, τ{i + 1} at t = {_seconds(float(r.t[k]))})"
-        )
+        at = np.abs(r.tau[:, i]) >= (limit or np.inf) * (1 - LIMIT_MARGIN)
+        if at.any():  # saturated: when, not the instant of a rounding's maximum
+            t0, t1 = (_seconds(float(r.t[k])) for k in np.flatnonzero(at)[[0, -1]])
+            when = f"at the limit at t = {t0}" if t0 == t1 else f"at the limit from {t0} to {t1}"
+        else:
+            when = f"at t = {_seconds(float(r.t[int(np.argmax(np.abs(r.tau[:, i])))]))}"
+        peaks.append(f"{p[i]:.4g} N ({controller_label(c)}, τ{i + 1} {when})")
     desired = float(np.max(np.abs(ref.tau_desired)))
     where = "" if every == 1 else f" at the logged periods (one in {every})"
     bound = (
@@ -294,11 +301,49 @@ def _force_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
     chat = [
         f"{float(np.mean(chattering_index(r))):.3g} N/s ({controller_label(c)})" for c, r in pairs
     ]
-    return [
+    line = (
         f"- **Forces**: the peak |τ_i| is {_words(peaks)}, against at most {desired:.3g} N for "
-        f"the desired driving forces{where}; the actuators are {bound}. The chattering index "
-        f"(mean |Δτ| per second, averaged over the four actuators) is {_words(chat)}."
-    ]
+        f"the desired driving forces{where}; the actuators are {bound}."
+    )
+    if limit is not None:
+        held = [(c, time_at_force_limit(r)) for c, r in pairs]
+        if any(v for _, v in held):
+            line += " Some limb's force is at the limit for " + _words(
+                [f"{_seconds(v)} ({controller_label(c)})" for c, v in held]
+            ) + "."  # fmt: skip
+    speeds = [(c, limb_speed(r), time_over_speed_limit(r)) for c, r in pairs]
+    if all(v is not None for _, v, _ in speeds):
+        top = _limits_speed(ref)
+        over = [(c, float(np.max(v)), t) for c, v, t in speeds]
+        line += " The peak true limb speed is " + _words(
+            [f"{v:.3g} m/s ({controller_label(c)})" for c, v, _ in over]
+        ) + f" against the drives' {top:.3g} m/s"  # fmt: skip
+        if any(t for _, _, t in over):
+            line += (
+                ", exceeded for "
+                + _words([f"{_seconds(t)} ({controller_label(c)})" for c, _, t in over])
+                + " (not enforced here; a real drive would fault)"
+            )
+        line += "."
+    hold = ref.scenario.disturbance.hold
+    stepped = any(a != 0 for a in ref.scenario.disturbance.amplitude)
+    line += (
+        f" The chattering index (mean |Δτ| per second, averaged over the four actuators) is "
+        f"{_words(chat)}"
+        + (
+            f"; it counts every change of force, the controllers' answer to the random "
+            f"disturbance (redrawn every {_seconds(hold)}) included, so in a loop that does "
+            f"not chatter it measures mostly that answer (README: the paper scenario's)."
+            if stepped
+            else "."
+        )
+    )
+    return [line]
+
+
+def _limits_speed(result: Result) -> float:
+    lm = getattr(result, "loop_metrics", None)
+    return float(lm.speed_limit) if lm is not None else float("inf")
 
 
 def _sampling_sentence(pairs: list[tuple[str, Result]]) -> list[str]:
@@ -343,13 +388,13 @@ def _why_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
             continue
         sg = surface_gain(sc, c)
         if sg is None:
-            parts.append(f"{label} shows {measured:.3g} mm")
+            parts.append(f"{label} shows {measured:.3g} mm{_swing(r)}")
             continue
         gain = float(sg[0])
         predicted[c] = 1e3 * dG / (gain * lam)
         parts.append(
             f"{label} (gain near s = 0: {gain:.4g} N·s/m) predicts {predicted[c]:.3g} mm "
-            f"and shows {measured:.3g} mm"
+            f"and shows {measured:.3g} mm{_swing(r)}"
         )
     tail = ""
     measured = {c: mean_error(r, t_from=1.0)["z_mm"] for c, r in pairs if c in predicted}
@@ -390,9 +435,23 @@ def _why_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
         f"- **Why the z errors differ**: the controllers' model is "
         f"{100 * (1 - sc.controller_model.theta_scale):.0f} % light, so at the mean pose it "
         f"misses {dG:.3g} N of gravity on z. SMC and FSMC meet it with the gain from s to F "
-        f"near the surface, leaving a steady error of about ΔG/(gain·λ_z): "
-        f"{'; '.join(parts)}.{tail}"
+        f"near the surface, leaving a steady error of about ΔG/(gain·λ_z) (each measured "
+        f"as its mean z error after 1 s): {'; '.join(parts)}.{tail}"
     ]
+
+
+def _swing(result: Result) -> str:
+    """ ", swinging from a to b mm" where the z error after 1 s moves by more than its mean
+    (a PD without feedforward follows the trajectory's frequency: no steady value); ""
+    otherwise or for a decimated log."""
+    from pkmctl.sim.metrics import _errors
+
+    if int(getattr(result, "every", 1)) > 1:
+        return ""
+    e = _errors(result, 1.0)[:, 0]
+    if e.size < 2 or np.ptp(e) <= abs(float(np.mean(e))):
+        return ""
+    return f" (its error swings from {e.min():.3g} to {e.max():.3g} mm with the trajectory)"
 
 
 def render_report(
