@@ -609,8 +609,20 @@ def test_a_question_is_answered_with_ratios_and_intervals(reference, tmp_path):
     assert f"over all cells {_ratio(pooled)}." in answer
     # 2 pairs per cell: every cell is "cannot tell", and the answer says why
     assert "cannot tell in 4 (all with fewer than the 5 pairs a verdict takes)" in answer
+    # and each cell of the table says why, not "cannot tell" beside a tight interval
+    table = answer.split("| condition |", 1)[1]
+    assert "no verdict (2 pairs < 5)" in table and "cannot tell" not in table
     assert answer.split("\n\n", 1)[1] in (out / "report" / "report.md").read_text()
     assert (out / "report" / "comparison.csv").read_text().startswith("question,controller")
+
+
+def test_figure_labels_say_the_quantity_and_unit():
+    from pkmctl.report.campaign import _metric_label
+
+    assert _metric_label("rmse_after_1s_alpha_deg") == "RMSE after 1 s, α (°)"
+    assert _metric_label("max_error_q3_m") == "largest |error|, q3 (m)"
+    assert _metric_label("chattering_N_per_s_2") == "chattering index, limb 2 (N/s)"
+    assert _metric_label("peak_force_N_4") == "peak force, limb 4 (N)"
 
 
 def test_a_resume_groups_the_runs_as_the_folder_was_started(tmp_path):

@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 from pathlib import Path
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -117,7 +118,11 @@ def comparison_lines(spec: CampaignSpec, rows: list[dict], q, metrics: list[str]
             fail = ""
             if r["controller_failed"] or r["baseline_failed"]:
                 fail = f"; failed {r['controller_failed']}/{r['baseline_failed']}"
-            entries.append(f"{_ratio(r)} {_MARK[r['better']]}{fail}")
+            mark = _MARK[r["better"]]
+            if r["better"] == "unclear" and r["pairs"] < stats.MIN_PAIRS:
+                # a tight interval beside "cannot tell" reads as a contradiction
+                mark = f"no verdict ({r['pairs']} pairs < {stats.MIN_PAIRS})"
+            entries.append(f"{_ratio(r)} {mark}{fail}")
         out.append(f"| {_cell_name(spec, cell)} | " + " | ".join(entries) + " |")
     return [*short_answer(spec, rows, q, metrics), "", *out]
 
@@ -187,6 +192,34 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
             )
 
 
+#: Units of the factors people vary most (a factor is a dotted scenario field).
+_FACTOR_UNITS = {
+    "payload.mass": "kg", "disturbance.amplitude": "N, N·m", "disturbance.hold": "s",
+    "timing.control_period": "s", "timing.duration": "s", "sensor.noise": "m",
+    "sensor.delay_periods": "periods", "actuators.lag": "s", "actuators.force_limit": "N",
+    "actuators.delay_periods": "periods", "actuators.peak_torque": "N·m",
+    "plant.friction_coulomb": "N", "plant.friction_viscous": "N·s/m",
+    "plant.rotor_inertia": "kg·m²", "controller_model.theta_scale": "× Θ", "initial.X": "m, rad",
+}  # fmt: skip
+_METRIC_WORDS = (("rmse_after_1s_", "RMSE after 1 s"), ("rmse_", "RMSE"),
+                 ("max_error_", "largest |error|"), ("chattering_N_per_s", "chattering index"),
+                 ("peak_force_N", "peak force"))  # fmt: skip
+_QUANTITIES = {"z_mm": "z (mm)", "alpha_deg": "α (°)", "beta_deg": "β (°)"}
+
+
+def _metric_label(metric: str) -> str:
+    """'RMSE after 1 s, α (°)' for the record column 'rmse_after_1s_alpha_deg'."""
+    for prefix, words in _METRIC_WORDS:
+        if metric.startswith(prefix):
+            rest = metric[len(prefix) :].lstrip("_")
+            if prefix.startswith(("chattering", "peak")):
+                unit = "N/s" if prefix.startswith("chattering") else "N"
+                return f"{words}{', limb ' + rest if rest else ''} ({unit})"
+            q = _QUANTITIES.get(rest) or re.sub(r"^(q\d)_m$", r"\1 (m)", rest)
+            return f"{words}, {q}"
+    return metric
+
+
 def _plot(spec, table, metric: str, factor: str, path: Path) -> int:
     """One figure: ``metric`` against ``factor``, per controller, with intervals; the
     points in the order of the factor's values (numbers: ascending). A point whose runs
@@ -235,8 +268,13 @@ def _plot(spec, table, metric: str, factor: str, path: Path) -> int:
                             color=color)  # fmt: skip
     if not numeric:
         ax.set_xticks(range(len(values)), [_level(r["value"]) for r in rows[: len(values)]])
-    ax.set_xlabel(factor)
-    ax.set_ylabel(f"{metric} (mean, 95 % interval)")
+    means = [r["mean"] for r in rows if math.isfinite(r["mean"])]
+    if means and min(means) > 0 and max(means) >= 20 * min(means):
+        ax.set_yscale("log")  # controllers 20x apart: on a linear axis the best are a line at 0
+    unit = _FACTOR_UNITS.get(factor)
+    ax.set_xlabel(f"{factor} ({unit})" if unit else factor)
+    ax.set_ylabel(f"{_metric_label(metric)}\nmean, 95 % interval")
+    ax.set_title(metric, fontsize=8)  # the record's column, for queries
     ax.legend()
     ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -419,6 +457,14 @@ def write_report(out: str | Path, cancel=None) -> list[Path]:
     with staged_folder(out / "report") as stage:
         (stage / "figures").mkdir()
         lines += ["## Each metric against each factor", ""]
+        if spec.design == "grid" and len(spec.factors) > 1:
+            lines += [
+                "Each point pools the cells at that value of its factor over the other "
+                "factors' values, so its interval holds their effect too (and an "
+                "interaction between factors is averaged away); the table per cell below "
+                "keeps them apart.",
+                "",
+            ]
         left_out = 0
         for m in metrics:
             for p in spec.factors:
