@@ -84,11 +84,21 @@ def _figures(idn: Identification, folder: Path, validation: dict | None, source:
     save(fig, "residuals.png")
 
     r = idn.base.count
-    fig, ax = plt.subplots(figsize=(9, 0.25 * r + 1.5))
+    fig, ax = plt.subplots(figsize=(10, 0.25 * r + 1.5))
     pct = 196.0 * idn.wls.std / np.abs(idn.wls.beta)
     ypos = np.arange(r)[::-1]
     ax.barh(ypos, np.minimum(pct, 200.0), color=np.where(pct > 100, "C3", "C0"))
-    ax.set_yticks(ypos, idn.base.names, fontsize=7)
+    # each bar is a base parameter: a combination, named in full (report.md's table, #)
+    labels = [
+        f"#{k + 1} " + (e if len(e) <= 48 else e[:46] + "…")
+        for k, e in enumerate(idn.base.expressions)
+    ]
+    ax.set_yticks(ypos, labels, fontsize=7)
+    from matplotlib.patches import Patch
+
+    ax.legend(handles=[Patch(color="C0", label="half-width ≤ 100 %"),
+                       Patch(color="C3", label="> 100 %: not determined")],
+              fontsize=7, loc="lower right")  # fmt: skip
     ax.set_xlabel("half-width of the 95 % interval, % of the estimate (bars capped at 200)")
     ax.set_title(f"Base parameters: how well {Path(source).name} determines each (WLS)")
     ax.set_xscale("log")
@@ -198,9 +208,19 @@ def _markdown(idn: Identification, validation: dict | None, source: str) -> str:
             "## Physically consistent standard parameters",
             "",
             "Masses > 0, principal inertias satisfying the triangle inequality, rotor masses "
-            "and friction >= 0; where the data cannot see a parameter it stays near the "
-            "prior (the scenario's controller model). This vector is the "
-            "`[controller_model]` block of `controller_model.toml`.",
+            "and friction >= 0. The data determine the base parameters above; this is one "
+            "physically consistent vector that fits them, pulled weakly towards the prior "
+            "(the scenario's controller model) in the directions the data cannot see, so a "
+            "standard parameter that is not a base parameter by itself is not identified "
+            "on its own"
+            + (
+                f"; {len(idn.active_bounds)} ended on their bounds: "
+                f"{', '.join(idn.active_bounds)} (SI units; the lower bounds are 1 g and "
+                "1e-7 kg·m²)"
+                if idn.active_bounds
+                else ""
+            )
+            + ". This vector is the `[controller_model]` block of `controller_model.toml`.",
             "",
             "| parameter | unit | estimate |",
             "|---|---|---:|",
