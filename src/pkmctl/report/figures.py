@@ -290,10 +290,17 @@ def _draw_error(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) 
     top.legend(loc="best", fontsize="small")
     t_end = max(float(t[-1]) for _, t, _ in curves)
     if t_end > RMSE_AFTER_S:
-        _plot_lines(bottom, curves, None, RMSE_AFTER_S)
-        bottom.axhline(0.0, color="black", linewidth=0.6)
+        # |error| on a log axis: errors 1,000 times apart (SMC's and CTC's β) are all seen,
+        # where a linear zoom fitted to the largest showed the others as a line at 0
+        mags = [(n, t, np.abs(e)) for n, t, e in curves]
+        _plot_lines(bottom, mags, None, RMSE_AFTER_S)
+        tops = [float(np.max(_window(t, e, RMSE_AFTER_S)[1], initial=0.0)) for _, t, e in mags]
+        if max(tops) > 0:
+            bottom.set_yscale("log")
+            floor = min(v for v in tops if v > 0) * 1e-2  # zero crossings: spikes below
+            bottom.set_ylim(bottom=floor)
         bottom.set_xlim(RMSE_AFTER_S, t_end)
-        bottom.set_title(f"t ≥ {RMSE_AFTER_S:g} s (zoomed)", **_TITLE)
+        bottom.set_title(f"t ≥ {RMSE_AFTER_S:g} s: |error| (log scale)", **_TITLE)
     else:
         bottom.text(
             0.5, 0.5, f"run shorter than {RMSE_AFTER_S:g} s", ha="center", va="center",
@@ -346,6 +353,12 @@ def _draw_box(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) ->
                 if reach > 0 and far > 10 * reach:
                     ax.set_yscale("symlog", linthresh=reach, linscale=2.0)
                     title += " (symlog: linear within the whiskers)"
+            else:  # controllers 20x apart (SMC's and CTC's beta): the smallest box linear
+                reaches = [max(abs(st["whislo"]), abs(st["whishi"])) for st in stats]
+                small = min((r for r in reaches if r > 0), default=0.0)
+                if small > 0 and max(reaches) > 20 * small:
+                    ax.set_yscale("symlog", linthresh=small, linscale=1.0)
+                    title += f" (symlog: linear within ±{small:.2g})"
         else:
             ax.text(0.5, 0.5, "no samples", ha="center", va="center", transform=ax.transAxes)
         ax.axhline(0.0, color="black", linewidth=0.6)
