@@ -338,7 +338,7 @@ def _force_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
             ) + "."  # fmt: skip
     speeds = [(c, limb_speed(r), time_over_speed_limit(r)) for c, r in pairs]
     if all(v is not None for _, v, _ in speeds):
-        top = _limits_speed(ref)
+        top = float(ref.loop_metrics.speed_limit)  # there is one: limb_speed gave speeds
         over = [(c, float(np.max(v)), t) for c, v, t in speeds]
         line += " The peak true limb speed is " + _words(
             [f"{v:.3g} m/s ({controller_label(c)})" for c, v, _ in over]
@@ -364,11 +364,6 @@ def _force_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
         )
     )
     return [line]
-
-
-def _limits_speed(result: Result) -> float:
-    lm = getattr(result, "loop_metrics", None)
-    return float(lm.speed_limit) if lm is not None else float("inf")
 
 
 def _sampling_sentence(pairs: list[tuple[str, Result]]) -> list[str]:
