@@ -456,7 +456,7 @@ def _d2(x: np.ndarray, h: float) -> np.ndarray:
 RATE_CUTOFF_RATIO = 0.4
 #: The rates' noise allowed in the Coulomb columns, a fraction of v_s (tanh(qdot / v_s)):
 #: more smoothing moves the reversals, more noise blurs them. Measured 2026-12-06 (PD runs
-#: of the prototype with 1 um of encoder noise, 8 seeds, the 95 % intervals' coverage of
+#: of the prototype with 1 um of encoder noise, 6-10 seeds, the 95 % intervals' coverage of
 #: the 30 base parameters, on `pkmctl excite`'s trajectory / on another of cond 4,569):
 #: the pose filter's 100 Hz as before 82.9 / 52.5 %; 0.25 (133 Hz) 90.0 / 71.2 %; 0.5
 #: (210 Hz) 88.8 / 87.9 %; 1.0 (334 Hz) 82.5 / 95.8 %, with force leads near 0 on the
