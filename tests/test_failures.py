@@ -218,6 +218,34 @@ def test_a_folder_where_a_run_writes_a_file_is_refused_and_kept(tmp_path):
     assert sorted(p.name for p in out.rglob("*")) == ["important.txt", "pd.parquet"]
 
 
+def test_publish_failing_midway_leaves_the_previous_set(tmp_path, monkeypatch):
+    """A rename failing midway (a nested folder on another file system: EXDEV) left old
+    and new files mixed and the trash folder behind until 2026-12-06."""
+    from pkmctl.io import atomic
+
+    dest, stage = tmp_path / "dest", tmp_path / "stage"
+    for root in (dest, stage):
+        (root / "figures").mkdir(parents=True)
+        for name in ("a.md", "figures/b.png", "figures/c.png"):
+            (root / name).write_text(f"{root.name} {name}")
+    (dest / "mine.txt").write_text("mine")
+    before = {p.relative_to(dest): p.read_text() for p in dest.rglob("*") if p.is_file()}
+    real, calls = os.rename, []
+
+    def flaky(src, dst):
+        calls.append(src)
+        if len(calls) == 5:  # after a.md and one figure are in place
+            raise OSError(errno.EXDEV, "Invalid cross-device link")
+        real(src, dst)
+
+    monkeypatch.setattr(atomic.os, "rename", flaky)
+    with pytest.raises(OSError, match="cross-device"):
+        atomic.publish(stage, dest)
+    monkeypatch.setattr(atomic.os, "rename", real)
+    after = {p.relative_to(dest): p.read_text() for p in dest.rglob("*") if p.is_file()}
+    assert after == before and not leftovers(dest)
+
+
 def test_publish_merges_folders_and_refuses_a_file_for_a_folder(tmp_path):
     from pkmctl.errors import OutputError
     from pkmctl.io.atomic import publish

@@ -192,8 +192,19 @@ def publish(stage: Path, dest: Path) -> None:
             os.rename(stage, dest)
             return
         trash = Path(tempfile.mkdtemp(prefix=_STAGE_PREFIX + "old-", suffix=".tmp", dir=dest))
-        _merge(stage, dest, trash, [0])
+        done: list[tuple[Path, Path]] = []  # each rename (from, to), to undo on an error
+        try:
+            _merge(stage, dest, trash, done)
+        except BaseException:
+            # a rename failed midway (e.g. a nested folder on another file system): put
+            # every file back where it was, so dest keeps its previous set, not a mix
+            for source, moved in reversed(done):
+                with suppress(OSError):
+                    os.rename(moved, source)
+            shutil.rmtree(trash, ignore_errors=True)
+            raise
     shutil.rmtree(trash, ignore_errors=True)
+    shutil.rmtree(stage, ignore_errors=True)  # its emptied folders
 
 
 def _is_folder(path: Path) -> bool:
@@ -217,19 +228,21 @@ def _check_kinds(stage: Path, dest: Path) -> None:
             )
 
 
-def _merge(stage: Path, dest: Path, trash: Path, count: list[int]) -> None:
+def _merge(stage: Path, dest: Path, trash: Path, done: list[tuple[Path, Path]]) -> None:
     """Move ``stage``'s entries into the existing folder ``dest`` (see :func:`publish`);
-    replaced files go to ``trash`` under numbered names. Removes ``stage``."""
+    replaced files go to ``trash`` under numbered names. Each rename is appended to
+    ``done`` as (from, to) once made; ``stage``'s folders are left, emptied."""
     for entry in sorted(stage.iterdir()):
         target = dest / entry.name
         if _is_folder(entry) and _is_folder(target):
-            _merge(entry, target, trash, count)
+            _merge(entry, target, trash, done)
             continue
         if target.exists() or target.is_symlink():
-            count[0] += 1
-            os.rename(target, trash / f"{count[0]}-{entry.name}")
+            old = trash / f"{len(done)}-{entry.name}"
+            os.rename(target, old)
+            done.append((target, old))
         os.rename(entry, target)
-    stage.rmdir()
+        done.append((entry, target))
 
 
 @contextmanager
