@@ -53,6 +53,8 @@ def test_drive_lag_below_the_substep_is_refused_and_one_substep_is_followed():
              "timing.duration": 2e-3}  # fmt: skip
     with pytest.raises(pkmctl.ScenarioError, match=r"actuators\.lag = 1e-05: must be 0 .*>= 2e-05"):
         _scenario(**drive, **{"actuators.lag": 1e-5})  # RK4: a third a sub-step, not exp(-2)
+    with pytest.raises(pkmctl.ScenarioError, match=r"no lag below 1e-07 s can be followed"):
+        _scenario(**drive, **{"actuators.lag": 1e-8})  # would need 10,000 sub-steps: > 1000
     lag = 2e-5  # h, the shortest allowed
     sc = _scenario(**drive, **{"actuators.lag": lag})
     r = pkmctl.simulate(sc, controller="test-constant-force")

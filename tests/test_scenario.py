@@ -104,6 +104,7 @@ BAD = [
     ({"trajectory": {"kind": "spline"}}, "trajectory.kind = 'spline'"),
     ({"actuators": {"force_limit": -5.0}}, "actuators.force_limit = -5.0"),
     ({"name": "../x\n# heading"}, "name = '../x\\n# heading': must be one line of printable"),
+    ({"name": "a\u2028b"}, "name = 'a\\u2028b': must be one line"),  # a line separator
 ]
 
 

@@ -469,8 +469,8 @@ def _rate_cutoff(q: np.ndarray, fs: float, fd: float, vs: float) -> float:
     """Cutoff (Hz) of the limb rates for the Coulomb columns: the highest, up to
     :data:`RATE_CUTOFF_RATIO` x fs, at which white noise of the lengths (its std estimated
     from what the pose filter at ``fd`` removes from them) leaves rates of at most
-    :data:`RATE_NOISE` x v_s; never below ``fd``. (Rate noise of a zero-phase filter at f
-    on noise of std s: s 2 pi sqrt(2 f^3 / (3 fs)).)"""
+    :data:`RATE_NOISE` x v_s; never below ``fd`` unless ``fd`` is above that cap. (Rate
+    noise of a zero-phase filter at f on noise of std s: s 2 pi sqrt(2 f^3 / (3 fs)).)"""
     sos = scipy.signal.butter(4, fd, fs=fs, output="sos")
     removed = q - scipy.signal.sosfiltfilt(sos, q, axis=0)
     s2 = float(np.median(np.mean(removed * removed, axis=0))) / max(1e-9, 1.0 - 2.0 * fd / fs)

@@ -17,6 +17,7 @@ import math
 import os
 import tomllib
 import typing
+import unicodedata
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -58,6 +59,8 @@ def _vec(n: int, **bounds: float):
     return Annotated[list[Annotated[float, Field(**bounds)]], Field(min_length=n, max_length=n)]
 
 
+#: The most RK4 sub-steps per control period (``timing.substeps``).
+MAX_SUBSTEPS = 1000
 Vec3 = _vec(3, ge=-10, le=10)  # poses, offsets, amplitudes (m, rad)
 PosVec3 = _vec(3, gt=0, le=1e12)  # gains
 NonNegVec3 = _vec(3, ge=0, le=1e12)
@@ -282,7 +285,7 @@ class TimingSpec(_Model):
     """Control period T_c, RK4 sub-steps per period, and duration (s)."""
 
     control_period: float = Field(5e-5, ge=1e-6, le=0.1)
-    substeps: int = Field(1, ge=1, le=1000)
+    substeps: int = Field(1, ge=1, le=MAX_SUBSTEPS)
     duration: float = Field(10.0, gt=0, le=3600)
 
     @property
@@ -594,7 +597,7 @@ class Scenario(_Model):
     @classmethod
     def _one_line_name(cls, v: str) -> str:
         # the name heads reports and tables: a newline in it broke report.md's heading
-        if any(ord(c) < 32 or ord(c) == 127 for c in v):
+        if any(unicodedata.category(c) in ("Cc", "Zl", "Zp") for c in v):  # also U+0085, U+2028
             shown = repr(v) if len(repr(v)) <= 60 else repr(v)[:57] + "..."
             raise ValueError(
                 f"= {shown}: must be one line of printable text (no newline, tab or "
@@ -635,11 +638,17 @@ class Scenario(_Model):
             # for 0.135 at h/2, and at h/2.79 not at all (a run with 10 us at h = 0.1 ms
             # "diverged" in 2 ms). A shorter lag is an ideal torque loop at this step
             # (lag 0), or needs a finer one.
+            need = math.ceil(t.control_period / lag * (1 - 1e-9))
             raise ValueError(
                 f"actuators.lag = {lag:g}: must be 0 (no lag) or >= {h:g} s, the plant's "
                 f"RK4 sub-step (timing.control_period / substeps), which cannot follow a "
-                f"shorter lag; or raise timing.substeps to >= "
-                f"{math.ceil(t.control_period / lag * (1 - 1e-9))}"
+                "shorter lag; "
+                + (
+                    f"or raise timing.substeps to >= {need}"
+                    if need <= MAX_SUBSTEPS
+                    else f"at this control period no lag below {t.control_period / MAX_SUBSTEPS:g}"
+                    f" s can be followed ({MAX_SUBSTEPS} sub-steps at most)"
+                )
             )
         every = self.logging.every
         if not (isinstance(every, int) and not isinstance(every, bool) and 1 <= every <= t.periods):
