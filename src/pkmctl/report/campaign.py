@@ -10,7 +10,6 @@ from __future__ import annotations
 import csv
 import io
 import math
-import re
 from pathlib import Path
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -204,7 +203,7 @@ _FACTOR_UNITS = {
 _METRIC_WORDS = (("rmse_after_1s_", "RMSE after 1 s"), ("rmse_", "RMSE"),
                  ("max_error_", "largest |error|"), ("chattering_N_per_s", "chattering index"),
                  ("peak_force_N", "peak force"))  # fmt: skip
-_QUANTITIES = {"z_mm": "z (mm)", "alpha_deg": "α (°)", "beta_deg": "β (°)"}
+_UNITS = {"mm": "mm", "deg": "°", "m": "m"}  # of the error keys' suffixes (metrics.RMSE_KEYS)
 
 
 def _metric_label(metric: str) -> str:
@@ -215,8 +214,11 @@ def _metric_label(metric: str) -> str:
             if prefix.startswith(("chattering", "peak")):
                 unit = "N/s" if prefix.startswith("chattering") else "N"
                 return f"{words}{', limb ' + rest if rest else ''} ({unit})"
-            q = _QUANTITIES.get(rest) or re.sub(r"^(q\d)_m$", r"\1 (m)", rest)
-            return f"{words}, {q}"
+            from pkmctl.report.document import _QUANTITY
+
+            if rest in _QUANTITY:  # z_mm, alpha_deg, ..., q4_m
+                return f"{words}, {_QUANTITY[rest]} ({_UNITS[rest.rsplit('_', 1)[1]]})"
+            return f"{words}, {rest}"
     return metric
 
 
