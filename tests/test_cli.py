@@ -55,7 +55,12 @@ def test_reproduce_end_to_end(tmp_path):
 def test_reproduce_phases_add_up(tmp_path):
     from pkmctl.experiment import reproduce
 
-    out = reproduce(pkmctl.Scenario.builtin("paper"), tmp_path / "o", duration=0.1)
+    seen: list[tuple[int, int]] = []
+    out = reproduce(pkmctl.Scenario.builtin("paper"), tmp_path / "o", duration=0.1,
+                    run_progress=lambda *a: seen.append(a))  # fmt: skip
+    # the five runs' periods together, as they compute: all of them by the end
+    assert seen[-1] == (5 * 2000, 5 * 2000) and all(t == 10000 for _, t in seen)
+    assert [d for d, _ in seen] == sorted(d for d, _ in seen)
     ph = out.phases
     assert set(ph) == {"before", "runs", "loops", "figures", "report"}
     assert all(v >= 0 for v in ph.values()) and ph["loops"] > 0
@@ -84,6 +89,24 @@ def test_scenario_and_simulate_commands(tmp_path):
     assert "removed fsmc.parquet of an earlier run" in res.output
     assert not (tmp_path / "fsmc.parquet").exists()
     assert load_result(tmp_path / "fsmc.json").t.size == 50
+
+
+def test_simulate_shows_how_far_the_run_is_on_a_terminal(tmp_path, monkeypatch):
+    import io
+
+    from rich.console import Console
+
+    from pkmctl import cli
+    from pkmctl.sim import simulate as sim
+
+    screen = io.StringIO()
+    monkeypatch.setattr(cli, "err_console", Console(file=screen, force_terminal=True, width=100))
+    monkeypatch.setattr(sim, "CHUNK_PERIODS", 500)  # 2000 periods: four steps of the bar
+    args = ["simulate", "paper", "--controller", "pd", "--duration", "0.1"]
+    res = runner.invoke(app, [*args, "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    frames = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", screen.getvalue())
+    assert "simulating pd on 'paper'" in frames and "100%" in frames, frames
 
 
 @pytest.mark.parametrize(

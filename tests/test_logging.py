@@ -118,6 +118,19 @@ def test_chunk_boundaries_do_not_show(monkeypatch):
     _assert_same_loop_metrics(whole, cut)
 
 
+def test_a_whole_runs_chunks_do_not_show_and_report_its_progress(monkeypatch):
+    """A run logged every period also goes in chunks (its progress after each): any chunk
+    size gives the same run, bit for bit."""
+    sc = _scenario(**{"timing.duration": 0.1})  # 2000 periods
+    whole = pkmctl.simulate(sc, "afsmc")
+    monkeypatch.setattr(sim, "CHUNK_PERIODS", 333)
+    seen: list[tuple[int, int]] = []
+    cut = pkmctl.simulate(sc, "afsmc", progress=lambda done, total: seen.append((done, total)))
+    _assert_rows(whole, cut, 1)
+    _assert_same_loop_metrics(whole, cut)
+    assert seen == [(min(k + 333, 2000), 2000) for k in range(0, 2000, 333)]
+
+
 def test_decimated_partial_result_of_a_diverged_run():
     absurd = {"gains.K": [1e9, 1e9, 1e9], "timing.duration": 0.5}
     with pytest.raises(pkmctl.SimulationDiverged) as full:

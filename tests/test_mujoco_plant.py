@@ -107,6 +107,16 @@ def test_simulate_many_with_lanes_runs_a_stepped_plant_one_at_a_time():
         np.testing.assert_array_equal(a.X, b.X)
 
 
+def test_a_run_on_the_mujoco_plant_reports_its_progress(monkeypatch):
+    from pkmctl.sim import stepped
+
+    monkeypatch.setattr(stepped, "PROGRESS_PERIODS", 30)
+    seen: list[tuple[int, int]] = []
+    sc = _on_mujoco(pkmctl.Scenario.builtin("paper"))
+    pkmctl.simulate(sc, "pd", duration=0.005, progress=lambda *a: seen.append(a))  # 100
+    assert seen == [(30, 100), (60, 100), (90, 100), (100, 100)]
+
+
 def test_a_run_on_the_mujoco_plant_leaves_its_compiled_marker():
     """reproduce's precompile skips what has run: for a stepped plant the compiled code is
     the stepped loop's period (it used to spawn two compiling processes on every run,

@@ -36,7 +36,14 @@ from typing import Annotated, NoReturn, TypeVar
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    Progress,
+    SpinnerColumn,
+    TaskProgressColumn,
+    TextColumn,
+    TimeElapsedColumn,
+)
 from rich.table import Table
 from rich.text import Text
 from typer.core import TyperGroup
@@ -291,9 +298,8 @@ class _Compiles:
     elapsed-time column runs), as plain lines otherwise (a log, CI). Counts what was
     compiled, for the message after an interrupt."""
 
-    def __init__(self, bar: Progress | None = None, task=None, status=None) -> None:
-        self.bar, self.task, self.status, self.done = bar, task, status, 0
-        self.t0 = time.perf_counter()
+    def __init__(self, bar: Progress | None = None, task=None) -> None:
+        self.bar, self.task, self.done = bar, task, 0
 
     def __call__(self, event: str, what: str, seconds: float) -> None:
         if event == "failed":  # its error follows in one line
@@ -305,12 +311,6 @@ class _Compiles:
             msg = f"compiled {what} in {seconds:.1f} s (cached)"
         if self.bar is not None and err_console.is_terminal:
             self.bar.update(self.task, description=msg)
-        elif self.status is not None and console.is_terminal:
-            # a spinner has no clock: the line above it keeps the time
-            elapsed = time.perf_counter() - self.t0
-            self.status.update(Text(f"{msg} (at {elapsed:.0f} s)"))
-            if event == "end":
-                _say(msg)
         else:
             _say(msg)
 
@@ -397,9 +397,18 @@ def reproduce(
 
         def progress(msg: str) -> None:
             count["n"] += 1
+            shown["msg"] = msg
             bar.update(task, completed=count["n"], description=msg)
             if not err_console.is_terminal:
                 _say(msg)
+
+        shown = {"msg": "starting"}
+
+        def run_progress(done: int, total: int) -> None:  # the five runs together
+            if shown["msg"].startswith("simulating"):
+                bar.update(
+                    task, description=f"{shown['msg']} (runs {100 * done / total:.0f} % done)"
+                )
 
         try:
             with staged_folder(out) as stage:
@@ -412,7 +421,10 @@ def reproduce(
                     return _untouched(out, existed) + compiles.kept()
 
                 with compiles.listen():
-                    output = _interruptible(lambda: run(sc, stage, progress=progress), interrupted)
+                    output = _interruptible(
+                        lambda: run(sc, stage, progress=progress, run_progress=run_progress),
+                        interrupted,
+                    )
         except Exception as exc:
             bar.stop()
             _handle(ctx, exc, suffix="; " + _untouched(out, existed))
@@ -481,20 +493,34 @@ def simulate(
     existed = out.is_dir()
     _KEPT["note"] = _untouched(out, existed)
     sc = _scenario(ctx, scenario_file, seed, duration, _untouched(out, existed))
+    doing = f"simulating {controller} on {sc.name!r}"
     try:
         with (
             staged_folder(out) as stage,
-            console.status(Text(f"simulating {controller} on {sc.name!r}")) as status,
-            (compiles := _Compiles(status=status)).listen(),
+            Progress(
+                SpinnerColumn(),
+                TextColumn("{task.description}"),
+                BarColumn(),
+                TaskProgressColumn(),  # (none while compiling: no total yet)
+                TimeElapsedColumn(),
+                console=err_console,
+                transient=True,
+                disable=not err_console.is_terminal,  # a log gets no bar
+            ) as bar,
+            (compiles := _Compiles(bar, task := bar.add_task(doing, total=None))).listen(),
         ):
 
+            def progress(done: int, total: int) -> None:
+                bar.update(task, completed=done, total=total, description=doing)
+
             def work():
-                result = run(sc, controller=controller)
+                result = run(sc, controller=controller, progress=progress)
+                bar.update(task, description=f"writing {controller}.{fmt}")
                 return result, save_result(result, stage, fmt=fmt)
 
             def interrupted() -> str:
                 discard(stage)
-                status.stop()
+                bar.stop()
                 return _untouched(out, existed) + compiles.kept()
 
             result, paths = _interruptible(work, interrupted)

@@ -17,6 +17,7 @@ the five runs need, before anything is computed.
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -70,9 +71,12 @@ def reproduce(
     seed: int | None = None,
     duration: float | None = None,
     progress: Callable[[str], None] | None = None,
+    run_progress: Callable[[int, int], None] | None = None,
 ) -> ReproduceOutput:
     """Run SMC, FSMC, AFSMC and the baselines PD and CTC on ``scenario``; write the tables,
-    figures and report."""
+    figures and report. ``progress(message)`` is called at each step;
+    ``run_progress(periods done, periods)`` of the five runs together as they compute (from
+    their threads)."""
     from pkmctl.report import figures, tables
 
     from .report.document import render_report
@@ -109,7 +113,7 @@ def reproduce(
             names.extend(save_result(res, stage / "timeseries"))
 
         t_runs = time.perf_counter()
-        results = _run_all(scenario, seed, say, keep)
+        results = _run_all(scenario, seed, say, keep, run_progress)
         t_figures = time.perf_counter()
         say("drawing figures 10-26")
         job = figures.start_figures(results, stage / "figures")  # in other processes
@@ -157,17 +161,31 @@ def reproduce(
 
 def _run_all(
     scenario: Scenario, seed: int | None, say: Callable[[str], None],
-    done: Callable[[Result], None],
+    done: Callable[[Result], None], run_progress: Callable[[int, int], None] | None = None,
 ) -> dict:  # fmt: skip
     """The runs, two or more at a time; ``done`` is called on each (in order) while the
-    later ones compute."""
+    later ones compute; ``run_progress`` with the periods done of all of them."""
     # The compiled loop releases the GIL: the runs share the machine's cores.
     workers = min(len(CONTROLLER_ORDER), os.cpu_count() or 1)
     prep = prepare(scenario, None)  # the desired trajectory, once for the five runs
     parts = {name: resolve_parts(prep.scenario, name) for name in CONTROLLER_ORDER}
+    periods, lock = dict.fromkeys(CONTROLLER_ORDER, 0), threading.Lock()
+
+    def reporter(name: str) -> Callable[[int, int], None] | None:
+        if run_progress is None:
+            return None
+
+        def report(done: int, total: int) -> None:
+            with lock:  # (two runs' reports in order: the sum never goes back)
+                periods[name] = done
+                run_progress(sum(periods.values()), total * len(periods))
+
+        return report
+
     with ThreadPoolExecutor(max_workers=workers) as pool:
         futures = {
-            name: pool.submit(run_prepared, prep, parts[name], seed) for name in CONTROLLER_ORDER
+            name: pool.submit(run_prepared, prep, parts[name], seed, progress=reporter(name))
+            for name in CONTROLLER_ORDER
         }
         try:
             results: dict[str, Result] = {}

@@ -601,10 +601,12 @@ def run_parts(
     substeps: int,
     inputs: Inputs,
     buffers: LogBuffers | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> LoopOutput:
     """Run the loop of ``parts`` (kind → :class:`~pkmctl.parts.Part`) from ``bundles``
     (kind → (params, initial state, work)) over ``inputs.periods`` periods, chunk by chunk
-    (:class:`Inputs`). The states in ``bundles`` are copied, not changed.
+    (:class:`Inputs`). The states in ``bundles`` are copied, not changed. ``progress``
+    is called as ``progress(periods done, periods)`` after each chunk.
     """
     run = setup(parts, bundles, inputs, buffers)
     (plant_p, x, pw), (sensor_p, ss, sw) = run.bundle("plant"), run.bundle("sensor")
@@ -629,6 +631,8 @@ def run_parts(
             dt += time.perf_counter() - t0
             if status:
                 break
+            if progress is not None:
+                progress(k0 + ref.shape[0], inputs.periods)
     except NumbaError as exc:
         raise compile_error(parts, exc) from exc
     _mark_compiled(loop)

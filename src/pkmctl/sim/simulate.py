@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,7 +66,8 @@ _LOG_COLUMNS = 3 + 3 + 6 + 3 + 4 + 4 + 3
 # Per period of a chunk of a decimated run's inputs: t, the trajectory (3 x 3), the
 # reference 9, q_d 4, tau_d 4 and the disturbance index.
 _CHUNK_COLUMNS = 1 + 9 + 9 + 4 + 4 + 1
-#: Periods per chunk of a decimated run's inputs (about 15 MB of arrays).
+#: Periods per chunk of a run's inputs (a decimated run's: about 15 MB of arrays; a
+#: whole run's are views of the prepared ones); a run reports progress after each.
 CHUNK_PERIODS = 1 << 16
 #: A decimated run of at most this many periods (13 s at 20 kHz) has all its chunks of
 #: inputs computed once by :func:`prepare` and kept (14 doubles a period, 29 MB at most),
@@ -397,18 +399,22 @@ def simulate(
     *,
     duration: float | None = None,
     seed: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> Result:
     """Run one closed-loop experiment; ``duration`` and ``seed`` override the scenario's.
 
     ``controller`` is any registered controller ("smc", "fsmc", "afsmc", "pd", "ctc",
     or a user's, :func:`pkmctl.register_controller`). Raises
     :class:`~pkmctl.SimulationDiverged` (with the partial result) if the state becomes
-    non-finite or the pose leaves the valid set.
+    non-finite or the pose leaves the valid set. ``progress(periods done, periods)`` is
+    called as the run goes, from the thread that runs it: every :data:`CHUNK_PERIODS`
+    periods, or every :data:`pkmctl.sim.stepped.PROGRESS_PERIODS` for a plant stepped from
+    Python (MuJoCo's).
     """
     scenario = _resolve(scenario, duration)
     parts = resolve_parts(scenario, controller)
     prep = prepare(scenario, None, log_columns(scenario, parts))
-    return run_prepared(prep, parts, seed)
+    return run_prepared(prep, parts, seed, progress=progress)
 
 
 def log_columns(scenario: Scenario, parts: dict[str, Part]) -> int:
@@ -497,7 +503,7 @@ def _set_up(prep: Prepared, parts: dict[str, Part], seed: int | None, check_logs
     inputs = Inputs(
         periods=n,
         every=every,
-        chunk_size=n if every == 1 else CHUNK_PERIODS,
+        chunk_size=CHUNK_PERIODS,  # (a whole run's inputs are views: chunks for progress)
         chunk=prep.chunk,
         dist_values=_disturbance_values(scenario),
         metrics=mp,
@@ -510,9 +516,11 @@ def run_prepared(
     parts: dict[str, Part],
     seed: int | None,
     buffers: LogBuffers | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> Result:
     """One run of ``prep``'s scenario with ``parts`` and disturbance ``seed`` (None: the
-    scenario's); ``buffers`` lets runs of one length share their log arrays."""
+    scenario's); ``buffers`` lets runs of one length share their log arrays; ``progress``
+    as in :func:`simulate`."""
     run = _set_up(prep, parts, seed, buffers is None)
     stepped = parts["plant"].stepper is not None
     out = (run_stepped if stepped else run_parts)(
@@ -523,6 +531,7 @@ def run_prepared(
         substeps=run.scenario.timing.substeps,
         inputs=run.inputs,
         buffers=buffers,
+        progress=progress,
     )
     return _result(prep, parts, run, out)
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 
 import numpy as np
 from numba.core.errors import NumbaError
@@ -50,6 +51,9 @@ from pkmctl.sim.loop import (
 )
 
 __all__ = ["run_stepped"]
+
+#: A stepped run (stepped from Python, e.g. MuJoCo) reports its progress this often.
+PROGRESS_PERIODS = 1000
 
 
 def _period(
@@ -132,11 +136,13 @@ def run_stepped(
     substeps: int,
     inputs: Inputs,
     buffers: LogBuffers | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> LoopOutput:
     """Run the parts over ``inputs.periods`` periods with the plant's stepper.
 
-    Arguments as :func:`pkmctl.sim.loop.run_parts`, plus ``ctx`` for the stepper. The log's
-    q is the stepper's own (MuJoCo's slide positions), not ``observe``'s.
+    Arguments as :func:`pkmctl.sim.loop.run_parts`, plus ``ctx`` for the stepper
+    (``progress`` is called every :data:`PROGRESS_PERIODS` periods). The log's q is the
+    stepper's own (MuJoCo's slide positions), not ``observe``'s.
     """
     run = setup(parts, bundles, inputs, buffers)
     (plant_p, x, pw), (sensor_p, ss, sw) = run.bundle("plant"), run.bundle("sensor")
@@ -176,10 +182,14 @@ def run_stepped(
                 m = k + 1
                 if status:
                     break
+                if progress is not None and m % PROGRESS_PERIODS == 0:
+                    progress(m, inputs.periods)
             if status:
                 break
     except NumbaError as exc:
         raise compile_error(parts, exc) from exc
     dt = time.perf_counter() - t0
+    if progress is not None and status == 0:
+        progress(inputs.periods, inputs.periods)
     _mark_compiled(step)
     return run.output(status, m, dt)
