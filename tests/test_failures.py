@@ -154,6 +154,13 @@ def test_bench_json_checked_before_running(tmp_path, monkeypatch, target):
     assert time.perf_counter() - t0 < 5 and "--json" in line
 
 
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="no /proc here")
+def test_out_where_no_folder_can_be_made_says_what_failed():
+    # /proc answers "No such file or directory" about itself: the line says what was tried
+    line = one_line(runner.invoke(app, ["simulate", "paper", "--out", "/proc/x"]), 2)
+    assert "'/proc' is not writable (creating a folder there failed: " in line
+
+
 def test_disk_full_while_writing_keeps_previous_results(old_results, monkeypatch):
     from pkmctl.report import tables
 

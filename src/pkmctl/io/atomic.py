@@ -111,7 +111,10 @@ def check_output_folder(path: str | os.PathLike[str], *, what: str = "output fol
         os.rmdir(tempfile.mkdtemp(prefix=".pkmctl-probe-", dir=probe))
     except OSError as exc:
         why = exc.strerror or type(exc).__name__
-        raise OutputError(f"{what} {shown}: {str(probe)!r} is not writable ({why})") from None
+        raise OutputError(  # (/proc says "No such file or directory": say what was tried)
+            f"{what} {shown}: {str(probe)!r} is not writable (creating a folder there failed: "
+            f"{why})"
+        ) from None
     return path
 
 
