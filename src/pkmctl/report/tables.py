@@ -155,9 +155,12 @@ def table4_csv(results: Mapping[str, Result]) -> str:
 
 
 def _fmt(x: float | None, spec: str = ".4g") -> str:
+    """``x`` to the significant digits of ``spec``, trailing zeros kept (0.7000 beside
+    0.3225, not 0.7), "—" for None or a non-finite value."""
     if x is None or not math.isfinite(x):
         return "—"
-    return format(x, spec)
+    text = format(x, "#" + spec)
+    return text[:-1] if text.endswith(".") else text  # 5222., not a decimal point alone
 
 
 def _row(cells: list[str]) -> str:
