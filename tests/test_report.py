@@ -411,3 +411,23 @@ def test_render_report_explains_the_z_errors_and_says_when_one_swings() -> None:
 def test_render_report_rejects_empty_input() -> None:
     with pytest.raises(ValueError, match="no known controller"):
         render_report({}, figures=[], scenario_name="paper")
+
+
+@pytest.mark.parametrize(("reach", "lin"), [(0.27, 0.5), (0.5, 0.5), (2.3e-4, 5e-4), (0.11, 0.2),
+                                            (1.0, 1.0)])  # fmt: skip
+def test_symlog_box_axes_put_no_decade_tick_inside_their_linear_part(reach, lin):
+    from matplotlib.figure import Figure
+
+    from pkmctl.report.figures import _symlog
+
+    ax = Figure().subplots()
+    ax.plot([0, 1], [-30 * reach, 60 * reach])
+    assert _symlog(ax, reach, 2.0) == pytest.approx(lin)
+    ticks = [float(t) for t in ax.get_yticks()]
+    inside = sorted(abs(t) for t in ticks if abs(t) <= lin)
+    assert inside[0] == 0 and inside[1:] == pytest.approx([lin, lin])  # 0 and ±lin
+    outside = [abs(t) for t in ticks if abs(t) > lin]
+    assert outside and all(t >= 3 * lin and np.log10(t) == pytest.approx(round(np.log10(t)))
+                           for t in outside)  # fmt: skip
+    labels = [ax.yaxis.get_major_formatter()(t) for t in ticks]
+    assert "0" in labels and not any("-" in s for s in labels)  # minus signs, not hyphens

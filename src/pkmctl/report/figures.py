@@ -33,6 +33,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.cbook import boxplot_stats
 from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter, NullLocator
 
 from pkmctl.io.atomic import atomic_write
 
@@ -321,6 +322,46 @@ def _box_stats(name: str, data: np.ndarray) -> dict:
     return stats
 
 
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def _symlog(ax, reach: float, linscale: float) -> float:
+    """A symlog y axis linear within ±lin, the smallest 1, 2 or 5 × 10^k >= ``reach``;
+    returns lin. Its ticks: 0 and ±lin, then the decades from 3 lin up, so no decade tick
+    falls inside the linear part (matplotlib's own put 10^-1 a third of the way up a
+    linear part of ±0.5, at a tenth of a decade's height below 10^0)."""
+    k = math.floor(math.log10(reach))
+    lin = next(m * 10.0**k for m in (1, 2, 5, 10) if m * 10.0**k >= reach * (1 - 1e-12))
+    ax.set_yscale("symlog", linthresh=lin, linscale=linscale)
+    lo, hi = ax.get_ylim()  # the autoscaled limits, margins on the symlog scale
+    top = max(abs(lo), abs(hi))
+    ticks = [0.0, lin]
+    d = 10.0 ** math.ceil(math.log10(3 * lin) - 1e-12)
+    while d <= top * (1 + 1e-12):
+        ticks.append(d)
+        d *= 10.0
+    ticks = sorted({s * t for t in ticks for s in (1.0, -1.0) if lo <= s * t <= hi})
+
+    def label(v: float, _pos=None) -> str:  # plain text (mathtext's boxes let the
+        # y label overlap these): 10¹, 0.5, 5×10⁻⁴, with a minus sign, not a hyphen
+        sign = "−" if v < 0 else ""
+        if v == 0.0:
+            return "0"
+        e = math.log10(abs(v))
+        if abs(v) > lin and abs(e - round(e)) < 1e-9:
+            return f"{sign}10{str(round(e)).translate(_SUPERSCRIPT)}"
+        if abs(v) >= 0.01:
+            return f"{sign}{abs(v):g}"
+        m, x = f"{abs(v):.0e}".split("e")
+        return f"{sign}{m}×10{str(int(x)).translate(_SUPERSCRIPT)}"
+
+    ax.set_yticks(ticks)
+    ax.yaxis.set_major_formatter(FuncFormatter(label))
+    ax.yaxis.set_minor_locator(NullLocator())
+    ax.set_ylim(lo, hi)
+    return lin
+
+
 def _draw_box(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) -> None:
     curves = _errors(spec, pairs)
     ylabel = _ERROR_LABEL[spec.quantity]
@@ -351,14 +392,14 @@ def _draw_box(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) ->
                     (np.max(np.abs(st["fliers"])) for st in stats if st["fliers"].size), default=0.0
                 )
                 if reach > 0 and far > 10 * reach:
-                    ax.set_yscale("symlog", linthresh=reach, linscale=2.0)
-                    title += " (symlog: linear within the whiskers)"
+                    lin = _symlog(ax, reach, 2.0)
+                    title += f" (symlog: linear within ±{lin:g}, the whiskers)"
             else:  # controllers 20x apart (SMC's and CTC's beta): the smallest box linear
                 reaches = [max(abs(st["whislo"]), abs(st["whishi"])) for st in stats]
                 small = min((r for r in reaches if r > 0), default=0.0)
                 if small > 0 and max(reaches) > 20 * small:
-                    ax.set_yscale("symlog", linthresh=small, linscale=1.0)
-                    title += f" (symlog: linear within ±{small:.2g})"
+                    lin = _symlog(ax, small, 1.0)
+                    title += f" (symlog: linear within ±{lin:g})"
         else:
             ax.text(0.5, 0.5, "no samples", ha="center", va="center", transform=ax.transAxes)
         ax.axhline(0.0, color="black", linewidth=0.6)
