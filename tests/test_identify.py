@@ -29,7 +29,9 @@ def proto() -> pkmctl.Scenario:
 @pytest.fixture(scope="module")
 def exciting(proto):
     """The designed trajectory (the defaults of pkmctl excite: ~20 s) and the prototype on it."""
-    e = design_excitation(proto)
+    said: list[tuple[int, int]] = []
+    e = design_excitation(proto, progress=lambda *a: said.append(a))
+    assert said == [(1, 4), (2, 4), (3, 4), (4, 4)]  # each random start, as it ends
     return e, e.scenario(proto)
 
 

@@ -325,6 +325,22 @@ class _Compiles:
         return "; kernels compiled so far stay cached" if self.done else ""
 
 
+def _fraction_bar() -> Progress:
+    """A bar with the fraction done, on stderr and only on a terminal (a log gets no
+    bar), gone when the work ends; its task's description says what compiles meanwhile
+    (:class:`_Compiles`)."""
+    return Progress(
+        SpinnerColumn(),
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TaskProgressColumn(),  # (none while compiling: no total yet)
+        TimeElapsedColumn(),
+        console=err_console,
+        transient=True,
+        disable=not err_console.is_terminal,
+    )
+
+
 def _untouched(out: Path, existed: bool) -> str:
     return (
         f"nothing written; {out} keeps its previous results"
@@ -497,16 +513,7 @@ def simulate(
     try:
         with (
             staged_folder(out) as stage,
-            Progress(
-                SpinnerColumn(),
-                TextColumn("{task.description}"),
-                BarColumn(),
-                TaskProgressColumn(),  # (none while compiling: no total yet)
-                TimeElapsedColumn(),
-                console=err_console,
-                transient=True,
-                disable=not err_console.is_terminal,  # a log gets no bar
-            ) as bar,
+            _fraction_bar() as bar,
             (compiles := _Compiles(bar, task := bar.add_task(doing, total=None))).listen(),
         ):
 

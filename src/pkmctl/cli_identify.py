@@ -24,6 +24,7 @@ from pkmctl.cli import (
     _Compiles,
     _debug,
     _fail,
+    _fraction_bar,
     _handle,
     _interruptible,
     _load_scenario,
@@ -121,12 +122,16 @@ def excite(
     from pkmctl.ident.excite import FORCE_MARGIN, SPEED_MARGIN, design_excitation
     from pkmctl.ident.identify import minimum_duration
 
-    compiles = _Compiles()
+    doing = f"designing an exciting trajectory for {base.name!r}"
     try:
         with (
-            console.status(Text(f"designing an exciting trajectory for {base.name!r}")),
-            compiles.listen(),
+            _fraction_bar() as bar,
+            (compiles := _Compiles(bar, task := bar.add_task(doing, total=None))).listen(),
         ):
+
+            def progress(done: int, total: int) -> None:
+                text = f"{doing} ({done} of {total} random starts done)"
+                bar.update(task, completed=done, total=total, description=text)
 
             def work():
                 with warnings.catch_warnings():  # SLSQP's finite differences at a bad start
@@ -137,6 +142,7 @@ def excite(
                         base_frequency=base_frequency,
                         periods=periods,
                         seed=seed,
+                        progress=progress,
                     )
 
             exc_ = _interruptible(work, lambda: f"nothing written{compiles.kept()}")

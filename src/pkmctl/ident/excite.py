@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -155,8 +156,10 @@ def design_excitation(
     restarts: int = 4,
     seed: int = 0,
     max_iter: int = 200,
+    progress: Callable[[int, int], None] | None = None,
 ) -> Excitation:
-    """Design an exciting trajectory for ``scenario``'s machine (see the module)."""
+    """Design an exciting trajectory for ``scenario``'s machine (see the module);
+    ``progress(starts done, restarts)`` is called as each random start ends."""
     t0 = time.perf_counter()
     H, f = int(harmonics), float(base_frequency)
     if H < 3:
@@ -233,7 +236,7 @@ def design_excitation(
     rng = np.random.default_rng(seed)
     best = None
     scale = np.array([0.06, 0.4, 0.4]) * w  # m/s, rad/s: X near the limits
-    for _ in range(restarts):
+    for start in range(restarts):
         x0 = (rng.normal(size=(3, na + nb)) * scale[:, None] / math.sqrt(H)).ravel()
         for _shrink in range(30):  # start feasible
             if constraints(x0).min() >= 0:
@@ -256,6 +259,8 @@ def design_excitation(
         val = objective(x)
         if best is None or val < best[0]:
             best = (val, x)
+        if progress is not None:
+            progress(start + 1, restarts)
     # The design saw `samples` points a period; between them a limit may be crossed by a
     # hair: shrink the motion (X - X(0) is linear in the coefficients) until a grid twenty
     # times finer meets every limit.
