@@ -342,8 +342,7 @@ def _symlog(ax, reach: float, linscale: float) -> float:
         d *= 10.0
     ticks = sorted({s * t for t in ticks for s in (1.0, -1.0) if lo <= s * t <= hi})
 
-    def label(v: float, _pos=None) -> str:  # plain text (mathtext's boxes let the
-        # y label overlap these): 10¹, 0.5, 5×10⁻⁴, with a minus sign, not a hyphen
+    def label(v: float, _pos=None) -> str:  # 10¹, 0.5, 5×10⁻⁴; a minus sign, not a hyphen
         sign = "−" if v < 0 else ""
         if v == 0.0:
             return "0"
