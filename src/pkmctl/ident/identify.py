@@ -25,7 +25,8 @@ From limb lengths q(t) and limb forces tau(t):
    inverse of its OLS residual standard deviation;
 5. standard deviations from a delete-a-block jackknife (:func:`_jackknife`): the
    filter makes neighbouring residuals correlated, and the textbook sigma^2 (W^T W)^-1
-   would claim too much precision;
+   would claim too much precision; a force lead estimated from the log is refitted in
+   every replicate (dy/dlead as one more column), so its uncertainty is included;
 6. optionally, a physically consistent standard parameter vector: masses > 0, principal
    inertias satisfying the triangle inequality (written as I_xx = L_y + L_z, ... with
    L >= 0), rotor masses and friction >= 0, fitted to the same weighted data (bounded
@@ -666,13 +667,23 @@ def observe(
     )  # fmt: skip
 
 
-def _jackknife(A: np.ndarray, y: np.ndarray, n: int, blocks: int) -> np.ndarray:
+def _jackknife(
+    A: np.ndarray, y: np.ndarray, n: int, blocks: int, lead: np.ndarray | None = None
+) -> np.ndarray:
     """Delete-a-block jackknife covariance of the least-squares estimate: A (3n, r) rows in
     time order (3 per sample), y (3n,); ``blocks`` contiguous blocks of samples, each left
     out once. Unlike sigma^2 (A^T A)^-1 or Newey-West on the residuals, it needs no model
     of the residuals' correlation, and a left-out block's noise is not absorbed by the fit
     (measured on this problem: the textbook estimate 1.6 times and Newey-West 1.2 times too
-    small in std, this one within 5 %; docs/identification.md)."""
+    small in std, this one within 5 %; docs/identification.md).
+
+    ``lead`` (3n,): dy/d(force_lead), when the force lead was estimated from the same data
+    (``force_lead=None``). It is then fitted as one more column in every replicate, so the
+    lead is re-estimated (to first order) without each block and its uncertainty reaches
+    the parameters' covariance (r, r); a lead held fixed there left the std of the mean
+    rotor mass 1.6-1.9 times too small (docs/identification.md, step 6)."""
+    if lead is not None:
+        A = np.column_stack([A, lead])
     AtA, Aty = A.T @ A, A.T @ y
     bs = []
     for g in np.array_split(np.arange(n), blocks):
@@ -680,7 +691,28 @@ def _jackknife(A: np.ndarray, y: np.ndarray, n: int, blocks: int) -> np.ndarray:
         Ag, yg = A[rows], y[rows]
         bs.append(np.linalg.solve(AtA - Ag.T @ Ag, Aty - Ag.T @ yg))
     d = np.array(bs) - np.mean(bs, axis=0)
-    return (blocks - 1) / blocks * (d.T @ d)
+    cov = (blocks - 1) / blocks * (d.T @ d)
+    return cov if lead is None else cov[:-1, :-1]
+
+
+def _lead_sensitivity(
+    log: Log, mech: Mechanism, obs: Observation, vs: float, label: str, fk_max: float
+) -> np.ndarray | None:
+    """dy/d(force_lead) (3n,) at the estimated lead: central differences of the observation
+    over +-1 sample of lead (W does not depend on the lead: only y is used). None if the
+    shifted observations keep other samples (a lead near the log's usable margin: cannot
+    happen within the +-LEAD_SEARCH samples searched, far inside it)."""
+    h = 1.0 / obs.sample_rate
+    ys = []
+    for lead in (obs.force_lead + h, obs.force_lead - h):
+        o = observe(
+            log, mech, friction_velocity=vs, cutoff=obs.cutoff, decimation=obs.decimation,
+            force_lead=lead, max_fk_residual=fk_max, machine=label,
+        )  # fmt: skip
+        if o.t.shape != obs.t.shape or not np.array_equal(o.t, obs.t):
+            return None
+        ys.append(o.y.reshape(-1))
+    return (ys[0] - ys[1]) / (2.0 * h)
 
 
 @dataclass(frozen=True, eq=False)
@@ -727,10 +759,20 @@ class Identification:
         }
 
 
-def _fit(A: np.ndarray, y: np.ndarray, n: int, blocks: int, scale: np.ndarray) -> Fit:
+def _fit(
+    A: np.ndarray,
+    y: np.ndarray,
+    n: int,
+    blocks: int,
+    scale: np.ndarray,
+    lead: np.ndarray | None = None,
+) -> Fit:
+    """Least squares of y on A; the covariance by :func:`_jackknife` (with ``lead``, dy/d
+    force_lead weighted as A, when the lead was estimated: the estimate is unchanged, its
+    uncertainty includes the lead's)."""
     beta, *_ = np.linalg.lstsq(A, y, rcond=None)
     e = y - A @ beta
-    cov = _jackknife(A, y, n, blocks)
+    cov = _jackknife(A, y, n, blocks, lead)
     e3 = (e / np.tile(scale, n)).reshape(n, 3)
     y3 = (y / np.tile(scale, n)).reshape(n, 3)
     return Fit(
@@ -870,11 +912,16 @@ def identify(
             f"to estimate the uncertainty of {r} parameters (need {r + 1} blocks of "
             f"{2.0 / obs.cutoff:g} s); log a longer run"
         )
+    # a lead estimated from this log (force_lead None) is one more fitted quantity: its
+    # uncertainty belongs in the parameters' (the jackknife fits dy/dlead as a column)
+    dy = None
+    if force_lead is None:
+        dy = _lead_sensitivity(log, mech, obs, vs, label, fk_limit(scenario))
     ones = np.ones(3)
-    ols = _fit(A, y, n, blocks, ones)
+    ols = _fit(A, y, n, blocks, ones, dy)
     sigma = np.maximum(ols.rms, 1e-300)
     w = np.tile(1.0 / sigma, n)
-    wls_w = _fit(A * w[:, None], y * w, n, blocks, 1.0 / sigma)
+    wls_w = _fit(A * w[:, None], y * w, n, blocks, 1.0 / sigma, None if dy is None else dy * w)
     wls = Fit(wls_w.beta, wls_w.cov, wls_w.std, _residual_rms(A, y, wls_w.beta, n),
               _rel(A, y, wls_w.beta))  # fmt: skip
     phys = phys_fit = None
