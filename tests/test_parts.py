@@ -270,8 +270,130 @@ def test_precompile_plans_each_kernel_once_and_skips_what_is_compiled():
     assert precompile(sc, ["smc"]) == []  # ... so nothing is compiled again
 
 
-@pytest.mark.parametrize("name", ["", " x", "my law", "law\tb"])
-def test_a_part_name_has_no_spaces(name):
-    """The message said "without spaces" and let "my law" through."""
-    with pytest.raises(PartError, match="must be a non-empty string without spaces"):
+@pytest.mark.parametrize(
+    "name", ["", " x", "my law", "law\tb", "ab/../../evil", "..", ".hidden", "a\\b", "x" * 65]
+)
+def test_a_part_name_is_a_safe_file_name(name):
+    """The message said "without spaces" and let "my law" through; a name is also a file
+    name (simulate writes NAME.parquet): "ab/../../evil" wrote outside --out."""
+    with pytest.raises(PartError, match="must be 1-64 letters, digits, '_', '.' or '-'"):
         pkmctl.register_controller(name, params=tuple)(lambda p, state, work, y, ref, F: None)
+
+
+class _Contact(NamedTuple):
+    lim: float
+
+    @classmethod
+    def from_context(cls, ctx):
+        return cls(1000.0)
+
+
+def _contact_force(p, state, cmd, tau):
+    for i in range(4):
+        tau[i] = state[i]
+
+
+def _contact_derivative(p, state, cmd, dstate):
+    for i in range(4):
+        dstate[i] = (cmd[i] - state[i]) * 1000.0
+
+
+def test_more_continuous_entries_than_state_is_refused_before_the_run(tmp_path):
+    """continuous = 4 with state_size = 1 ran: the loop integrated past the state's end
+    (a free() abort, or "diverged" blaming the controller)."""
+
+    @pkmctl.register_actuator(
+        "x-contact", params=_Contact, force=_contact_force, derivative=_contact_derivative,
+        continuous=4, state_size=1,
+    )  # fmt: skip
+    def command(p, state, work, y, F, cmd):
+        for i in range(4):
+            cmd[i] = 0.0
+
+    sc = pkmctl.Scenario.builtin("paper").replace(**{"actuators.kind": "x-contact"})
+    with pytest.raises(PartError) as info:
+        pkmctl.simulate(sc, "pd", duration=0.01)
+    assert str(info.value) == (
+        "actuator 'x-contact': continuous = 4: more than its state_size (1); the loop "
+        "integrates the first `continuous` state entries"
+    )
+
+
+@pytest.mark.parametrize(("k", "size"), list(enumerate([2.5, -3, "4", True])))
+def test_a_size_function_giving_no_count_is_refused_naming_it(k, size):
+    """state_size=lambda p: 2.5 was cut to 2, -3 failed in np.zeros."""
+
+    class Sized(NamedTuple):  # (a new class each time: a params class belongs to one part)
+        a: float
+
+    params = Sized
+    pkmctl.register_sensor(
+        f"x-size-{k}", params=params, build=lambda c: params(1.0), state_size=lambda p: size
+    )(lambda p, state, work, x, y: None)
+    part = pkmctl.parts.get_part("sensor", f"x-size-{k}")
+    with pytest.raises(PartError, match=rf"state_size gave {re.escape(repr(size))}: must be an "
+                                        "integer >= 0"):  # fmt: skip
+        part.make(None)
+
+
+class _Raising(NamedTuple):
+    a: float
+
+    @classmethod
+    def from_context(cls, ctx):
+        return cls(1.0)
+
+
+def test_an_exception_a_users_part_raises_as_the_loop_runs_names_the_part(monkeypatch):
+    """raise ValueError("boom") in a user's step read "error: boom", a RuntimeError "an
+    internal error"; now one line naming the part, the exception and when. (The loop is
+    replaced by one that raises as a compiled one does: Numba re-raises the part's own
+    exception class and message.)"""
+    from pkmctl.sim import loop as loop_module
+
+    @pkmctl.register_controller("x-raising", params=_Raising)
+    def raising(p, state, work, y, ref, F):
+        raise ValueError("boom")
+
+    def run(*args):
+        raise ValueError("boom")
+
+    monkeypatch.setattr(loop_module, "loop_for", lambda parts: run)
+    monkeypatch.setattr(loop_module, "ready", lambda *a: None)
+    with pytest.raises(PartError) as info:
+        pkmctl.simulate("paper", controller="x-raising", duration=0.001)
+    assert str(info.value) == (
+        "the part controller 'x-raising' raises ValueError: boom (in the period starting at "
+        "t = 0 s or later)"
+    )
+    # pkmctl's own parts alone: the exception as it is (an internal error, with its type)
+    with pytest.raises(ValueError, match="^boom$"):
+        pkmctl.simulate("paper", controller="pd", duration=0.001)
+
+
+def test_build_limits_and_options_of_a_users_part_fail_in_one_line_naming_them():
+    class NeedsKp(NamedTuple):
+        kp: float
+
+        @classmethod
+        def from_context(cls, ctx):
+            return cls({}["kp"])
+
+    pkmctl.register_controller("x-keyerror", params=NeedsKp)(lambda p, state, work, y, ref, F: None)
+    with pytest.raises(PartError, match=r"^controller 'x-keyerror': build failed: KeyError: 'kp'$"):
+        pkmctl.simulate("paper", controller="x-keyerror", duration=0.001)
+
+    class Fast(NamedTuple):
+        a: float
+
+    pkmctl.register_actuator(
+        "x-fast-limits", params=Fast, build=lambda c: Fast(1.0), limits=lambda p: "fast",
+        force=lambda p, state, cmd, tau: None,
+    )(lambda p, state, work, y, F, cmd: None)  # fmt: skip
+    sc = pkmctl.Scenario.builtin("paper").replace(**{"actuators.kind": "x-fast-limits"})
+    said = r"^actuator 'x-fast-limits': limits gave 'fast': must be two numbers \(force N"
+    with pytest.raises(PartError, match=said + r", speed m/s; inf: none\)$"):
+        pkmctl.simulate(sc, "pd", duration=0.001)
+    said = r"^controller 'x-foo': unknown option 'foo'; the options are .*state_size"
+    with pytest.raises(PartError, match=said + r".* and its functions step, log$"):
+        pkmctl.register_controller("x-foo", params=_P, foo=1)

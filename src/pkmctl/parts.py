@@ -72,6 +72,7 @@ import hashlib
 import inspect
 import marshal
 import os
+import re
 import site
 import sys
 import sysconfig
@@ -197,6 +198,11 @@ class Part:
                 f"expected {self.params.__name__}"
             )
         n = int(self.state_size(p))
+        if self.continuous > n:  # the loop would integrate entries past the state's end
+            raise PartError(
+                f"{self.kind} {self.name!r}: continuous = {self.continuous}: more than its "
+                f"state_size ({n}); the loop integrates the first `continuous` state entries"
+            )
         if self.initial_state is not None:
             state = np.array(self.initial_state(p), dtype=np.float64).reshape(-1)
             if state.shape != (n,):
@@ -249,7 +255,14 @@ def get_part(kind: str, name: str) -> Part:
 
 def _sizer(v, what: str, kind: str, name: str) -> Callable[[Any], int]:
     if callable(v):
-        return v
+
+        def size(p, f=v) -> int:  # a user's function: what it gives is checked (2.5 and -3
+            n = f(p)  # went through int() and np.zeros)
+            if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 0:
+                raise PartError(f"{kind} {name!r}: {what} gave {n!r}: must be an integer >= 0")
+            return int(n)
+
+        return size
     if isinstance(v, int | np.integer) and not isinstance(v, bool) and v >= 0:
         return lambda p, v=int(v): v
     raise PartError(f"{kind} {name!r}: {what} = {v!r}: must be an integer >= 0 or a function")
@@ -261,6 +274,9 @@ def _worker(v, kind: str, name: str) -> Callable[[Any], tuple]:
     if isinstance(v, int | np.integer) and not isinstance(v, bool) and v >= 0:
         return lambda p, v=int(v): (np.zeros(max(1, v)),)
     raise PartError(f"{kind} {name!r}: work = {v!r}: must be an integer >= 0 or a function")
+
+
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
 
 def _register(
@@ -291,8 +307,13 @@ def _register(
     lane_ok: Callable | None = None,
 ) -> Part:
     reg = _REGISTRY[kind]
-    if not isinstance(name, str) or not name or any(c.isspace() for c in name):
-        raise PartError(f"{kind} name {name!r}: must be a non-empty string without spaces")
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
+        # (a name is a file name too: simulate writes NAME.parquet; "a/../../b" wrote
+        # outside --out)
+        raise PartError(
+            f"{kind} name {name!r}: must be 1-64 letters, digits, '_', '.' or '-', starting "
+            "with a letter or digit"
+        )
     if name in reg:
         raise PartError(f"{kind} {name!r}: a {kind} of that name is already registered")
     if not (isinstance(params, type) and issubclass(params, tuple) and hasattr(params, "_fields")):
@@ -681,6 +702,14 @@ def _others(kind: str, main_role: str) -> str:
 def _decorator(kind: str, main_role: str):
     def register(name: str, *, params: type, build: Callable | None = None, **options):
         extra = {r: options.pop(r) for r in list(options) if r in ROLES[kind]}
+        allowed = set(inspect.signature(_register).parameters) - {"kind", "name", "functions"}
+        unknown = sorted(set(options) - allowed)
+        if unknown:  # (a TypeError naming _register, an internal function, before)
+            raise PartError(
+                f"{kind} {name!r}: unknown option {unknown[0]!r}; the options are "
+                f"{', '.join(sorted(allowed - {'builtin'}))} and its functions "
+                f"{', '.join(ROLES[kind])}"
+            )
 
         def deco(fn):
             _register(kind, name, {main_role: fn, **extra}, params=params, build=build, **options)

@@ -56,6 +56,7 @@ from pkmctl.sim.loop import (
     compile_error,
     metric_windows,
     pose_status,
+    raised,
 )
 
 __all__ = [
@@ -420,7 +421,7 @@ def run_lanes(
             float(period), int(substeps))  # fmt: skip
     tail = (kx, kz, xs, zs, vec, logs, log_c, log_s, row_c, row_s, acc, accL, mpL, mwL,
             alive, status, kstop, fin, init, frz)  # fmt: skip
-    dt = 0.0
+    dt, k0 = 0.0, 0
     try:
         for k0, ref, qdes, dist_index in shared.chunks():
             args = (*head, k0, shared.every, ref, qdes, dist_values, dist_index, *tail)
@@ -433,6 +434,8 @@ def run_lanes(
                 break
     except NumbaError as exc:
         raise compile_error(parts, exc) from exc
+    except Exception as exc:  # raised by a part's code as the lanes ran
+        raise raised(parts, exc, k0, period) from exc
     runs = runs[:n_runs]
     for kind, s, f in zip(("plant", "sensor", "controller", "actuator"), states, fin, strict=True):
         for i, run in enumerate(runs):

@@ -593,6 +593,20 @@ def compile_error(parts: dict[str, Part], exc: Exception) -> PartError:
     return PartError(f"{_describe(parts)} {verb} not compile: {_reason(exc)}")
 
 
+def raised(parts: dict[str, Part], exc: Exception, k: int, period: float) -> Exception:
+    """What to raise for an exception from a compiled loop's run: with a user's part in
+    it, a one-line PartError naming the part(s), the exception and the time (the user's
+    ``raise ValueError("boom")`` read "error: boom"; a RuntimeError "an internal
+    error"); the exception itself when every part is pkmctl's."""
+    if all(p.builtin for p in parts.values()):
+        return exc
+    verb = "raises" if sum(not p.builtin for p in parts.values()) == 1 else "raise"
+    return PartError(
+        f"{_describe(parts)} {verb} {type(exc).__name__}: {str(exc)[:300]} (in the period "
+        f"starting at t = {k * period:.6g} s or later)"
+    )
+
+
 def run_parts(
     parts: dict[str, Part],
     bundles: dict[str, tuple],
@@ -620,7 +634,7 @@ def run_parts(
             float(period), int(substeps))  # fmt: skip
     tail = (rk, ast_s, vec, logs.arrays, logs.controller, logs.sensor, run.metrics,
             inputs.metrics, run.metric_work)  # fmt: skip
-    status, k, dt = 0, inputs.periods, 0.0
+    status, k, dt, k0 = 0, inputs.periods, 0.0, 0
     try:
         for k0, ref, qdes, dist_index in inputs.chunks():
             args = (*head, k0, run.every, ref, qdes, inputs.dist_values, dist_index, *tail)
@@ -635,5 +649,7 @@ def run_parts(
                 progress(k0 + ref.shape[0], inputs.periods)
     except NumbaError as exc:
         raise compile_error(parts, exc) from exc
+    except Exception as exc:  # raised by a part's code as the loop ran
+        raise raised(parts, exc, k0, period) from exc
     _mark_compiled(loop)
     return run.output(status, k if status else inputs.periods, dt)

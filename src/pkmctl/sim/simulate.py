@@ -446,8 +446,10 @@ def _build(parts: dict[str, Part], ctx: PartContext, plant_state: np.ndarray) ->
             bundles[kind] = part.make(ctx)
         except PartError:
             raise
-        except Exception as exc:  # a user's build: name the part
-            raise PartError(f"{kind} {part.name!r}: build failed: {exc}") from exc
+        except Exception as exc:  # a user's build: name the part and what it raised
+            raise PartError(
+                f"{kind} {part.name!r}: build failed: {type(exc).__name__}: {exc}"
+            ) from exc
     p, x0, w = bundles["plant"]
     if x0.shape[0] < 6:
         raise PartError(f"plant {parts['plant'].name!r}: state_size must be >= 6 ([X, Xdot, ...])")
@@ -496,7 +498,13 @@ def _set_up(prep: Prepared, parts: dict[str, Part], seed: int | None, check_logs
     force_limit, speed_limit = math.inf, math.inf
     if parts["actuator"].limits is not None:
         limits = parts["actuator"].limits(bundles["actuator"][0])
-        force_limit, speed_limit = (float(v) for v in limits)
+        try:
+            force_limit, speed_limit = (float(v) for v in limits)
+        except (TypeError, ValueError):
+            raise PartError(
+                f"actuator {parts['actuator'].name!r}: limits gave {limits!r}: must be two "
+                "numbers (force N, speed m/s; inf: none)"
+            ) from None
     starts = tuple(metrics.first_period(w, Tc) for w in metrics.WINDOWS)
     mp = metric_params(starts, metrics.ERROR_SCALE, force_limit * (1 - metrics.LIMIT_MARGIN),
                        speed_limit, prep.plant.geometry)  # fmt: skip

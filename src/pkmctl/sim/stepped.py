@@ -47,6 +47,7 @@ from pkmctl.sim.loop import (
     accumulate_metrics,
     compile_error,
     pose_status,
+    raised,
     setup,
 )
 
@@ -188,6 +189,8 @@ def run_stepped(
                 break
     except NumbaError as exc:
         raise compile_error(parts, exc) from exc
+    except Exception as exc:  # raised by a part's code (or the stepper) as the run went
+        raise raised(parts, exc, m, period) from exc
     dt = time.perf_counter() - t0
     if progress is not None and status == 0:
         progress(inputs.periods, inputs.periods)
