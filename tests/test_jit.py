@@ -133,6 +133,18 @@ def test_the_cache_hits_in_a_new_process():
     assert compiles == "0"  # a fresh interpreter loads everything from disk
 
 
+@pytest.mark.parametrize("setting", ["NUMBA_BOUNDSCHECK=1", "NUMBA_OPT=0"])
+def test_numba_settings_that_change_the_code_have_their_own_cache(setting):
+    """NUMBA_BOUNDSCHECK=1 (to find a part's out-of-bounds index) had no effect on a
+    cached loop, and its bounds-checked build stayed the cached one after it."""
+    name, value = setting.split("=")
+    code = "import pkmctl._jit as j; print(j.source_stamp())"
+    env = {**os.environ, name: value}
+    other = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                           text=True, check=True).stdout.strip()  # fmt: skip
+    assert other and other != source_stamp()
+
+
 def test_an_edited_kernel_is_never_run_stale(tmp_path):
     # Copy the package, change a constant in the dynamics (a kernel the loop calls from
     # another file), run in a fresh interpreter: the numbers change; revert: they return.

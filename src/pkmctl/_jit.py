@@ -102,6 +102,9 @@ def _kernel_sources() -> list[Path]:
 def _compute_stamp() -> str:
     h = hashlib.sha256()
     h.update(f"numba {numba.__version__} python {sys.version_info[:3]}\0".encode())
+    # settings that change the code Numba generates: NUMBA_BOUNDSCHECK=1 had no effect on
+    # a cached loop, and a bounds-checked build stayed the cached one after it
+    h.update(f"boundscheck {numba.config.BOUNDSCHECK} opt {numba.config.OPT}\0".encode())
     _hash_files(_kernel_sources(), h, _PACKAGE)
     return h.hexdigest()[:20]
 
