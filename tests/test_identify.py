@@ -670,3 +670,46 @@ def test_a_json_beside_the_log_is_used_refused_or_said_to_be_foreign(tmp_path, e
     assert r.returncode == 0, r.stderr
     said = "the default: no --scenario and 'run.json' beside the log is not pkmctl's metadata"
     assert said in " ".join((tmp_path / "o" / "report.md").read_text().split())
+
+
+def test_identify_leaves_a_first_compilation_out_of_its_time(monkeypatch):
+    """The report's "Identification took" counted a first compilation of the kernels."""
+    import dataclasses
+    import time
+
+    import numba
+
+    from pkmctl.ident import identify as m
+
+    @dataclasses.dataclass(frozen=True)
+    class Timed:
+        seconds: float
+        compile_seconds: float = 0.0
+
+    def work(log, scenario, **options):
+        t0 = time.perf_counter()
+        numba.njit(lambda x: x + 1.5)(1.0)  # a compilation, as a cold cache would do
+        time.sleep(0.05)  # and the identification's own work
+        return Timed(time.perf_counter() - t0)
+
+    monkeypatch.setattr(m, "_identify", work)
+    t0 = time.perf_counter()
+    out = m.identify(None, None)
+    wall = time.perf_counter() - t0
+    assert out.compile_seconds > 0.01 and 0.05 <= out.seconds < 0.05 + out.compile_seconds
+    assert out.seconds + out.compile_seconds == pytest.approx(wall, abs=0.02)
+
+
+def test_the_compile_clock_counts_overlapping_compilations_once():
+    import time
+
+    from pkmctl.ident.identify import _CompileClock
+
+    clock = _CompileClock()
+    clock("start", "a", 0.0)
+    time.sleep(0.05)
+    clock("start", "b", 0.0)  # another thread's, overlapping
+    clock("end", "a", 0.05)
+    time.sleep(0.05)
+    clock("end", "b", 0.05)
+    assert clock.seconds == pytest.approx(0.1, abs=0.02)

@@ -39,8 +39,10 @@ From limb lengths q(t) and limb forces tau(t):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -748,6 +750,7 @@ class Identification:
     notes: list[str] = field(default_factory=list)
     scenario: str = ""  # the machine (geometry, prior) assumed: its name and origin
     active_bounds: tuple[str, ...] = ()  # of the physically consistent fit, e.g. "Fc1 = 0"
+    compile_seconds: float = 0.0  # compiling kernels it needed (once per machine), not in seconds
 
     def controller_model(self) -> dict:
         """A scenario ``[controller_model]`` block with the physically consistent estimate."""
@@ -865,7 +868,58 @@ def identify(
     Refused (:func:`_check_fit`) unless ``max_residual`` is None: a WLS mass more than
     :data:`NEGATIVE_MASS_STD` std below 0, or a relative residual of the physically
     consistent fit (of WLS without ``physical``) above ``max_residual``; unless
-    ``mass_ratio`` is None, an m_platform outside ``mass_ratio`` x the prior's."""
+    ``mass_ratio`` is None, an m_platform outside ``mass_ratio`` x the prior's.
+
+    ``seconds`` of the result is the identification's own time; a first compilation of
+    kernels it needed (once per machine) is ``compile_seconds``, not in it."""
+    from pkmctl import _jit  # (so written: the text would make this file a kernel source)
+
+    clock = _CompileClock()
+    with _jit.announce(clock):
+        idn = _identify(
+            log, scenario, cutoff=cutoff, decimation=decimation, physical=physical,
+            friction_velocity=friction_velocity, force_lead=force_lead,
+            scenario_label=scenario_label, max_residual=max_residual, mass_ratio=mass_ratio,
+        )  # fmt: skip
+    spent = clock.seconds
+    return dataclasses.replace(idn, seconds=max(0.0, idn.seconds - spent), compile_seconds=spent)
+
+
+class _CompileClock:
+    """The wall time during which at least one compilation ran (in any thread), from
+    the compile announcements' events."""
+
+    def __init__(self) -> None:
+        self.active, self.since, self.seconds = 0, 0.0, 0.0
+        self._lock = threading.Lock()
+
+    def __call__(self, event: str, what: str, seconds: float) -> None:
+        with self._lock:
+            now = time.perf_counter()
+            if event == "start":
+                if self.active == 0:
+                    self.since = now
+                self.active += 1
+            elif self.active > 0:
+                self.active -= 1
+                if self.active == 0:
+                    self.seconds += now - self.since
+
+
+def _identify(
+    log: Log,
+    scenario: Scenario,
+    *,
+    cutoff: float = 10.0,
+    decimation: int | None = None,
+    physical: bool = True,
+    friction_velocity: float | None = None,
+    force_lead: float | None = 0.0,
+    scenario_label: str | None = None,
+    max_residual: float | None = MAX_RELATIVE_RESIDUAL,
+    mass_ratio: tuple[float, float] | None = MASS_RATIO,
+) -> Identification:
+    """:func:`identify` without its compile clock."""
     t0 = time.perf_counter()
     label = scenario_label or f"scenario {scenario.name!r}"
     _check_rate(log, cutoff, None)  # a bad log is refused before any work

@@ -161,7 +161,12 @@ def _markdown(idn: Identification, validation: dict | None, source: str) -> str:
         "",
         f"**{base.count} base parameters** (of 48 standard ones), condition number of the "
         f"base observation matrix **{idn.cond:.4g}**. Identification took "
-        f"{idn.seconds:.2f} s.",
+        f"{idn.seconds:.2f} s"
+        + (
+            f" (and {idn.compile_seconds:.1f} s more compiling kernels, once per machine)."
+            if idn.compile_seconds >= 0.05
+            else "."
+        ),
         "",
         "| fit | residual RMS z [N] | alpha [N m] | beta [N m] | relative error |",
         "|---|---:|---:|---:|---:|",
