@@ -268,3 +268,116 @@ def test_odd_text_reads_with_its_line_numbers(tmp_path):
     empty = re.sub(r"NumRules=\d+", "NumRules=0", head) + "[Rules]\n"
     with pytest.raises(fis.FISError, match=r"^<string>:\d+: a Mamdani system needs at least one"):
         fis.read_fis(empty)
+
+
+HUGE = "99999999999"
+HUGE_COUNTS = [
+    ("NumMFs=2\nMF1='neg'", f"NumMFs={HUGE}\nMF1='neg'",
+     f"NumMFs={HUGE} but [Input2] has 2 MF lines"),
+    ("NumMFs=1\nMF1='any'", f"NumMFs={HUGE}\nMF1='any'",
+     f"NumMFs={HUGE} but [Input3] has 1 MF line"),
+    ("NumMFs=3\nMF1='small'", f"NumMFs={HUGE}\nMF1='small'",
+     f"NumMFs={HUGE} but [Output1] has 3 MF lines"),
+    ("NumInputs=3", f"NumInputs={HUGE}",
+     f"NumInputs={HUGE} but the file has 3 [InputN] sections, first missing section [Input4]"),
+    ("NumOutputs=1", f"NumOutputs={HUGE}",
+     f"NumOutputs={HUGE} but the file has 1 [OutputN] section, first missing section [Output2]"),
+    ("NumRules=4", f"NumRules={HUGE}", f"NumRules={HUGE} but [Rules] has 4 lines"),
+    # a small excess too: one line at NumMFs, not one per missing MF
+    ("NumMFs=2\nMF1='neg'", "NumMFs=3\nMF1='neg'", "NumMFs=3 but [Input2] has 2 MF lines"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("old", "new", "message"), HUGE_COUNTS)
+def test_huge_declared_counts_are_one_line_and_quick(tmp_path, old, new, message):
+    """NumMFs, NumInputs, NumOutputs or NumRules = 99999999999: the count was turned into
+    a set and a loop of that many names (memory exhausted); now one problem, at once,
+    with the value and what the file has."""
+    import time
+
+    text = _replace(GENERAL, old, new)
+    path = tmp_path / "huge.fis"
+    path.write_text(text, encoding="utf-8")
+    key_line = new.splitlines()[0]
+    lineno = _lineno(text, key_line)
+    start = time.perf_counter()
+    with pytest.raises(fis.FISError) as info:
+        fis.read_fis(path)
+    assert time.perf_counter() - start < 1.0
+    assert str(info.value) == f"{path}:{lineno}: {message} in: {key_line}"
+    assert len(info.value.problems) == 1
+
+
+def test_section_and_mf_numbers_must_be_written_exactly():
+    """[Input03], [Input0], MF01 and a 5000-digit MF number are not among 1..n (as when
+    the n names were listed)."""
+    digits = "9" * 5000
+    cases = [
+        (_replace(GENERAL, "[Input3]", "[Input03]"), "section [Input03] beyond NumInputs=3"),
+        (GENERAL + "[Input0]\n", "section [Input0] beyond NumInputs=3"),
+        (_replace(GENERAL, "MF2='pos'", "MF02='pos'"), "MF02 beyond NumMFs=2"),
+        (_replace(GENERAL, "MF2='pos'", f"MF{digits}='pos'"), f"MF{digits[:100]}"),
+    ]
+    for text, message in cases:
+        with pytest.raises(fis.FISError) as info:
+            fis.read_fis(text)
+        assert message in str(info.value)
+
+
+def test_long_values_are_shortened_in_messages():
+    """A trimf with 200,000 parameters was one 3 MB message line (the parameters twice:
+    in the message and in the echoed line); every message stays one short line."""
+    params = " ".join(str(i) for i in range(200_000))
+    text = _replace(GENERAL, "MF1='any':'trimf',[0 0.5 1]", f"MF1='any':'trimf',[{params}]")
+    with pytest.raises(fis.FISError) as info:
+        fis.read_fis(text)
+    msg = str(info.value)
+    lineno = _lineno(text, "MF1='any'")
+    assert msg == (
+        f"<string>:{lineno}: trimf takes 3 or 4 parameters, got 200000: "
+        "(0.0, 1.0, 2.0, 3.0, ..., 199998.0, 199999.0) (200000 values) "
+        "in: MF1='any':'trimf',[0 1 2 3 ... 199998 199999] (200000 values)"
+    )
+    assert info.value.line == f"MF1='any':'trimf',[{params}]"  # the attribute: as in the file
+    # not numbers, or not a list: start and end of the text, and its length
+    long_type = "x" * 100_000
+    for bad in (f"MF1='any':'trimf',[{params} x]", f"MF1='any':'{long_type}',[0 0.5 1]"):
+        with pytest.raises(fis.FISError) as info:
+            fis.read_fis(_replace(GENERAL, "MF1='any':'trimf',[0 0.5 1]", bad))
+        msg = str(info.value)
+        assert "\n" not in msg and len(msg) < 700, len(msg)
+        assert "characters]..." in msg
+    # every message, from any check: a long Type, a long method, a long rule weight
+    for old, new in [
+        ("Type='mamdani'", f"Type='{long_type}'"),
+        ("AndMethod='min'", f"AndMethod='{long_type}'"),
+        ("2 2 1, 3 (1) : 1", f"2 2 1, 3 ({params}) : 1"),
+    ]:
+        with pytest.raises(fis.FISError) as info:
+            fis.read_fis(_replace(GENERAL, old, new))
+        assert all(len(line) < 700 for line in str(info.value).splitlines())
+    # line breaks other than \n and \r (kept inside a line by the reader) are escaped
+    with pytest.raises(fis.FISError) as info:
+        fis.read_fis(_replace(GENERAL, "Type='mamdani'", "Type='mam\u2028dani'"))
+    assert str(info.value).splitlines() == [
+        "<string>:3: Type must be 'mamdani' or 'sugeno', not 'mam\\u2028dani' "
+        "in: Type='mam\\u2028dani'"
+    ]
+
+
+EMPTY_NAMES = [
+    ("MF1='any':'trimf',[0 0.5 1]", "MF1='':'trimf',[0 0.5 1]",
+     "MF1 has an empty term name '' (a term needs a name)"),
+    ("MF3='large':'trapmf',[20 25 30 30]", "MF3=' ':'trapmf',[20 25 30 30]",
+     "MF3 has an empty term name ' ' (a term needs a name)"),
+    ("Name='b'", "Name=''", "Name must be a non-empty quoted name ('...'), got ''"),
+    ("Name='y'", "Name='  '", "Name must be a non-empty quoted name ('...'), got '  '"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("old", "new", "message"), EMPTY_NAMES)
+def test_empty_term_and_variable_names_are_refused(old, new, message):
+    text = _replace(GENERAL, old, new)
+    with pytest.raises(fis.FISError) as info:
+        fis.read_fis(text)
+    assert str(info.value) == f"<string>:{_lineno(text, new)}: {message} in: {new}"

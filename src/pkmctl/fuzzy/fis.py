@@ -75,22 +75,58 @@ _RULE_LINE = re.compile(r"([-+\d\s]+),([-+\d\s]+)\(([^)]*)\)\s*:\s*([-+\d]+)")
 _SECTION = re.compile(r"\[(System|Input\d+|Output\d+|Rules)\]")
 
 
+# str.splitlines breaks at these too: escaped in messages, which stay one line each
+_BREAKS = str.maketrans({c: repr(c)[1:-1] for c in "\n\r\v\f\x1c\x1d\x1e\x85\u2028\u2029"})
+_BRACKETED = re.compile(r"([\[(])([^\[\]()]*)([\])])")
+_MAX_VALUES = 10  # a longer list of numbers is shown as its first 4, last 2 and count
+_MAX_CHARS = 300  # a longer message or echoed line is shown as its start, end and length
+
+
+def _shorten(text: str, limit: int = _MAX_CHARS) -> str:
+    """``text`` for a message: one line, bounded. Lists of more than ``_MAX_VALUES``
+    numbers in brackets or parentheses keep their first and last values and the count
+    (``[0 1 2 3 ... 9 10] (11 values)``), then a text still over ``limit`` characters its
+    start and end (``start ...[N characters]... end``), so that a 200,000-parameter MF
+    does not make a 1.4 MB message; line breaks are escaped (``\\u2028``)."""
+
+    def short_list(m: re.Match) -> str:
+        values = m.group(2).replace(",", " ").split()
+        if len(values) <= _MAX_VALUES:
+            return m.group(0)
+        try:
+            for v in values:
+                float(v)
+        except ValueError:
+            return m.group(0)
+        sep = ", " if "," in m.group(2) else " "
+        shown = sep.join([*values[:4], "...", *values[-2:]])
+        return f"{m.group(1)}{shown}{m.group(3)} ({len(values)} values)"
+
+    text = _BRACKETED.sub(short_list, text).translate(_BREAKS)
+    if len(text) > limit:
+        text = f"{text[: limit - 80]} ...[{len(text)} characters]... {text[-40:]}"
+    return text
+
+
 class FISError(ValueError):
     """A .fis file that is malformed or uses a feature pkmctl does not support.
 
     Attributes ``source`` (file name or ``"<string>"``), ``lineno`` (1-based; 0 when
-    no line applies) and ``line`` of the first problem, and ``problems``, the list of
-    all ``(lineno, message, line)``; the message has one line per problem.
+    no line applies) and ``line`` (its text, as in the file) of the first problem, and
+    ``problems``, the list of all ``(lineno, message, line)``; the message has one line
+    per problem, long values and lines in it shortened (start, end and size).
     """
 
     def __init__(
         self, source: str, lineno: int, message: str, line: str = "", more: tuple = ()
     ) -> None:
         self.source, self.lineno, self.line = source, lineno, line
-        self.problems = [(lineno, message, line), *more]
+        self.problems = [(n, _shorten(m), t) for n, m, t in [(lineno, message, line), *more]]
         super().__init__(
             "\n".join(
-                (f"{source}:{n}: " if n else f"{source}: ") + m + (f" in: {t}" if t else "")
+                (f"{source}:{n}: " if n else f"{source}: ")
+                + m
+                + (f" in: {_shorten(t, 200)}" if t else "")
                 for n, m, t in self.problems
             )
         )
@@ -175,10 +211,14 @@ class _Reader:
             self.fatal(sec.lineno, f"[{sec.name}] has no {key}")
         return sec.keys[key]
 
-    def string(self, sec: _Section, key: str) -> str | None:
+    def string(self, sec: _Section, key: str, name: bool = False) -> str | None:
+        """The quoted value of ``key``; a ``name`` must not be empty or blank."""
         value, lineno, line = self.raw(sec, key)
         if len(value) < 2 or value[0] != "'" or value[-1] != "'":
             self.note(lineno, f"{key} must be a quoted string ('...')", line)
+            return None
+        if name and not value[1:-1].strip():
+            self.note(lineno, f"{key} must be a non-empty quoted name ('...'), got {value}", line)
             return None
         return value[1:-1]
 
@@ -213,16 +253,25 @@ class _Reader:
                 self.note(lineno, "Range must be [lo hi] with lo < hi", line)
                 rng = None
         n_mf = self.integer(sec, "NumMFs", 1)
-        wanted = {f"MF{i}" for i in range(1, n_mf + 1)}
-        for k in sorted(k for k in sec.keys if k.startswith("MF") and k not in wanted):
+        mf_keys = [k for k in sec.keys if k.startswith("MF")]
+        for k in sorted(k for k in mf_keys if not _numbered(k, "MF", n_mf)):
             self.note(sec.keys[k][1], f"{k} beyond NumMFs={n_mf}", sec.keys[k][2])
         terms: list = []
-        for i in range(1, n_mf + 1):
-            if f"MF{i}" not in sec.keys:
-                self.note(sec.lineno, f"[{sec.name}] has no MF{i}")
-                continue
-            terms.append(self.term(*sec.keys[f"MF{i}"], sugeno_out))
-        var_name = self.string(sec, "Name")
+        if n_mf > len(mf_keys):  # nothing proportional to NumMFs: it may be 99999999999
+            _, lineno, line = sec.keys["NumMFs"]
+            self.note(
+                lineno,
+                f"NumMFs={n_mf} but [{sec.name}] has {_count(len(mf_keys), 'MF line')}",
+                line,
+            )
+            terms.append(None)
+        else:
+            for i in range(1, n_mf + 1):
+                if f"MF{i}" not in sec.keys:
+                    self.note(sec.lineno, f"[{sec.name}] has no MF{i}")
+                    continue
+                terms.append(self.term(f"MF{i}", *sec.keys[f"MF{i}"], sugeno_out))
+        var_name = self.string(sec, "Name", name=True)
         if rng is None or var_name is None or any(t is None for t in terms):
             return None
         try:
@@ -231,12 +280,17 @@ class _Reader:
             self.note(sec.lineno, str(exc))
             return None
 
-    def term(self, value: str, lineno: int, line: str, sugeno_out: int):
+    def term(self, key: str, value: str, lineno: int, line: str, sugeno_out: int):
         m = _MF_LINE.fullmatch(value)
         if m is None:
             self.note(lineno, "expected MFn='name':'type',[params]", line)
             return None
         term_name, kind, params = m.group(1), m.group(2), self.numbers(m.group(3), lineno, line)
+        if not term_name.strip():
+            self.note(
+                lineno, f"{key} has an empty term name '{term_name}' (a term needs a name)", line
+            )
+            return None
         if params is None:
             return None
         if sugeno_out:
@@ -290,12 +344,23 @@ class _Reader:
             methods[_FIELDS[key]] = method
         n_in = self.integer(sys_, "NumInputs", 1)
         n_out = self.integer(sys_, "NumOutputs", 1)
-        expected = {"System", "Rules"} | {f"Input{i}" for i in range(1, n_in + 1)}
-        expected |= {f"Output{i}" for i in range(1, n_out + 1)}
         for name, sec in self.sections.items():
-            if name not in expected:
+            if name not in ("System", "Rules") and not (
+                _numbered(name, "Input", n_in) or _numbered(name, "Output", n_out)
+            ):
                 self.note(
                     sec.lineno, f"section [{name}] beyond NumInputs={n_in}, NumOutputs={n_out}"
+                )
+        for key, base, n in (("NumInputs", "Input", n_in), ("NumOutputs", "Output", n_out)):
+            have = sum(1 for name in self.sections if name.startswith(base))
+            if n > have:  # nothing proportional to n: it may be 99999999999
+                first = next(i for i in range(1, have + 2) if f"{base}{i}" not in self.sections)
+                _, lineno, line = sys_.keys[key]
+                self.fatal(
+                    lineno,
+                    f"{key}={n} but the file has {_count(have, f'[{base}N] section')}, "
+                    f"first missing section [{base}{first}]",
+                    line,
                 )
         inputs = [self.variable(f"Input{i}") for i in range(1, n_in + 1)]
         outputs = [
@@ -379,6 +444,23 @@ class _Reader:
         if not ok:
             return None
         return FuzzyRule(tuple(ant), tuple(cons), weight[0], "and" if connective == 1 else "or")
+
+
+def _numbered(name: str, prefix: str, n: int) -> bool:
+    """Whether ``name`` is ``prefix`` and one of 1..n written as str(i) does (``MF7``),
+    without converting its digits (there may be thousands) or building the n names."""
+    digits, top = name[len(prefix) :], str(n)
+    return (
+        name.startswith(prefix)
+        and digits.isascii()
+        and digits.isdigit()
+        and digits[0] != "0"
+        and (len(digits), digits) <= (len(top), top)
+    )
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
 def _mamdani_subset(kind, methods, inputs, outputs, rules) -> bool:
