@@ -283,7 +283,7 @@ def test_extended_regressor_is_the_plants_model(robot):
         ("actuators.peak_torque", float("inf"), "actuators.peak_torque = inf: must be a fin"),
         ("actuators.lag", -1e-3, "actuators.lag = -0.001: must be a finite number"),
         ("sensor.noise", -1e-9, "sensor.noise = -1e-09: must be a finite number"),
-        ("sensor.counts_per_rev", 0, "sensor.counts_per_rev = 0: Input should be greater"),
+        ("sensor.counts_per_rev", 0, "sensor.counts_per_rev = 0: must be an integer in [1, "),
         ("payload.mass", -1.0, "payload.mass = -1.0: must be a finite number"),
     ],
 )

@@ -1,6 +1,7 @@
 """Scenario: built-ins, exact TOML round trip, one-line errors for bad input."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -71,6 +72,8 @@ def test_replace_takes_numpy_values():
     assert sc.replace(**{"initial.X": np.array([0.7, 0.0, 0.1])}).initial.X == [0.7, 0.0, 0.1]
     with pytest.raises(ScenarioError, match="disturbance.seed = True"):
         sc.replace(**{"disturbance.seed": np.bool_(True)})  # a flag is no seed
+    with pytest.raises(ScenarioError, match=r"\[0, 2\^63 - 1\]$"):
+        sc.replace(**{"disturbance.seed": np.bool_(True)})
 
 
 def test_toml_file_round_trip(tmp_path):
@@ -81,14 +84,17 @@ def test_toml_file_round_trip(tmp_path):
 
 
 BAD = [
-    ({"timing": {"control_period": -1.0}}, "timing.control_period = -1.0: Input should be greater"),
+    (
+        {"timing": {"control_period": -1.0}},
+        "timing.control_period = -1.0: must be a finite number in [1e-06, 0.1] (s)",
+    ),
     ({"timing": {"control_period": "fast"}}, "timing.control_period = 'fast'"),
     ({"timing": {"substeps": 0}}, "timing.substeps = 0"),
     ({"timing": {"duration": 0.0}}, "timing.duration = 0.0"),
     ({"timing": {"typo": 1}}, "timing.typo: unknown field (timing: control_period, substeps, "),
     ({"speed": 3}, "speed: unknown field (scenario: name, description, mechanism, "),
     ({"gains": {"lam": [50.0, 20.0]}}, "gains.lam"),
-    ({"gains": {"K": [1000.0, -1.0, 200.0]}}, "gains.K.1 = -1.0"),
+    ({"gains": {"K": [1000.0, -1.0, 200.0]}}, "gains.K[1] = -1.0: must be a finite number in [0, "),
     ({"gains": {"eps": 0.0}}, "gains.eps = 0.0"),
     ({"gains": {"theta_bounds": [2.0, 3.0]}}, "theta_bounds"),
     ({"disturbance": {"seed": -1}}, "disturbance.seed = -1"),
@@ -171,3 +177,128 @@ def test_the_reference_is_checked_at_every_control_period():
         ScenarioError, match=r"^trajectory: leaves the valid workspace at t = 0\.785"
     ):
         pkmctl.simulate(sc, "pd")
+
+
+# The tester's findings (pydantic's own words, one bound at best, no unit), as now worded.
+REFUSALS = [
+    ("gains.eps", 0.0, "gains.eps = 0.0: must be a finite number in (0, 1000]"),
+    ("mechanism.r_a", math.nan, "mechanism.r_a = nan: must be a finite number in (0, 10] (m)"),
+    (
+        "timing.control_period",
+        -1.0,
+        "timing.control_period = -1.0: must be a finite number in [1e-06, 0.1] (s)",
+    ),
+    (
+        "disturbance.amplitude",
+        [5.0, 5.0],
+        "disturbance.amplitude = [5.0, 5.0]: must be a list of 3 finite numbers in [0, 1e+06] "
+        "(N, N m, N m for z, alpha, beta)",
+    ),
+    (
+        "sensor.counts_per_rev",
+        0,
+        "sensor.counts_per_rev = 0: must be an integer in [1, 2^40] (counts per motor revolution)",
+    ),
+    (
+        "actuators.force_limit",
+        0,
+        "actuators.force_limit = 0: must be a finite number in (0, 1e+09] (N), or left out",
+    ),
+    (
+        "mechanism.l1",
+        [0.1, math.nan, 0.1, 0.1],
+        "mechanism.l1[1] = nan: must be a finite number in [0, 10] (m)",
+    ),
+    ("timing.duration", 0.0, "timing.duration = 0.0: must be a finite number in (0, 3600] (s)"),
+    (
+        "initial.Xdot",
+        [0.0, 200.0, 0.0],
+        "initial.Xdot[1] = 200.0: must be a finite number in [-100, 100] (rad/s)",
+    ),
+    ("sensor.seed", 1.5, "sensor.seed = 1.5: must be an integer in [0, 2^63 - 1]"),
+]
+
+
+@pytest.mark.parametrize(("field", "value", "message"), REFUSALS)
+def test_refusal_gives_the_whole_range_and_the_unit(field, value, message):
+    with pytest.raises(ScenarioError) as info:
+        Scenario.builtin("paper", changes={field: value})
+    assert str(info.value) == message
+
+
+#: An allowed range as the messages write it: an interval "[0, 10]", "(0, 1e+06]",
+#: "[0, 2^63 - 1]", or a choice.
+RANGE = re.compile(r"[\[(][-+0-9.e^ ]+, [-+0-9.e^ ]+[\])]|one of ")
+
+
+def _numeric(value) -> bool:
+    if isinstance(value, list):
+        return bool(value) and all(_numeric(v) for v in value)
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _numeric_fields(sc: Scenario) -> dict[str, object]:
+    """Every numeric field of ``sc`` by dotted name: a number, a list of numbers (or of
+    lists), or an optional one left out whose declared type holds a number."""
+    out = {}
+    for section, body in sc.model_dump(by_alias=True).items():
+        if not isinstance(body, dict):
+            continue
+        model = type(getattr(sc, "plant_spec" if section == "plant" else section))
+        for name, value in body.items():
+            declared = str(model.model_fields[name].annotation)
+            if _numeric(value) or (value is None and re.search(r"\b(float|int)\b", declared)):
+                out[f"{section}.{name}"] = value
+    return out
+
+
+def _bad_values(value) -> list[tuple[object, str]]:
+    """Out-of-range values for a field now at ``value``, each with the name the message
+    must give (``field[i]`` for one element of a list)."""
+    if not isinstance(value, list):
+        return [(math.nan, ""), (-1, ""), (0, ""), (1e300, ""), ("x", "")]
+    out: list[tuple[object, str]] = [(value + value[:1], ""), (value[:-1], ""), (3.0, "")]
+    for i in (0, len(value) - 1):
+        for bad in (math.nan, 1e300):
+            row = list(value)
+            row[i] = [bad] * len(row[i]) if isinstance(row[i], list) else bad
+            out.append((row, f"[{i}]"))
+    return out
+
+
+def _fourier() -> Scenario:
+    return Scenario.builtin("paper", 0.01).replace(
+        trajectory={"kind": "fourier", "base_frequency": 0.5, "offset": [0.7, 0.0, 0.0],
+                    "a": [[0.01, 0.0], [0.0, 0.1], [0.1, 0.0]],
+                    "b": [[0.0, 0.0], [0.0, 0.0], [0.0, 0.1]]}
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("base", ["paper", "prototype", "fourier"])
+def test_every_numeric_field_refuses_in_one_line_with_its_range(base):
+    """Every numeric field of the built-ins (and of a Fourier trajectory), set out of its
+    range (nan, -1, 0, 1e300, text, a list one too long or short, one bad element): the
+    message is one line, names the field (an element as ``field[i]``) and gives the
+    allowed range. A new field whose refusal gives only pydantic's words (one bound, no
+    range) fails here."""
+    sc = _fourier() if base == "fourier" else Scenario.builtin(base, 0.01)
+    fields = _numeric_fields(sc)
+    assert len(fields) > 40 and "logging.every" in fields and "fuzzy.samples" in fields
+    bad = []
+    for field, value in fields.items():
+        ranged = 0
+        for wrong, element in _bad_values(value):
+            try:
+                sc.replace(**{field: wrong})
+            except ScenarioError as exc:
+                msg = str(exc)
+                named = re.match(re.escape(field + element) + r"(\[\d+\])* = ", msg)
+                if "\n" in msg or not named:
+                    bad.append(msg)
+                elif RANGE.search(msg) and "should" not in msg:
+                    ranged += 1
+                elif "does not use it" not in msg:  # an in-range value on a kind without it
+                    bad.append(msg)
+        if not ranged:
+            bad.append(f"{field}: no refusal with a range")
+    assert not bad, "\n".join(bad)

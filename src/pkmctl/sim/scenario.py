@@ -12,10 +12,12 @@ the value and what is allowed.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import os
 import tomllib
+import types
 import typing
 import unicodedata
 from pathlib import Path
@@ -34,6 +36,7 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+from pydantic.fields import FieldInfo
 
 from pkmctl.control.gains import BASELINE_GAINS, TABLE3, Gains
 from pkmctl.errors import InvalidPoseError, PkmctlError
@@ -123,7 +126,10 @@ class GainsSpec(_Model):
     def _bounds(self) -> GainsSpec:
         lo, hi = self.theta_bounds
         if not (0 < lo <= 1 <= hi < math.inf):
-            raise ValueError(f"theta_bounds = {self.theta_bounds}: need 0 < lo <= 1 <= hi")
+            raise ValueError(
+                f".theta_bounds = {self.theta_bounds}: must be [lo, hi] with lo in (0, 1] and "
+                "hi in [1, 1e+06] (multiples of Theta_0): need 0 < lo <= 1 <= hi"
+            )
         return self
 
     def build(self) -> Gains:
@@ -307,22 +313,86 @@ class LoggingSpec(_Model):
     every: Any = 1
 
 
+@dataclasses.dataclass(frozen=True)
+class _Bounds:
+    """A number's allowed range, as the one-line messages say it: "a finite number in
+    (0, 1] (m)", "an integer in [0, 2^63 - 1]". The range checks of ``_in_range`` and the
+    messages made of pydantic's errors (:func:`_one_line`) both speak through it."""
+
+    lo: float = -math.inf
+    hi: float = math.inf
+    lo_open: bool = False
+    hi_open: bool = False
+    integer: bool = False
+    unit: str = ""
+
+    @classmethod
+    def of(cls, metadata: list, *, integer: bool) -> _Bounds:
+        """The bounds a field declares (``Field(gt=..., le=...)``, or an ``_in_range``)."""
+        for m in metadata:
+            declared = getattr(getattr(m, "func", None), "bounds", None)
+            if declared is not None:
+                return declared
+        b: dict[str, Any] = {"integer": integer}
+        for m in metadata:
+            for attr, key, is_open in (("gt", "lo", True), ("ge", "lo", False),
+                                       ("lt", "hi", True), ("le", "hi", False)):  # fmt: skip
+                if getattr(m, attr, None) is not None:
+                    b[key], b[f"{key}_open"] = getattr(m, attr), is_open
+        return cls(**b)
+
+    def _num(self, x: float) -> str:
+        if not self.integer:
+            return f"{x:g}"
+        k = int(x).bit_length()
+        if x >= 2**20 and x + 1 == 2**k:
+            return f"2^{k} - 1"
+        if x >= 2**20 and x == 2 ** (k - 1):
+            return f"2^{k - 1}"
+        return str(int(x))
+
+    def text(self, plural: bool = False) -> str:
+        """What is allowed, without the unit."""
+        if self.integer:
+            what = "integers" if plural else "an integer"
+        else:
+            what = "finite numbers" if plural else "a finite number"
+        lo, hi = math.isfinite(self.lo), math.isfinite(self.hi)
+        if lo and hi:
+            return (
+                f"{what} in {'(' if self.lo_open else '['}{self._num(self.lo)}, "
+                f"{self._num(self.hi)}{')' if self.hi_open else ']'}"
+            )
+        if lo:
+            return f"{what} {'>' if self.lo_open else '>='} {self._num(self.lo)}"
+        if hi:
+            return f"{what} {'<' if self.hi_open else '<='} {self._num(self.hi)}"
+        return what
+
+    def ok(self, v: float) -> bool:
+        return (
+            math.isfinite(v)
+            and (v > self.lo if self.lo_open else v >= self.lo)
+            and (v < self.hi if self.hi_open else v <= self.hi)
+        )
+
+
 def _in_range(lo: float, hi: float = math.inf, *, lo_open: bool = False, unit: str = ""):
     """A validator: a finite number in [lo, hi] ((lo, hi] if lo_open), one-line message."""
-    left = f"> {lo:g}" if lo_open else f">= {lo:g}"
-    allowed = left if hi == math.inf else f"in {'(' if lo_open else '['}{lo:g}, {hi:g}]"
+    bounds = _Bounds(lo, hi, lo_open=lo_open, unit=unit)
     suffix = f" ({unit})" if unit else ""
 
     def check(v):
         # Before pydantic's own float check (allow_inf_nan=False), whose message would
-        # not give the allowed range; anything not a number is left to that check.
+        # not give the allowed range; anything not a number is left to that check (whose
+        # message _one_line words with these bounds, found as check.bounds).
         if not isinstance(v, int | float) or isinstance(v, bool):
             return v
-        ok = math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi
-        if not ok:
-            raise ValueError(f"= {v!r}: must be a finite number {allowed}{suffix}")
+        if not bounds.ok(v):
+            raise ValueError(f"= {v!r}: must be {bounds.text()}{suffix}")
         return v
 
+    check.bounds = bounds  # type: ignore[attr-defined]
     return BeforeValidator(check)
 
 
@@ -386,8 +456,9 @@ class ControllerModelSpec(_Model):
         bad = [k for k in range(36) if not self.theta_ext[k] > 0]
         if bad:
             raise ValueError(
-                f"theta_ext[{bad[0]}] = {self.theta_ext[bad[0]]!r}: masses and inertias "
-                "(theta_ext[0:36]) must be > 0"
+                f".theta_ext[{bad[0]}] = {self.theta_ext[bad[0]]!r}: must be a finite number in "
+                f"(0, 1e+06] ({UNITS['controller_model.theta_ext'][bad[0]]}): theta_ext[0:36] "
+                "are masses and inertias"
             )
         return self
 
@@ -780,24 +851,165 @@ class Scenario(_Model):
         return self.fuzzy.build()
 
 
-def _field_names(loc: tuple) -> str:
-    """The fields (their TOML names) of the model at ``loc`` in a Scenario, or '' if ``loc``
-    does not lead to a model (a trajectory's tag is a step of ``loc``, as pydantic says)."""
-    cls: Any = Scenario
+_AXES = ("z", "alpha", "beta")
+#: Theta's units: [m (kg), I_xx, I_yy, I_zz (kg m^2)] of each of the 9 bodies (DESIGN.md §1).
+_THETA_UNITS = ("kg", "kg m^2", "kg m^2", "kg m^2") * 9
+
+#: The unit of every numeric field that has one, by its dotted name (a trajectory's under
+#: ``trajectory``, whatever its kind): one for all of a list, or one per element (a
+#: [z, alpha, beta] list, Theta). A field absent here has none (a count, a seed, a
+#: ratio, a scaling); an ``_in_range`` field says its own. :func:`_one_line` puts it in
+#: the message of a field's refusal.
+UNITS: dict[str, str | tuple[str, ...]] = {
+    "mechanism.r_a": "m",
+    "mechanism.r_b": "m",
+    "mechanism.l1": "m",
+    "mechanism.l2": "m",
+    "mechanism.g": "m/s^2",
+    "mechanism.theta": _THETA_UNITS,
+    "controller_model.theta_scale": "times the plant's Theta",
+    "controller_model.theta_ext": _THETA_UNITS + ("kg",) * 4 + ("N",) * 4 + ("N s/m",) * 4,
+    "gains.lam": "1/s",
+    "gains.K": ("N s/m", "N m s/rad", "N m s/rad"),
+    "gains.Lam": ("N", "N m", "N m"),
+    "gains.Ku": ("N", "N m", "N m"),
+    "gains.gamma": "1/J",
+    "gains.filter_periods": "control periods",
+    "gains.theta_bounds": "multiples of Theta_0",
+    "gains.pd_kp": ("N/m", "N m/rad", "N m/rad"),
+    "gains.pd_kd": ("N s/m", "N m s/rad", "N m s/rad"),
+    "gains.ctc_kp": "1/s^2",
+    "gains.ctc_kd": "1/s",
+    "fuzzy.samples": "points",
+    "trajectory.offset": ("m", "rad", "rad"),
+    "trajectory.amplitude": ("m", "rad", "rad"),
+    "trajectory.omega": "rad/s",
+    "trajectory.phase": "rad",
+    "trajectory.base_frequency": "Hz",
+    "trajectory.a": ("m/s", "rad/s", "rad/s"),
+    "trajectory.b": ("m/s", "rad/s", "rad/s"),
+    "initial.X": ("m", "rad", "rad"),
+    "initial.Xdot": ("m/s", "rad/s", "rad/s"),
+    "disturbance.amplitude": ("N", "N m", "N m"),
+    "disturbance.hold": "s",
+    "timing.control_period": "s",
+    "timing.substeps": "RK4 sub-steps per control period",
+    "timing.duration": "s",
+    "actuators.force_limit": "N",
+    "actuators.delay_periods": "control periods",
+    "payload.offset": ("m", "m", "m"),
+    "sensor.counts_per_rev": "counts per motor revolution",
+    "sensor.delay_periods": "control periods",
+}
+#: How a whole list's units read where they differ along it and are not [z, alpha, beta].
+_UNITS_OF_LIST = {
+    "mechanism.theta": "kg, kg m^2: [m, I_xx, I_yy, I_zz] of each of the 9 bodies",
+    "controller_model.theta_ext": "Theta's kg, kg m^2; m_r kg; F_c N; F_v N s/m",
+}
+
+
+def _unit(key: str, index: int | None, own: str) -> str:
+    """The unit of field ``key`` (its element ``index`` if given) for a message."""
+    unit = UNITS.get(key, own)
+    if isinstance(unit, str):
+        return unit
+    if index is not None:
+        return unit[index]
+    if len(set(unit)) == 1:
+        return unit[0]
+    return _UNITS_OF_LIST.get(key) or ", ".join(unit) + " for " + ", ".join(_AXES)
+
+
+def _unwrap(annotation: Any, metadata: list | tuple = ()) -> tuple[Any, list, bool]:
+    """An annotation without its ``Annotated`` layers and the ``None`` of an optional field:
+    (the type, its constraints, whether it is optional)."""
+    meta, optional = list(metadata), False
+    while True:
+        origin = typing.get_origin(annotation)
+        if origin is Annotated:
+            annotation, *more = typing.get_args(annotation)
+            for m in more:
+                meta.extend(m.metadata if isinstance(m, FieldInfo) else [m])
+        elif origin in (typing.Union, types.UnionType):
+            members = [a for a in typing.get_args(annotation) if a is not type(None)]
+            if len(members) != 1:
+                return annotation, meta, optional
+            annotation, optional = members[0], True
+        else:
+            return annotation, meta, optional
+
+
+def _declared(loc: tuple) -> tuple[Any, list] | None:
+    """What a Scenario declares at ``loc`` (a pydantic error's: a trajectory's tag is a step
+    of it, a list's index another): the annotation and its constraints, or None if ``loc``
+    leads to no field."""
+    annotation: Any = Scenario
+    meta: list = []
     for step in loc:
-        models = _models(cls)
-        tagged = [m for m in models if _tag(m) == step]
+        annotation, meta, _ = _unwrap(annotation, meta)
+        if isinstance(step, int):
+            if typing.get_origin(annotation) is not list:
+                return None
+            annotation, meta = typing.get_args(annotation)[0], []
+            continue
+        models = _models(annotation)
+        tagged = [m for m in models if _tag(m) == step] if len(models) > 1 else []
         if tagged:  # a tagged union's member
-            cls = tagged[0]
+            annotation, meta = tagged[0], []
             continue
         fields = {f.alias or n: f for m in models[:1] for n, f in m.model_fields.items()}
         if step not in fields:
-            return ""
-        cls = fields[step].annotation
-    models = _models(cls)
+            return None
+        annotation, meta = fields[step].annotation, list(fields[step].metadata)
+    return annotation, meta
+
+
+def _field_names(loc: tuple) -> str:
+    """The fields (their TOML names) of the model at ``loc`` in a Scenario, or '' if ``loc``
+    does not lead to a model (a trajectory's tag is a step of ``loc``, as pydantic says)."""
+    declared = _declared(loc)
+    models = _models(_unwrap(declared[0])[0]) if declared else []
     if len(models) != 1:
         return ""
     return ", ".join(f.alias or n for n, f in models[0].model_fields.items())
+
+
+def _count(meta: list) -> str:
+    lo = max((m.min_length for m in meta if getattr(m, "min_length", None) is not None), default=0)
+    hi = min((m.max_length for m in meta if getattr(m, "max_length", None) is not None),
+             default=None)  # fmt: skip
+    if hi is None:
+        return f"at least {lo}"
+    return str(lo) if lo == hi else f"{lo} to {hi}"
+
+
+def _allowed(annotation: Any, meta: list, plural: bool = False) -> tuple[str, str, bool] | None:
+    """What a field declared as ``annotation`` with constraints ``meta`` allows, from
+    those declarations: (the words, the unit it states itself, whether it may be left
+    out); None for a type with no words here."""
+    annotation, meta, optional = _unwrap(annotation, meta)
+    own = ""
+    if annotation in (int, float):
+        bounds = _Bounds.of(meta, integer=annotation is int)
+        text, own = bounds.text(plural), bounds.unit
+    elif typing.get_origin(annotation) is list:
+        inner = _allowed(typing.get_args(annotation)[0], [], plural=True)
+        if inner is None:
+            return None
+        text, own = f"{'lists' if plural else 'a list'} of {_count(meta)} {inner[0]}", inner[1]
+    elif typing.get_origin(annotation) is Literal:
+        text = "one of " + ", ".join(repr(a) for a in typing.get_args(annotation))
+    elif annotation is str:
+        text = f"text of {_count(meta)} characters" if meta else "text"
+    elif models := _models(annotation):
+        if len(models) == 1:
+            names = ", ".join(f.alias or n for n, f in models[0].model_fields.items())
+        else:
+            names = "kind = " + " or ".join(repr(_tag(m)) for m in models) + ", ..."
+        text = f"a table ({names})"
+    else:
+        return None
+    return text, own, optional
 
 
 def _models(annotation: Any) -> list[type]:
@@ -812,11 +1024,26 @@ def _tag(model: type) -> Any:
     return None if field is None else field.default
 
 
+def _loc_text(parts: list) -> str:
+    """A field as the messages name it: ``mechanism.l1[0]``, ``trajectory.a[2][0]``."""
+    out = ""
+    for p in parts:
+        out += f"[{p}]" if isinstance(p, int) else ("." if out else "") + str(p)
+    return out or "scenario"
+
+
 def _one_line(exc: ValidationError) -> str:
+    """The first of pydantic's errors in one line: the field, the value and what is allowed.
+
+    A check of ours (a ``ValueError``) says it all itself; pydantic's own (a bound, a
+    list's length, a type, nan) names one bound at best, so it is worded anew from what
+    the field declares (:func:`_allowed`: its bounds, length, choices) and its unit
+    (:data:`UNITS`): ``disturbance.amplitude = [5.0, 5.0]: must be a list of 3 finite
+    numbers in [0, 1e+06] (N, N m, N m for z, alpha, beta)``."""
     err = exc.errors()[0]
     # the trajectory's kind tag ("sinusoid", "fourier") is pydantic's, not a field
     parts = [p for i, p in enumerate(err["loc"]) if not (i == 1 and err["loc"][0] == "trajectory")]
-    loc = ".".join(str(p) for p in parts) or "scenario"
+    loc = _loc_text(parts)
     if err["type"] == "union_tag_invalid":  # an unknown trajectory kind
         ctx = err.get("ctx", {})
         return (
@@ -826,7 +1053,7 @@ def _one_line(exc: ValidationError) -> str:
     msg = err["msg"].removeprefix("Value error, ")
     if err["type"] == "extra_forbidden":  # a typo: the fields the section has
         allowed = _field_names(err["loc"][:-1])
-        where = ".".join(str(p) for p in parts[:-1]) or "scenario"
+        where = _loc_text(parts[:-1])
         return f"{loc}: unknown field" + (f" ({where}: {allowed})" if allowed else "")
     if err["type"] in ("value_error", "assertion_error"):
         if msg.startswith("= "):  # a range check that shows the value: "field = v: ..."
@@ -834,8 +1061,18 @@ def _one_line(exc: ValidationError) -> str:
         if msg.startswith("."):  # a section's check naming one of its fields: ".f = v: ..."
             return f"{loc}{msg}"
         return f"{loc}: {msg}" if loc != "scenario" else msg
-    if err["type"] == "finite_number":  # nan, inf: the same words as the range checks
-        msg = "must be a finite number"
+    declared = _declared(err["loc"])
+    allowed = _allowed(*declared) if declared is not None else None
+    if allowed is not None:  # a bound, a length, a type, nan: say the whole range
+        words, own, optional = allowed
+        key = ".".join(p for p in parts if isinstance(p, str))
+        index = next((p for p in parts if isinstance(p, int)), None)
+        unit = _unit(key, index, own)
+        msg = (
+            f"must be {words}"
+            + (f" ({unit})" if unit else "")
+            + (", or left out" if optional else "")
+        )
     value = err.get("input")
     shown = repr(value)
     if len(shown) > 60:
