@@ -153,7 +153,7 @@ def test_interrupted_then_resumed_equals_uninterrupted(spec_file, reference, tmp
     from pkmctl._jit import source_stamp
 
     sessions = json.loads((out / "campaign.json").read_text())["sessions"]
-    assert [s["where"] for s in sessions] == ["1 local workers", "2 local workers"]
+    assert [s["where"] for s in sessions] == ["1 local worker", "2 local workers"]
     assert all(s["kernel_sources"] == source_stamp() for s in sessions)  # how, recorded
     tasks = [pq.read_table(f).column("task")[0].as_py() for f in (out / "runs").glob("t*")]
     assert sorted(tasks) == list(range(len(spec.tasks())))
@@ -395,7 +395,7 @@ def test_a_run_that_errs_says_why_in_the_command_and_the_report(tmp_path):
     out = tmp_path / "c"
     res = runner.invoke(app, ["campaign", "run", str(tmp_path / "spec.toml"), "--out", str(out),
                               "--workers", "1"])  # fmt: skip
-    assert res.exit_code == 0, res.output
+    assert res.exit_code == 1, res.output  # a run that failed with an error: not a result
     why = "PartError: plant 'mujoco': plant.friction_coulomb = 5.0: MuJoCo's dry friction"
     assert f"1 run failed: {why}" in res.stderr, res.stderr
     assert [r["status"] for r in read_records(out).to_pylist()] == ["ok", "error"]
@@ -804,7 +804,7 @@ def test_more_runs_than_a_campaign_holds_are_refused_at_once(tmp_path):
            f"{limit} a campaign holds" in line  # fmt: skip
     big = HEAD + '[factors."payload.mass"]\nvalues = [0.0, 1.0]\n'
     line = _refused(tmp_path, big.replace("seeds = 1", f"seeds = {limit}"), "show")
-    assert f"2 cells x 1 controllers x {limit} seeds: {2 * limit} runs" in line
+    assert f"2 cells x 1 controller x {limit} seeds: {2 * limit} runs" in line
     assert time.perf_counter() - t0 < 10
 
 
@@ -1235,3 +1235,132 @@ def test_ties_missing_values_and_typos_are_said(tmp_path):
     two = HEAD.replace('["smc"]', '["smc", "pd"]') + q + q.replace('"x"', '"y"')
     line = _refused(tmp_path, two)
     assert "compare[1] = " in line and "the same controller and baseline as compare[0]" in line
+
+
+# ------------------------------------------------------------------ fixes of the 2026-12 review
+
+
+@pytest.mark.parametrize(
+    ("factors", "expected"),
+    [
+        (
+            '[factors."logging.every"]\nvalues = [1, 10]\n',
+            "factors.'logging.every': it changes no record (the records' metrics are computed "
+            "in the loop over every period, whatever is logged): its cells would be identical "
+            "runs counted as independent pairs; remove the factor",
+        ),
+        (
+            '[factors."payload.mass"]\nvalues = [0.0, 1.0]\nwith = { "logging.every" = [1, 2] }\n',
+            "factors.'payload.mass'.with.'logging.every': it changes no record",
+        ),
+        ('[factors."name"]\nvalues = ["a", "b"]\n', "factors.'name': it changes no record"),
+    ],
+)
+def test_a_factor_over_a_field_that_changes_no_record_is_refused(tmp_path, factors, expected):
+    assert expected in _refused(tmp_path, HEAD + factors)
+
+
+def test_samples_are_bounded_before_they_are_drawn(tmp_path):
+    t0 = time.perf_counter()
+    body = 'distribution = "uniform"\nlow = 0.0\nhigh = 1.0\nsamples = 100000000\n'
+    line = _refused(tmp_path, HEAD + f'[factors."payload.mass"]\n{body}', "show")
+    assert (
+        "factors.'payload.mass'.samples = 100000000: 100000000 runs (cells x controllers x "
+        "seeds), more than the 1000000 a campaign holds" in line
+    )
+    body = body.replace("100000000", "100000000000")
+    assert "samples = 100000000000: " in _refused(tmp_path, HEAD + f'[factors."m"]\n{body}', "show")
+    assert time.perf_counter() - t0 < 3  # drawing 10^8 samples took 6 s and 800 MB
+
+
+def test_a_folders_own_spec_resumes_with_its_stored_scenario(tmp_path):
+    """The folder is complete on its own: its spec.toml names a scenario file that is not
+    there, and reads as the campaign it holds (its stored scenario.toml)."""
+    specs = tmp_path / "specs"
+    specs.mkdir()
+    base = pkmctl.Scenario.builtin("paper").replace(**{"payload.mass": 1.0})
+    (specs / "mysc.toml").write_text(base.to_toml())
+    (specs / "c.toml").write_text(
+        'scenario = "mysc.toml"\ncontrollers = ["pd"]\nseeds = 1\nduration = 0.05\n'
+        'metrics = ["rmse"]\n[factors."payload.offset"]\nvalues = [[0.0, 0.0, 0.0], '
+        "[0.0, 0.0, 0.01]]\n"
+    )
+    out = tmp_path / "out"
+    args = ["--out", str(out), "--workers", "1"]
+    res = runner.invoke(app, ["campaign", "run", str(specs / "c.toml"), *args])
+    assert res.exit_code == 0, res.output
+    first = read_records(out, timing=False)
+    (out / "runs" / "task-00001.parquet").unlink()
+    res = runner.invoke(app, ["campaign", "run", str(out / "spec.toml"), *args, "--resume"])
+    assert res.exit_code == 0, res.output
+    assert "(1 done before)" in res.stdout
+    assert read_records(out, timing=False).equals(first)
+    res = runner.invoke(app, ["campaign", "show", str(out / "spec.toml")])
+    assert res.exit_code == 0, res.output
+
+
+def _erring(monkeypatch, cells: set):
+    """Make the runs of ``cells`` records of status "error" (a failure of the machine, say)."""
+    import pyarrow as pa
+
+    from pkmctl.campaign import execute
+
+    real = execute.run_task
+
+    def run_task(spec, task, lanes=None):
+        rows = real(spec, task, lanes).to_pylist()
+        for r in rows:
+            if r["cell"] in cells:
+                r.update(status="error", message="RuntimeError: flaky")
+                r.update({k: None for k in r if k.startswith("rmse")})
+        return pa.Table.from_pylist(rows, schema=execute.schema(spec))
+
+    monkeypatch.setattr(execute, "run_task", run_task)
+
+
+def test_error_records_fail_the_command_and_a_resume_runs_their_tasks_again(tmp_path, monkeypatch):
+    spec = tmp_path / "s.toml"
+    spec.write_text(HEAD + 'metrics = ["rmse"]\n[factors."payload.mass"]\nvalues = [0.0, 1.0]\n')
+    out = tmp_path / "c"
+    args = ["campaign", "run", str(spec), "--out", str(out), "--workers", "1"]
+    with monkeypatch.context() as m:
+        _erring(m, {1})
+        res = runner.invoke(app, args)
+        assert res.exit_code == 1, res.output
+        assert "of the 2 runs stored: 0 diverged, 1 failed with an error" in res.stdout
+        assert "1 run failed: RuntimeError: flaky" in res.stderr
+        hint = f"{' '.join(['pkmctl', *args[:5]])} --workers 1 --resume runs their tasks again"
+        assert hint in res.stderr, res.stderr
+        # an interrupted resume: the error records of the earlier session still count
+        (out / "runs" / "task-00000.parquet").unlink()
+        done = run_campaign(CampaignSpec.from_toml(spec), out, workers=1, resume=True,
+                            stop_after=1)  # fmt: skip
+        assert (done.done_before, done.done_now, done.errors, done.rerun) == (0, 1, 1, 1)
+        # the same error again: still a failure (exit 1), and said so
+        res = runner.invoke(app, [*args, "--resume"])
+        assert res.exit_code == 1, res.output
+        assert "1 run in " in res.stdout
+        assert "(1 done before), 1 of them again after an error;" in res.stdout
+    res = runner.invoke(app, [*args, "--resume"])  # the cause gone: the task runs again
+    assert res.exit_code == 0, res.output
+    assert "1 of them again after an error; of the 2 runs stored: 0 diverged, 0 failed" in (
+        res.stdout
+    )
+    assert [r["status"] for r in read_records(out).to_pylist()] == ["ok", "ok"]
+
+
+def test_campaign_messages_count_in_the_singular_and_say_none(tmp_path):
+    spec = tmp_path / "s.toml"
+    spec.write_text(HEAD + '[factors."actuators.force_limit"]\nvalues = ["none", 2000.0]\n')
+    res = runner.invoke(app, ["campaign", "show", str(spec)])
+    assert res.exit_code == 0, res.output
+    assert "2 runs = 2 cells (grid) x 1 controller x 1 seed," in res.stderr
+    assert 'cell 0: actuators.force_limit = "none"' in res.stderr
+    out = tmp_path / "c"
+    res = runner.invoke(app, ["campaign", "run", str(spec), "--out", str(out), "--workers", "1"])
+    assert res.exit_code == 0, res.output
+    assert "in 2 tasks on 1 local worker; estimated" in res.stderr
+    assert "start the workers" not in res.stderr
+    (tmp_path / "bad.toml").write_text("a = [\n")
+    line = _refused(tmp_path, "a = [\n", "show")
+    assert line.startswith(f"error: campaign spec {str(tmp_path / 'bad.toml')!r}: "), line

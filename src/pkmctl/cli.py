@@ -714,6 +714,17 @@ def _campaign_handle(ctx: typer.Context, exc: BaseException, doing: str) -> NoRe
     _handle(ctx, exc)
 
 
+def _n(count: int, noun: str) -> str:
+    """``1 cell``, ``2 cells``."""
+    return f"{count} {noun}" + "s" * (count != 1)
+
+
+def _plugin_args(ctx: typer.Context) -> list[str]:
+    """The ``--plugin`` options the command was given (to repeat in a command it prints)."""
+    plugins = ctx.find_root().params.get("plugin") or []
+    return [a for p in plugins for a in ("--plugin", p)]
+
+
 def _each(spec) -> str:
     """How long each run of a campaign is (a range when ``timing.duration`` is a factor)."""
     durations = spec.durations()
@@ -780,12 +791,14 @@ def campaign_run(
     estimate = (
         f"{_seconds(work)} of runs on one core (divide by the cluster's cores)"
         if scheduler
-        else f"{_seconds(work / n_workers)} (plus a few s to start the workers)"
+        else f"{_seconds(work / n_workers)}"
+        + (" (plus a few s to start the workers)" if min(n_workers, len(tasks)) > 1 else "")
     )
     _say(
-        f"campaign {spec.name!r} ({spec.digest}): {spec.n_runs} runs = {len(spec.cells)} cells "
-        f"x {len(spec.controllers)} controllers x {len(spec.seeds)} seeds, in {len(tasks)} "
-        f"tasks on {where}; estimated {estimate}"
+        f"campaign {spec.name!r} ({spec.digest}): {_n(spec.n_runs, 'run')} = "
+        f"{_n(len(spec.cells), 'cell')} x {_n(len(spec.controllers), 'controller')} x "
+        f"{_n(len(spec.seeds), 'seed')}, in {_n(len(tasks), 'task')} on {where}; "
+        f"estimated {estimate}"
     )
     with Progress(
         SpinnerColumn(),
@@ -820,7 +833,7 @@ def campaign_run(
             bar.stop()
             if not (out / "campaign.json").exists():  # stopped before the folder was made
                 return "nothing written"
-            args = ["pkmctl", "campaign", "run", spec_file, "--out", str(out)]
+            args = ["pkmctl", *_plugin_args(ctx), "campaign", "run", spec_file, "--out", str(out)]
             if scheduler:
                 args += ["--scheduler", scheduler]
             elif workers is not None:
@@ -853,13 +866,17 @@ def campaign_run(
             )  # fmt: skip
     rate = done.done_now / done.wall_s if done.wall_s > 0 else 0.0
     kept = f" ({done.done_before} done before)" if done.done_before else ""
+    again = f", {done.rerun} of them again after an error" if done.rerun else ""
     console.print(
         Text(
-            f"{done.done_now} runs in {done.wall_s:.1f} s ({rate:.1f} runs/s){kept}, "
-            f"{done.failures} diverged or failed; records in {out}/runs"
+            f"{_n(done.done_now, 'run')} in {done.wall_s:.1f} s ({rate:.1f} runs/s){kept}"
+            f"{again}; of the {_n(done.runs, 'run')} stored: {done.diverged} diverged, "
+            f"{done.errors} failed with an error; records in {out}/runs"
         )
     )
-    if done.failures:  # why, in the words of the errors (a divergence is the metrics' part)
+    if done.errors:  # why, in the words of the errors (a divergence is the metrics' part)
+        import shlex
+
         from pkmctl.campaign.stats import error_messages
         from pkmctl.campaign.store import read_records
 
@@ -868,6 +885,18 @@ def campaign_run(
             _say(f"{n} run{'s' if n > 1 else ''} failed: {msg}")
         if len(why) > 3:
             _say(f"and {len(why) - 3} other errors: pkmctl campaign report {out} lists them")
+        args = ["pkmctl", *_plugin_args(ctx), "campaign", "run", spec_file, "--out", str(out)]
+        if scheduler:
+            args += ["--scheduler", scheduler]
+        elif workers is not None:
+            args += ["--workers", str(workers)]
+        _say(
+            f"{_n(done.errors, 'run')} failed with an error (an error is not a result: the "
+            f"statistics leave it out); once the cause is fixed, "
+            f"{shlex.join([*args, '--resume'])} runs their tasks again (an edited plugin part "
+            f"needs another --out)"
+        )
+        raise typer.Exit(1)
 
 
 @campaign_app.command("show")
@@ -895,14 +924,21 @@ def campaign_show(
     work = spec.n_runs * spec.run_seconds()
     cores = os.cpu_count() or 1
     _say(
-        f"campaign {spec.name!r} ({spec.digest}): {spec.n_runs} runs = {len(spec.cells)} cells "
-        f"({spec.design}) x {len(spec.controllers)} controllers x {len(spec.seeds)} seeds, "
-        f"{_each(spec)}, in {len(spec.tasks())} tasks; estimated {_seconds(work)} "
+        f"campaign {spec.name!r} ({spec.digest}): {_n(spec.n_runs, 'run')} = "
+        f"{_n(len(spec.cells), 'cell')} ({spec.design}) x "
+        f"{_n(len(spec.controllers), 'controller')} x {_n(len(spec.seeds), 'seed')}, "
+        f"{_each(spec)}, in {_n(len(spec.tasks()), 'task')}; estimated {_seconds(work)} "
         f"on one core, {_seconds(work / cores)} on {cores}"
     )
     for i in range(len(spec.cells)):
         cell = spec.cells[i]
-        _say(f"  cell {i}: " + (", ".join(f"{k} = {v!r}" for k, v in cell.items()) or "base"))
+        _say(f"  cell {i}: " + (", ".join(f"{k} = {_spec_value(v)}" for k, v in cell.items())
+                                or "base"))  # fmt: skip
+
+
+def _spec_value(v) -> str:
+    """A cell's value as the spec writes it: ``"none"`` for no value, not Python's None."""
+    return '"none"' if v is None else repr(v)
 
 
 @campaign_app.command("report")

@@ -28,6 +28,8 @@ import pyarrow as pa
 
 from pkmctl.campaign.spec import CampaignSpec, Task
 from pkmctl.campaign.store import (
+    cell_parts,
+    check_store,
     completed_tasks,
     factor_column,
     factor_value,
@@ -35,7 +37,9 @@ from pkmctl.campaign.store import (
     read_spec,
     record_session,
     schema,
+    stored_statuses,
     task_grouping,
+    user_parts,
     write_task,
 )
 from pkmctl.errors import PkmctlError
@@ -195,7 +199,12 @@ def run_task(spec: CampaignSpec, task: Task, lanes: int | None = None) -> pa.Tab
 
 @dataclass
 class CampaignRun:
-    """What :func:`run_campaign` did: runs done now and before, failures, wall time."""
+    """What :func:`run_campaign` did: runs done now and before, failures, wall time.
+
+    ``failures`` counts the runs of this session that did not end ok; ``diverged`` and
+    ``errors`` the records of the whole folder (this session's and earlier ones') with
+    status ``"diverged"`` and ``"error"``; ``rerun`` the runs of tasks run again because
+    they held an error record."""
 
     out: Path
     runs: int
@@ -205,6 +214,9 @@ class CampaignRun:
     tasks_now: int
     wall_s: float
     complete: bool
+    diverged: int = 0
+    errors: int = 0
+    rerun: int = 0
 
 
 class _Progress:
@@ -399,16 +411,59 @@ def run_campaign(
             client.close()
 
 
+def compile_user_parts(spec: CampaignSpec) -> int:
+    """Compile (or load from the disk cache) the loop of every combination of parts the
+    campaign runs that holds a user part (a plugin's), in this process, before anything
+    is written: a part that does not compile stops the campaign here, in one line
+    (:class:`~pkmctl.parts.PartError`), instead of making every one of its runs an error
+    record. One control period of the combination's first cell is run, through the loop
+    its tasks use (lanes or not); an error of that run itself (a step that raises) is
+    left to the runs, which record it. The workers then load the compiled loop from the
+    cache. Returns the combinations compiled."""
+    from numba.core.errors import NumbaError
+
+    from pkmctl.parts import PartError
+    from pkmctl.sim.lanes import lanes_supported
+    from pkmctl.sim.simulate import metrics_only, prepare, run_prepared, run_prepared_lanes
+
+    n = 0
+    for (cell, _), parts in cell_parts(spec).items():
+        if all(p.builtin for p in parts.values()):
+            continue
+        sc = spec.scenario(cell)
+        sc = sc.replace(**{"timing.duration": sc.timing.control_period})
+        n += 1
+        try:
+            prep = prepare(metrics_only(sc), None)
+            if lanes_supported(parts):
+                run_prepared_lanes(prep, parts, [spec.seeds[0]] * 2)
+            else:
+                run_prepared(prep, parts, spec.seeds[0])
+        except PartError as exc:
+            if isinstance(exc.__cause__, NumbaError):
+                raise PartError(f"{exc}; nothing run") from exc
+        except Exception:  # noqa: BLE001, S110 - the run's own error: its records say it
+            pass
+    return n
+
+
 def _run(spec, out, client, scheduler, workers, resume, progress, on_client, stop_after):
     """:func:`run_campaign` once connected (``client``: a Dask client, or None: local)."""
-    runs_dir = open_store(out, spec, resume=resume)
+    parts = user_parts(spec)
+    check_store(out, spec, resume=resume, parts=parts)  # refused before compiling
+    compile_user_parts(spec)
+    runs_dir = open_store(out, spec, resume=resume, parts=parts)
     if spec.base.fuzzy.fis is not None or spec.fis_files:  # the runs read the folder's
         spec = read_spec(out)  # copies of the .fis files: their content is the spec hash's
     tasks = spec.tasks(*task_grouping(out))  # the grouping the folder was started with
     done = completed_tasks(runs_dir, spec.digest)  # another campaign's file is refused
-    todo = [t for t in tasks if t.index not in done]
-    before = sum(len(t.runs) for t in tasks if t.index in done)
-    record_session(out, f"dask {scheduler}" if scheduler else f"{workers} local workers")
+    # a task whose file holds an error record runs again (docs/campaigns.md, "Errors")
+    erred = {i for i, c in stored_statuses(runs_dir, len(tasks)).items() if c.get("error")}
+    todo = [t for t in tasks if t.index not in done or t.index in erred]
+    before = sum(len(t.runs) for t in tasks if t.index in done and t.index not in erred)
+    rerun = sum(len(t.runs) for t in tasks if t.index in erred)
+    where = f"dask {scheduler}" if scheduler else f"{workers} local worker" + "s" * (workers > 1)
+    record_session(out, where, parts)
     t0 = time.perf_counter()
     report = _Progress(progress)
     now = failures = n_tasks = 0
@@ -432,5 +487,8 @@ def _run(spec, out, client, scheduler, workers, resume, progress, on_client, sto
         if close is not None:
             close()
     complete = len(completed_tasks(runs_dir)) == len(tasks)
+    counts = stored_statuses(runs_dir, len(tasks)).values()
     return CampaignRun(out, spec.n_runs, before, now, failures, n_tasks,
-                       time.perf_counter() - t0, complete)  # fmt: skip
+                       time.perf_counter() - t0, complete,
+                       diverged=sum(c.get("diverged", 0) for c in counts),
+                       errors=sum(c.get("error", 0) for c in counts), rerun=rerun)  # fmt: skip

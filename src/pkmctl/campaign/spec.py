@@ -118,6 +118,20 @@ LEGACY_TASK_MULTIPLE = 1
 MAX_RUNS = 1_000_000
 #: Fields a factor cannot set: each run sets them itself (``seeds`` set the disturbance's).
 RUN_FIELDS = {"disturbance.seed": "each run's seed sets it: list the seeds in seeds = [...]"}
+#: Scenario sections a factor cannot vary because they change no record (by the first
+#: component of the dotted path): their cells would be bit-identical runs, counted as
+#: independent pairs by the statistics.
+NO_RECORD_FIELDS = {
+    "logging": "the records' metrics are computed in the loop over every period, whatever "
+    "is logged",
+    "name": "a scenario's label",
+    "description": "a scenario's label",
+}
+
+
+def _no_record(field: str) -> str | None:
+    """Why a factor over ``field`` changes no record (None: it may change them)."""
+    return NO_RECORD_FIELDS.get(field.split(".")[0])
 
 
 @dataclass(frozen=True)
@@ -166,14 +180,19 @@ def _linked(path: str, body: dict, n: int) -> dict[str, list]:
             raise _fail(f"{where}: {field!r} is the factor itself")
         if field in RUN_FIELDS:
             raise _fail(f"{where}.{field!r}: a campaign cannot set it ({RUN_FIELDS[field]})")
+        if _no_record(field):
+            raise _fail(f"{where}.{field!r}: it changes no record ({_no_record(field)}); "
+                        f"remove it")  # fmt: skip
         if not isinstance(vals, list) or len(vals) != n:
             raise _fail(f"{where}.{field!r} = {vals!r}: must be a list of {n} values, one a value")
         out[field] = [None if v == "none" else v for v in vals]
     return out
 
 
-def _factor_values(path: str, body: Any) -> tuple[list, dict[str, list]]:
-    """A factor's values, and the fields set together with them (``with``)."""
+def _factor_values(path: str, body: Any, runs_per_cell: int = 1) -> tuple[list, dict[str, list]]:
+    """A factor's values, and the fields set together with them (``with``).
+    ``runs_per_cell`` (controllers x seeds) bounds a distribution's ``samples`` before
+    anything is drawn (:data:`MAX_RUNS`)."""
     where = f"factors.{path!r}"
     if not isinstance(body, dict):
         raise _fail(f"{where} = {body!r}: must be a table with values = [...] or a distribution")
@@ -208,6 +227,8 @@ def _factor_values(path: str, body: Any) -> tuple[list, dict[str, list]]:
     n = body.get("samples")
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
         raise _fail(f"{where}.samples = {n!r}: must be an integer >= 1")
+    if n * runs_per_cell > MAX_RUNS:  # before n draws are made (10^8 of them: 800 MB)
+        raise _too_many(n * runs_per_cell, f"{where}.samples = {n}")
     seed = body.get("seed", 0)
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise _fail(f"{where}.seed = {seed!r}: must be an integer >= 0")
@@ -248,6 +269,11 @@ def _check_fields(parsed: dict) -> None:
     for p in parsed:
         if p in RUN_FIELDS:
             raise _fail(f"factors.{p!r}: a campaign cannot vary it ({RUN_FIELDS[p]})")
+        if _no_record(p):
+            raise _fail(
+                f"factors.{p!r}: it changes no record ({_no_record(p)}): its cells would be "
+                f"identical runs counted as independent pairs; remove the factor"
+            )
     setter: dict[str, str] = {}
     for p, (_, linked) in parsed.items():
         for field in linked:
@@ -422,12 +448,22 @@ class CampaignSpec:
                     f"campaign spec {str(path)!r}: {getattr(exc, 'strerror', None) or exc}"
                 ) from None
             folder = path.absolute().parent
+            where = f"campaign spec {str(path)!r}"
         else:
-            text, folder = str(source), Path.cwd()
+            text, folder, where = str(source), Path.cwd(), "campaign spec"
+            path = None
         try:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
-            raise _fail(f"campaign spec: {exc}") from None
+            raise _fail(f"{where}: {exc}") from None
+        if path is not None and path.name == "spec.toml":
+            from pkmctl.campaign.store import stored_inputs
+
+            stored = stored_inputs(folder)
+            if stored is not None:  # a campaign folder's own spec: its stored copies
+                scenario, fis_files = stored
+                data = {**data, "scenario": scenario}
+                return cls.from_dict(data, text=text, folder=folder, fis_files=fis_files)
         return cls.from_dict(data, text=text, folder=folder)
 
     @classmethod
@@ -449,7 +485,9 @@ class CampaignSpec:
         for c in controllers:
             if c not in known:
                 raise _fail(
-                    f"controllers: {c!r} is not a registered controller ({', '.join(known)})"
+                    f"controllers: {c!r} is not a registered controller ({', '.join(known)}; "
+                    f"your own: pass the plugin that registers it, pkmctl --plugin FILE.py "
+                    f"campaign ...)"
                 )
         if len(set(controllers)) != len(controllers):
             raise _fail(f"controllers = {controllers!r}: a controller is named twice")
@@ -485,7 +523,8 @@ class CampaignSpec:
         design = data.get("design", "grid")
         if design not in DESIGNS:
             raise _fail(f"design = {design!r}: must be one of {', '.join(DESIGNS)}")
-        parsed = {p: _factor_values(p, body) for p, body in factors.items()}
+        per_cell = len(controllers) * len(seeds)
+        parsed = {p: _factor_values(p, body, per_cell) for p, body in factors.items()}
         _check_fields(parsed)
         if fis_files is None:
             fis_files = _fis_files(parsed, folder or Path.cwd())
@@ -501,8 +540,17 @@ class CampaignSpec:
             )
         n_runs = n_cells * len(controllers) * len(seeds)
         if n_runs > MAX_RUNS:  # before the cells are built and validated
-            raise _too_many(n_runs, f"{n_cells} cells x {len(controllers)} controllers x "
-                                    f"{len(seeds)} seeds")  # fmt: skip
+            raise _too_many(
+                n_runs,
+                " x ".join(
+                    f"{n} {w}" + "s" * (n != 1)
+                    for n, w in (
+                        (n_cells, "cell"),
+                        (len(controllers), "controller"),
+                        (len(seeds), "seed"),
+                    )
+                ),
+            )
         if design == "grid":
             cells = tuple(
                 _cell(parsed, dict(zip(parsed, combo, strict=True)))

@@ -8,8 +8,9 @@ Layout of a campaign folder::
                          stored scenario names this copy)
     fis/0123abcd....fis  copies of the .fis files a factor's values name (campaign.json's
                          fis_copies maps each value as written to its copy)
-    campaign.json        its digest, runs, tasks, task size, record columns, and each
-                         session that ran tasks (when, where, which versions)
+    campaign.json        its digest, runs, tasks, task size, record columns, the
+                         source hash of each user part (a plugin's) its runs use, and
+                         each session that ran tasks (when, where, which versions)
     runs/task-00017.parquet    the records of task 17, written atomically, once
 
 Each file appears whole or not at all (:func:`pkmctl.io.atomic.atomic_write`), and no
@@ -44,6 +45,7 @@ from pkmctl.sim.metrics import RMSE_KEYS
 
 __all__ = [
     "TIMING_COLUMNS",
+    "check_store",
     "completed_tasks",
     "factor_column",
     "metric_columns",
@@ -52,7 +54,10 @@ __all__ = [
     "read_records",
     "read_spec",
     "record_session",
+    "stored_inputs",
+    "user_parts",
     "schema",
+    "stored_statuses",
     "task_grouping",
     "task_seconds",
     "write_task",
@@ -144,7 +149,101 @@ def _stored_scenario(spec: CampaignSpec) -> str:
     return tomli_w.dumps(data)
 
 
-def _manifest(spec: CampaignSpec, fis_copies: dict[str, str] | None = None) -> dict:
+def cell_parts(spec: CampaignSpec) -> dict[tuple[int, str], dict]:
+    """The parts (kind -> :class:`~pkmctl.parts.Part`) each combination of the campaign
+    runs, by (a cell that runs it, controller): one entry per controller and distinct
+    machine (the cells that set no ``plant.*``, ``sensor.*`` or ``actuators.*`` field
+    differently run the same parts)."""
+    from pkmctl.sim.simulate import resolve_parts
+
+    first: dict[str, int] = {}
+    for i, cell in enumerate(spec.cells):
+        machine = {f: v for f, v in cell.items() if f.split(".")[0] in _MACHINE}
+        first.setdefault(json.dumps(machine, sort_keys=True, default=str), i)
+    out = {}
+    for i in first.values():
+        sc = spec.scenario(i)
+        for c in spec.controllers:
+            out[(i, c)] = resolve_parts(sc, c)
+    return out
+
+
+#: The scenario sections that choose a run's plant, sensor and actuator.
+_MACHINE = ("plant", "sensor", "actuators")
+
+
+def _part_files(part) -> list[str]:
+    """The user's source files of a part: those its compiled loop's cache hashes
+    (:attr:`~pkmctl.parts.Part.sources`) and those of its Python functions (``build``,
+    ``work``, ``report``...), which make its bundles and info."""
+    import inspect
+
+    from pkmctl.parts import user_sources
+
+    package = Path(__file__).resolve().parents[1]
+    files = set(part.sources)
+    for fn in (part.build, part.make_work, part.initial_state, part.state_size, part.log_size,
+               part.report, part.limits, part.memory, part.stepper, part.lane_work,
+               part.lane_ok):  # fmt: skip
+        fn = getattr(fn, "__func__", fn)  # a classmethod's function
+        if not inspect.isfunction(fn):
+            continue
+        try:
+            file = inspect.getsourcefile(fn) or ""
+        except TypeError:
+            continue
+        if file and not Path(file).resolve().is_relative_to(package):
+            files |= user_sources(fn)
+    return sorted(files)
+
+
+def user_parts(spec: CampaignSpec) -> dict[str, dict]:
+    """The user parts (not pkmctl's: a plugin's) the campaign's runs use, by ``"KIND
+    NAME"``: ``sha256`` (16 hex digits) of their source files' content and of the values
+    their compiled code freezes in (:func:`pkmctl.parts.global_values`), and ``files``,
+    where they were read. Part of what a campaign is: a resume with another version of a
+    part is refused (:func:`open_store`), else its records would mix two versions."""
+    import hashlib
+
+    from pkmctl.parts import global_values
+
+    parts = {}
+    for combo in cell_parts(spec).values():
+        for part in combo.values():
+            if not part.builtin:
+                parts[f"{part.kind} {part.name}"] = part
+    out = {}
+    for key, part in sorted(parts.items()):
+        files = _part_files(part)
+        digests = []
+        for f in files:
+            try:
+                digests.append(hashlib.sha256(Path(f).read_bytes()).hexdigest())
+            except OSError:
+                digests.append("unreadable:" + Path(f).name)
+        h = hashlib.sha256("\0".join([*sorted(digests), global_values([part])]).encode())
+        out[key] = {"sha256": h.hexdigest()[:16], "files": files}
+    return out
+
+
+def _check_parts(out: Path, old: dict, parts: dict[str, dict]) -> None:
+    """Refuse a resume whose user parts' sources differ from those the campaign started
+    with (a folder made before they were recorded has none to compare)."""
+    for key, now in parts.items():
+        then = (old.get("user_parts") or {}).get(key)
+        if then is None or then.get("sha256") == now["sha256"]:
+            continue
+        kind, name = key.split(" ", 1)
+        files = ", ".join(Path(f).name for f in now["files"]) or "no file"
+        raise SpecError(
+            f"--resume: {kind} {name!r}: its source changed since the campaign in "
+            f"{str(out)!r} started ({files}); its records would mix two versions of it: "
+            f"restore the source, or run the campaign into another --out"
+        )
+
+
+def _manifest(spec: CampaignSpec, fis_copies: dict[str, str] | None = None,
+              parts: dict[str, dict] | None = None) -> dict:  # fmt: skip
     out = {
         "name": spec.name,
         "spec_hash": spec.digest,
@@ -156,6 +255,8 @@ def _manifest(spec: CampaignSpec, fis_copies: dict[str, str] | None = None) -> d
     }
     if fis_copies:
         out["fis_copies"] = fis_copies
+    if parts:
+        out["user_parts"] = parts
     return out
 
 
@@ -179,11 +280,12 @@ def _factor_fis(spec: CampaignSpec) -> dict[str, tuple[str, bytes]]:
     return out
 
 
-def record_session(out: str | Path, where: str) -> dict:
+def record_session(out: str | Path, where: str, parts: dict[str, dict] | None = None) -> dict:
     """Append to ``campaign.json`` how this session of the campaign runs its tasks:
     when, where (``where``: the workers or the scheduler), and the versions that make
     the records (pkmctl, the hash of its kernel sources, Python, NumPy, Numba,
-    pyarrow). A resume by other sources shows there. Returns the entry."""
+    pyarrow, and each user part's source hash, ``parts``: :func:`user_parts`). A resume
+    by other sources shows there. Returns the entry."""
     import datetime
     import platform
     from importlib.metadata import version
@@ -207,6 +309,8 @@ def record_session(out: str | Path, where: str) -> dict:
         "numba": version("numba"),
         "pyarrow": pa.__version__,
     }
+    if parts:
+        entry["user_parts"] = {k: v["sha256"] for k, v in parts.items()}
     path = Path(out) / "campaign.json"
     manifest = json.loads(path.read_text(encoding="utf-8"))
     manifest.setdefault("sessions", []).append(entry)
@@ -234,10 +338,9 @@ def task_seconds(out: str | Path) -> float:
     return task_grouping(out)[0]
 
 
-def open_store(out: Path, spec: CampaignSpec, *, resume: bool) -> Path:
-    """Prepare ``out`` for ``spec``: a new store, or (``resume``) an existing one of the
-    same spec. Refuses an existing store without ``resume``, and one of another spec.
-    Returns the folder of the task files."""
+def check_store(out: Path, spec: CampaignSpec, *, resume: bool,
+                parts: dict[str, dict] | None = None) -> None:  # fmt: skip
+    """Refuse what :func:`open_store` refuses, writing nothing."""
     manifest = out / "campaign.json"
     if manifest.exists():
         if not resume:
@@ -254,6 +357,7 @@ def open_store(out: Path, spec: CampaignSpec, *, resume: bool) -> Path:
                 f"--resume: {str(out)!r} holds campaign {old.get('spec_hash')!r}, this spec is "
                 f"{spec.digest!r} (a different spec; use another --out)"
             )
+        _check_parts(out, old, user_parts(spec) if parts is None else parts)
     else:
         stray = sorted((out / "runs").glob("task-*.parquet"))
         if stray:  # records of a campaign whose campaign.json is gone: not this one's
@@ -261,6 +365,18 @@ def open_store(out: Path, spec: CampaignSpec, *, resume: bool) -> Path:
                 f"--out {str(out)!r}: runs/ holds {len(stray)} task files ({stray[0].name}, "
                 f"...) but no campaign.json: another campaign's? Use another --out"
             )
+
+
+def open_store(out: Path, spec: CampaignSpec, *, resume: bool,
+               parts: dict[str, dict] | None = None) -> Path:  # fmt: skip
+    """Prepare ``out`` for ``spec``: a new store, or (``resume``) an existing one of the
+    same spec. Refuses an existing store without ``resume``, one of another spec, and a
+    resume with a user part whose source changed (``parts``: :func:`user_parts`, computed
+    if not given). Returns the folder of the task files."""
+    parts = user_parts(spec) if parts is None else parts
+    check_store(out, spec, resume=resume, parts=parts)
+    manifest = out / "campaign.json"
+    if not manifest.exists():
         fis = None
         if spec.base.fuzzy.fis is not None:
             try:
@@ -281,7 +397,8 @@ def open_store(out: Path, spec: CampaignSpec, *, resume: bool) -> Path:
         with atomic_write(out / "scenario.toml") as fh:
             fh.write(_stored_scenario(spec))
         with atomic_write(manifest) as fh:
-            json.dump(_manifest(spec, {v: n for v, (n, _) in factor_fis.items()}), fh, indent=2)
+            json.dump(_manifest(spec, {v: n for v, (n, _) in factor_fis.items()}, parts), fh,
+                      indent=2)  # fmt: skip
     runs = out / "runs"
     runs.mkdir(exist_ok=True)
     return runs
@@ -300,11 +417,8 @@ def read_spec(out: str | Path) -> CampaignSpec:
         digest = manifest["spec_hash"]
     except (OSError, ValueError, KeyError) as exc:
         raise SpecError(f"{str(out)!r}: not a readable campaign folder ({exc})") from None
-    data["scenario"] = str((out / "scenario.toml").absolute())
-    # the .fis files a factor's values name: the copies here (a folder made before they
-    # were copied: as they were read then, relative to the working directory)
-    copies = manifest.get("fis_copies", {})
-    fis_files = {v: str((out / name).absolute()) for v, name in copies.items()}
+    _need_plugins(out, manifest)
+    data["scenario"], fis_files = _stored(out, manifest)
     spec = CampaignSpec.from_dict(data, text=text, folder=out, fis_files=fis_files)
     if spec.digest != digest and digest in spec.legacy_digests():
         # a folder made before a .fis file counted by its content (and was copied here)
@@ -317,6 +431,50 @@ def read_spec(out: str | Path) -> CampaignSpec:
             f"(edited after the run?)"
         )
     return spec
+
+
+def _stored(out: Path, manifest: dict) -> tuple[str, dict[str, str]]:
+    """(the stored base scenario, the stored copies of the .fis files a factor's values
+    name: each value as written to its copy). A folder made before they were copied has
+    none: its values are read as they were then, relative to the working directory."""
+    copies = manifest.get("fis_copies", {})
+    fis_files = {v: str((out / name).absolute()) for v, name in copies.items()}
+    return str((out / "scenario.toml").absolute()), fis_files
+
+
+def stored_inputs(folder: str | Path) -> tuple[str, dict[str, str] | None] | None:
+    """For a campaign folder's own ``spec.toml``: (its stored scenario, its stored .fis
+    copies, or None for a folder that has none) that the spec must be read with, so that
+    the folder is complete on its own (``pkmctl campaign run DIR/spec.toml --out DIR
+    --resume``); None if ``folder`` is not a campaign folder."""
+    folder = Path(folder)
+    try:
+        manifest = json.loads((folder / "campaign.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not (isinstance(manifest, dict) and (folder / "scenario.toml").is_file()):
+        return None
+    scenario, fis_files = _stored(folder, manifest)
+    return scenario, (fis_files or None)
+
+
+def _need_plugins(out: Path, manifest: dict) -> None:
+    """Refuse, with the hint to pass them, a folder whose user parts are not registered."""
+    from pkmctl.parts import names
+
+    for key, info in (manifest.get("user_parts") or {}).items():
+        kind, name = key.split(" ", 1)
+        try:
+            known = name in names(kind)
+        except Exception:  # noqa: BLE001 - a kind this pkmctl does not know: from_dict says
+            continue
+        if not known:
+            files = ", ".join(info.get("files", [])) or "a plugin"
+            raise SpecError(
+                f"{str(out)!r}: its runs use the {kind} {name!r}, which is not registered: "
+                f"pass the plugin that registers it (it was read from {files}), "
+                f"pkmctl --plugin FILE.py campaign ..."
+            )
 
 
 def _task_path(runs: Path, index: int) -> Path:
@@ -359,6 +517,18 @@ def completed_tasks(runs: Path, digest: str | None = None) -> set[int]:
                 raise _foreign(p, hashes.to_pylist(), digest)
         done.add(index)
     return done
+
+
+def stored_statuses(runs: Path, n_tasks: int | None = None) -> dict[int, dict[str, int]]:
+    """Per task file of the campaign (below ``n_tasks`` if given), how many of its records
+    have each status: ``{17: {"ok": 6, "error": 2}}``."""
+    out = {}
+    for index, p in _own_files(runs, n_tasks).items():
+        counts: dict[str, int] = {}
+        for s in pq.read_table(p, columns=["status"]).column("status").to_pylist():
+            counts[s] = counts.get(s, 0) + 1
+        out[index] = counts
+    return out
 
 
 def write_task(runs: Path, index: int, table: pa.Table) -> Path:

@@ -1,0 +1,165 @@
+"""Campaigns of user parts (``pkmctl --plugin FILE.py campaign ...``, docs/parts.md)."""
+
+import importlib.util
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+import pkmctl
+from pkmctl.campaign import CampaignSpec
+from pkmctl.campaign.execute import run_campaign
+from pkmctl.campaign.spec import SpecError
+from pkmctl.campaign.store import check_store, open_store
+from pkmctl.cli import app
+from pkmctl.plugins import ENV
+
+runner = CliRunner()
+
+LAW = """
+from typing import NamedTuple
+import pkmctl
+
+GAIN = 1.0e4
+
+class P(NamedTuple):
+    k: float
+
+    @classmethod
+    def from_context(cls, ctx):
+        return cls(GAIN)
+
+@pkmctl.register_controller("NAME", params=P)
+def law(p, state, work, y, ref, F):
+    for i in range(3):
+        F[i] = p.k * (ref[i] - y[i])
+"""
+
+#: A step Numba cannot type (a dict of objects): fails in ~2 s, before any loop runs.
+NO_COMPILE = LAW.replace(
+    "    for i in range(3):", '    d = {"a": object()}\n    for i in range(3):'
+)
+
+
+def _plugin(tmp_path: Path, source: str) -> tuple[Path, str]:
+    """A plugin file registering a controller of a fresh name, imported in this process
+    as ``pkmctl --plugin`` imports it; (its path, the controller's name)."""
+    module = "law_" + uuid.uuid4().hex[:10]
+    name = module.replace("_", "-")
+    path = tmp_path / f"{module}.py"
+    path.write_text(source.replace("NAME", name))
+    spec = importlib.util.spec_from_file_location(module, path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[module] = mod
+    spec.loader.exec_module(mod)
+    return path, name
+
+
+def _spec(tmp_path: Path, controllers: list[str], seeds: int = 2) -> Path:
+    path = tmp_path / "spec.toml"
+    path.write_text(f"scenario = \"paper\"\ncontrollers = {json.dumps(controllers)}\n"
+                    f"seeds = {seeds}\nduration = 0.05\nmetrics = [\"rmse\"]\n")  # fmt: skip
+    return path
+
+
+def test_a_resume_with_an_edited_plugin_part_is_refused(tmp_path, monkeypatch):
+    monkeypatch.setenv(ENV, "")  # --plugin adds to it: restored after the test
+    plugin, name = _plugin(tmp_path, LAW)
+    spec_file = _spec(tmp_path, ["pd", name])
+    spec = CampaignSpec.from_toml(spec_file)
+    out = tmp_path / "c"
+    open_store(out, spec, resume=False)  # as a campaign interrupted before its first task
+    stored = json.loads((out / "campaign.json").read_text())["user_parts"]
+    assert list(stored) == [f"controller {name}"]
+    assert stored[f"controller {name}"]["files"] == [str(plugin)]
+    check_store(out, spec, resume=True)  # the same source: a resume goes on
+    plugin.write_text(plugin.read_text().replace("GAIN = 1.0e4", "GAIN = 2.0e4"))  # edited
+    expected = (
+        f"--resume: controller {name!r}: its source changed since the campaign in "
+        f"{str(out)!r} started ({plugin.name}); its records would mix two versions of it: "
+        f"restore the source, or run the campaign into another --out"
+    )
+    with pytest.raises(SpecError) as err:
+        run_campaign(spec, out, workers=1, resume=True)
+    assert str(err.value) == expected
+    res = runner.invoke(app, ["--plugin", str(plugin), "campaign", "run", str(spec_file),
+                              "--out", str(out), "--resume"])  # fmt: skip
+    assert res.exit_code == 2, res.output
+    assert res.stderr.strip().splitlines()[-1] == f"error: {expected}"
+    assert list((out / "runs").iterdir()) == []
+
+
+def test_a_part_that_does_not_compile_stops_the_campaign_before_any_record(tmp_path, monkeypatch):
+    monkeypatch.setenv(ENV, "")
+    plugin, name = _plugin(tmp_path, NO_COMPILE)
+    out = tmp_path / "c"
+    res = runner.invoke(app, ["--plugin", str(plugin), "campaign", "run",
+                              str(_spec(tmp_path, ["pd", name])), "--out", str(out),
+                              "--workers", "2"])  # fmt: skip
+    assert res.exit_code == 2, res.output
+    errors = [line for line in res.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1, res.stderr
+    assert errors[0].startswith(f"error: the part controller {name!r} does not compile: ")
+    assert errors[0].endswith("; nothing run"), errors[0]
+    assert not out.exists()
+
+
+def _pkmctl(*args: str, **kw) -> subprocess.Popen:
+    env = dict(os.environ)
+    src = str(Path(pkmctl.__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join([src, env.get("PYTHONPATH", "")])
+    env.pop(ENV, None)
+    return subprocess.Popen([sys.executable, "-c", "from pkmctl.cli import main; main()", *args],
+                            env=env, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+                            **kw)  # fmt: skip
+
+
+def test_the_resume_hint_after_ctrl_c_repeats_the_plugins(tmp_path):
+    import shlex
+
+    (tmp_path / "my plugins").mkdir()
+    plugin = tmp_path / "my plugins" / "noop_plugin.py"
+    plugin.write_text("import pkmctl  # registers nothing: what matters is the hint\n")
+    spec = _spec(tmp_path, ["smc"], seeds=64)
+    spec.write_text(spec.read_text().replace("0.05", "0.5"))
+    out = tmp_path / "out"
+    proc = _pkmctl("--plugin", str(plugin), "campaign", "run", str(spec), "--out", str(out),
+                   "--workers", "1")  # fmt: skip
+    deadline = time.monotonic() + 120
+    while not (out / "campaign.json").exists() and proc.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    hint = shlex.join(["pkmctl", "--plugin", str(plugin), "campaign", "run", str(spec), "--out",
+                       str(out), "--workers", "1", "--resume"])  # fmt: skip
+    assert f"{hint} completes it" in err, err
+
+
+def test_a_campaign_of_a_plugin_part_read_without_it_says_to_pass_it(tmp_path, monkeypatch):
+    plugin, name = _plugin(tmp_path, LAW)
+    out = tmp_path / "c"
+    open_store(out, CampaignSpec.from_toml(_spec(tmp_path, [name])), resume=False)
+    proc = _pkmctl("campaign", "report", str(out))  # a new process: the plugin not imported
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2, err
+    assert err.strip() == (
+        f"error: {str(out)!r}: its runs use the controller {name!r}, which is not registered: "
+        f"pass the plugin that registers it (it was read from {plugin}), pkmctl --plugin "
+        f"FILE.py campaign ..."
+    )
+    with pytest.raises(
+        SpecError,
+        match=r"'no-such-law' is not a registered controller \(.*; "
+        r"your own: pass the plugin that registers it, pkmctl --plugin FILE.py",
+    ):
+        CampaignSpec.from_toml(_spec(tmp_path, ["no-such-law"]))  # fmt: skip
