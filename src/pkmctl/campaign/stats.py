@@ -226,10 +226,13 @@ def paired_differences(spec: CampaignSpec, table: pa.Table, metrics: list[str]) 
     cell and seed where both ended ok.
 
     Returns rows ``{"cell", "a", "b", "metric", "pairs", "mean", "lo", "hi",
-    "win_rate_a", "ties", "better"}``: ``win_rate_a`` is the share of pairs where a is
-    lower, ``ties`` the pairs where both are equal (neither wins), ``better`` is ``"a"``
-    or ``"b"`` when the 95 % interval of the mean difference excludes 0 over at least
-    :data:`MIN_PAIRS` pairs, ``"unclear"`` when the data cannot tell.
+    "win_rate_a", "ties", "better", "a_failed", "b_failed", "undefined"}``:
+    ``win_rate_a`` is the share of pairs where a is lower, ``ties`` the pairs where both
+    are equal (neither wins), ``better`` is ``"a"`` or ``"b"`` when the 95 % interval of
+    the mean difference excludes 0 over at least :data:`MIN_PAIRS` pairs, ``"unclear"``
+    when the data cannot tell; what is not a pair: ``a_failed`` / ``b_failed`` the seeds
+    whose run of a / b did not end ok, ``undefined`` those where both did but the metric
+    is not finite in one of them.
     """
     c = _columns(table, ["cell", "controller", "seed", "status", *metrics])
     index = {
@@ -245,16 +248,22 @@ def paired_differences(spec: CampaignSpec, table: pa.Table, metrics: list[str]) 
         for b in ctrls[ia + 1 :]:
             for m in metrics:
                 per_cell: dict[int, list[float]] = {}
+                lost: dict[int, list[int]] = {}  # a not ok, b not ok, metric undefined
                 for cell in range(len(spec.cells)):
-                    d = []
+                    d, why = [], [0, 0, 0]
                     for s in spec.seeds:
                         i, j = index.get((cell, a, s)), index.get((cell, b, s))
+                        why[0] += i is None
+                        why[1] += j is None
                         if i is not None and j is not None:
                             va, vb = c[m][i], c[m][j]
                             if math.isfinite(va) and math.isfinite(vb):
                                 d.append(va - vb)
-                    per_cell[cell] = d
+                            else:
+                                why[2] += 1
+                    per_cell[cell], lost[cell] = d, why
                 per_cell[-1] = [x for cell in range(len(spec.cells)) for x in per_cell[cell]]
+                lost[-1] = [sum(lost[k][i] for k in range(len(spec.cells))) for i in range(3)]
                 for cell in [*range(len(spec.cells)), -1]:
                     d = np.asarray(per_cell[cell], dtype=float)
                     lo, hi = bootstrap_interval(d, seed=_seed(cell, a, b, m))
@@ -271,6 +280,9 @@ def paired_differences(spec: CampaignSpec, table: pa.Table, metrics: list[str]) 
                             "win_rate_a": float((d < 0).mean()) if d.size else math.nan,
                             "ties": int((d == 0).sum()),
                             "better": _verdict(lo, hi, d.size),
+                            "a_failed": lost[cell][0],
+                            "b_failed": lost[cell][1],
+                            "undefined": lost[cell][2],
                         }
                     )
     return rows
@@ -334,8 +346,8 @@ def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: s
     with its 95 % interval, ``ratio`` the controller's mean error over the baseline's
     (< 1: lower; its interval resamples the pairs), ``win_rate`` the share of pairs the
     controller wins, ``better`` one of ``"controller"``, ``"baseline"``, ``"unclear"``
-    (as :func:`paired_differences`), and ``*_failed`` the runs of the cell that did not
-    end ok.
+    (as :func:`paired_differences`), ``*_failed`` the runs of the cell that did not
+    end ok, and ``undefined`` the seeds where both did but the metric is not finite.
     """
     c = _columns(table, ["cell", "controller", "seed", "status", *metrics])
     ok = {}
@@ -351,8 +363,10 @@ def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: s
     for m in metrics:
         base_v: dict[int, list[float]] = {}
         ctrl_v: dict[int, list[float]] = {}
+        undefined: dict[int, int] = {}
         for cell in range(len(spec.cells)):
             bs, cs = [], []
+            undefined[cell] = 0
             for s in spec.seeds:
                 i, j = ok.get((cell, controller, s)), ok.get((cell, baseline, s))
                 if i is not None and j is not None:
@@ -360,6 +374,8 @@ def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: s
                     if math.isfinite(vc) and math.isfinite(vb):
                         cs.append(vc)
                         bs.append(vb)
+                    else:
+                        undefined[cell] += 1
             base_v[cell], ctrl_v[cell] = bs, cs
         base_v[-1] = [x for cell in range(len(spec.cells)) for x in base_v[cell]]
         ctrl_v[-1] = [x for cell in range(len(spec.cells)) for x in ctrl_v[cell]]
@@ -388,6 +404,7 @@ def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: s
                     "better": {"a": "controller", "b": "baseline"}.get(verdict, "unclear"),
                     "controller_failed": sum(failed.get((k, controller), 0) for k in cells),
                     "baseline_failed": sum(failed.get((k, baseline), 0) for k in cells),
+                    "undefined": sum(undefined[k] for k in cells),
                 }
             )
     return rows

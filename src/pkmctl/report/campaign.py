@@ -288,12 +288,42 @@ def _plot(spec, table, metric: str, factor: str, path: Path) -> int:
 
 
 def _few(unclear: list[dict]) -> str:
-    """Why the data cannot tell, where it is the number of pairs: '' if no cell is short."""
-    short = sum(r["pairs"] < stats.MIN_PAIRS for r in unclear)
+    """Why the data cannot tell, where it is the number of pairs: '' if no cell is short;
+    and what cost those cells their pairs: runs that did not end ok (listed under "Runs
+    that did not end ok"), a metric not finite in runs that did (a PD diverging in every
+    run of a cell read as if too few seeds had been asked for)."""
+    short = [r for r in unclear if r["pairs"] < stats.MIN_PAIRS]
     if not short:
         return ""
-    many = "all" if short == len(unclear) else f"{short} of them"
-    return f" ({many} with fewer than the {stats.MIN_PAIRS} pairs a verdict takes)"
+    many = "all" if len(short) == len(unclear) else f"{len(short)} of them"
+    why = []
+    failed = sum(_failed(r) > 0 for r in short)
+    if failed:
+        why.append(f"in {failed} of them, runs that did not end ok took pairs away, listed below")
+    undefined = sum(r.get("undefined", 0) > 0 for r in short)
+    if undefined:
+        why.append(f"in {undefined} of them, the metric is not finite in runs that ended ok")
+    because = f"; {'; '.join(why)}" if why else ""
+    return f" ({many} with fewer than the {stats.MIN_PAIRS} pairs a verdict takes{because})"
+
+
+def _failed(r: dict) -> int:
+    """The runs of a row's pairs that did not end ok (either side)."""
+    keys = ("a_failed", "b_failed", "controller_failed", "baseline_failed")
+    return sum(int(r.get(k, 0)) for k in keys)
+
+
+def _no_pair(a: str, b: str, r: dict) -> str:
+    """Why a comparison over all cells has no pair: which side's runs did not end ok, or
+    the metric not finite where both did."""
+    parts = [f"{n} runs of {who} did not end ok" for who, n in
+             ((a, r.get("a_failed", 0)), (b, r.get("b_failed", 0))) if n]  # fmt: skip
+    if r.get("undefined", 0):
+        parts.append(
+            f"in {r['undefined']} pairs that ended ok the metric is not finite (e.g. a "
+            "chattering index of a run too short for it)"
+        )
+    return f"- {a} vs {b}: no pair to compare: " + ("; ".join(parts) or "no runs") + "."
 
 
 def _words(spec, paired: list[dict], metric: str) -> list[str]:
@@ -301,7 +331,7 @@ def _words(spec, paired: list[dict], metric: str) -> list[str]:
     for r in (r for r in paired if r["metric"] == metric and r["cell"] == -1):
         a, b = r["a"], r["b"]
         if r["pairs"] == 0:
-            out.append(f"- {a} vs {b}: no pair of runs where both ended ok.")
+            out.append(_no_pair(a, b, r))
             continue
         ties = int(r.get("ties", 0))
         tied = f", equal in {100 * ties / r['pairs']:.0f} %" if ties else ""
