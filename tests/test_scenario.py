@@ -302,3 +302,15 @@ def test_every_numeric_field_refuses_in_one_line_with_its_range(base):
         if not ranged:
             bad.append(f"{field}: no refusal with a range")
     assert not bad, "\n".join(bad)
+
+
+def test_the_toml_names_every_field_left_unset_in_a_comment():
+    """`pkmctl scenario paper` left out actuators.force_limit, fuzzy.fis, fuzzy.samples and
+    controller_model.theta_ext (TOML has no null), though docs say it prints every field."""
+    sc = pkmctl.Scenario.builtin("prototype")
+    text = sc.to_toml()
+    for section, key in (("actuators", "force_limit"), ("fuzzy", "fis"), ("fuzzy", "samples"),
+                         ("controller_model", "theta_ext")):  # fmt: skip
+        own = text.split(f"[{section}]\n", 1)[1].split("\n[", 1)[0]
+        assert f"# {key} = (not set; optional)" in own
+    assert pkmctl.Scenario.from_toml(text) == sc

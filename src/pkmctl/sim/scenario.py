@@ -818,9 +818,24 @@ class Scenario(_Model):
         return cls.from_dict(data)
 
     def to_toml(self) -> str:
-        """The scenario as TOML; :meth:`from_toml` reads it back to an equal scenario."""
+        """The scenario as TOML; :meth:`from_toml` reads it back to an equal scenario. A
+        field left unset (TOML has no null) is named in a comment in its section, so that
+        the text shows every field (``# force_limit = (not set; optional)``)."""
         data = self.model_dump(exclude_none=True, by_alias=True)
-        return tomli_w.dumps(data)
+        lines = tomli_w.dumps(data).split("\n")
+        unset = {
+            name: [k for k, v in section.items() if v is None]
+            for name, section in self.model_dump(by_alias=True).items()
+            if isinstance(section, dict)
+        }
+        for name, keys in unset.items():
+            if not keys or f"[{name}]" not in lines:
+                continue
+            at = lines.index(f"[{name}]") + 1
+            while at < len(lines) and lines[at].strip() and not lines[at].startswith("["):
+                at += 1  # the end of the section's own keys
+            lines[at:at] = [f"# {k} = (not set; optional)" for k in keys]
+        return "\n".join(lines)
 
     def replace(self, **changes: Any) -> Scenario:
         """A copy with top-level sections or dotted fields changed, validated again.
