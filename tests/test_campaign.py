@@ -1364,3 +1364,21 @@ def test_campaign_messages_count_in_the_singular_and_say_none(tmp_path):
     (tmp_path / "bad.toml").write_text("a = [\n")
     line = _refused(tmp_path, "a = [\n", "show")
     assert line.startswith(f"error: campaign spec {str(tmp_path / 'bad.toml')!r}: "), line
+
+
+def test_run_says_what_it_will_do_with_its_workers_and_a_resume_of_nothing(tmp_path):
+    """--workers was silently ignored beside --scheduler; "on 6 local workers" was said
+    where one task starts one; a mistyped --out with --resume started the campaign again
+    without a word."""
+    spec = tmp_path / "s.toml"
+    spec.write_text(HEAD)
+    out = tmp_path / "o"
+    res = runner.invoke(app, ["campaign", "run", str(spec), "--out", str(out), "--workers", "2",
+                              "--scheduler", "tcp://127.0.0.1:1"])  # fmt: skip
+    assert res.exit_code == 2 and "--workers = 2: not with --scheduler" in res.output
+    assert not out.exists()
+    args = ["campaign", "run", str(spec), "--out", str(out), "--workers", "6", "--resume"]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    assert f"--resume: {str(out)!r} holds no campaign yet: starting it there" in res.output
+    assert "in 1 task on 1 local worker;" in res.output

@@ -767,6 +767,8 @@ def campaign_run(
 
     if workers is not None and workers < 1:
         _fail(f"--workers = {workers}: must be >= 1")
+    if workers is not None and scheduler:  # (it was ignored, silently)
+        _fail(f"--workers = {workers}: not with --scheduler (the cluster's workers run the tasks)")
     try:
         out = check_output_folder(out, what="--out")
     except Exception as exc:
@@ -780,8 +782,11 @@ def campaign_run(
     except Exception as exc:
         _campaign_handle(ctx, exc, "reading the spec: nothing run")
     existed = (out / "campaign.json").exists()
+    if resume and not existed:  # a mistyped --out would start the whole campaign again
+        _say(f"--resume: {str(out)!r} holds no campaign yet: starting it there")
     n_workers = workers or (os.cpu_count() or 1)
     tasks = spec.tasks()
+    n_workers = min(n_workers, max(1, len(tasks)))  # no more processes than tasks start
     where = (
         f"the cluster at {scheduler}"
         if scheduler
