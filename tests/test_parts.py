@@ -80,7 +80,8 @@ def test_registration_errors_are_one_line():
 
     cases = [
         (lambda: pkmctl.register_controller("smc", params=_P, build=lambda c: _P(1.0))(ok),
-         "controller 'smc': a controller of that name is already registered"),
+         "controller 'smc': a controller of that name is already registered \\(one of "
+         "pkmctl's own\\)"),
         (lambda: pkmctl.register_controller("x-short", params=_P, build=lambda c: _P(1.0))(short),
          r"takes 4 arguments, the contract needs 6 \(p, state, work, y, ref, F\)"),
         (lambda: pkmctl.register_controller("x-dict", params=dict, build=lambda c: {})(ok),
@@ -397,3 +398,23 @@ def test_build_limits_and_options_of_a_users_part_fail_in_one_line_naming_them()
     said = r"^controller 'x-foo': unknown option 'foo'; the options are .*state_size"
     with pytest.raises(PartError, match=said + r".* and its functions step, log$"):
         pkmctl.register_controller("x-foo", params=_P, foo=1)
+
+
+def test_a_plugin_that_fails_to_load_says_where_and_a_taken_name_by_whom(tmp_path):
+    from pkmctl.plugins import PluginError, load_plugins
+
+    bad = tmp_path / "zd_plugin.py"
+    bad.write_text("import pkmctl\nx = 1\ny = x / 0\n")
+    with pytest.raises(PluginError) as info:
+        load_plugins([str(bad)])
+    assert str(info.value) == (
+        f"--plugin {bad}: ZeroDivisionError: division by zero (zd_plugin.py, line 3: y = x / 0)"
+    )
+    pkmctl.register_controller("x-taken", params=_P, build=lambda c: _P(1.0))(
+        lambda p, state, work, y, ref, F: None
+    )
+    with pytest.raises(PartError, match=r"a controller of that name is already registered "
+                                        rf"\(by {re.escape(__file__)}\)$"):  # fmt: skip
+        pkmctl.register_controller("x-taken", params=NamedTuple("Q", [("a", float)]))(
+            lambda p, state, work, y, ref, F: None
+        )

@@ -276,6 +276,20 @@ def _worker(v, kind: str, name: str) -> Callable[[Any], tuple]:
     raise PartError(f"{kind} {name!r}: work = {v!r}: must be an integer >= 0 or a function")
 
 
+def _origin(part: Part) -> str:
+    """Where a registered part comes from: pkmctl, or the file of its functions."""
+    if part.builtin:
+        return "one of pkmctl's own"
+    files = []
+    for fn in part.functions.values():
+        try:
+            files.append(inspect.getsourcefile(fn) or "")
+        except TypeError:
+            pass
+    files = [f for f in files if f]
+    return f"by {files[0]}" if files else "by another plugin"
+
+
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
 
@@ -315,7 +329,9 @@ def _register(
             "with a letter or digit"
         )
     if name in reg:
-        raise PartError(f"{kind} {name!r}: a {kind} of that name is already registered")
+        raise PartError(
+            f"{kind} {name!r}: a {kind} of that name is already registered ({_origin(reg[name])})"
+        )
     if not (isinstance(params, type) and issubclass(params, tuple) and hasattr(params, "_fields")):
         raise PartError(f"{kind} {name!r}: params = {params!r}: must be a typing.NamedTuple class")
     if (kind, params) in _BY_TYPE:

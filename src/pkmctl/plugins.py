@@ -60,13 +60,32 @@ def _import(spec: str) -> str:
             loader.loader.exec_module(module)
         except Exception as exc:
             del sys.modules[name]
-            raise PluginError(f"--plugin {spec}: {type(exc).__name__}: {exc}") from exc
+            raise PluginError(f"--plugin {spec}: {_why(exc)}") from exc
         return str(path)
     try:
         importlib.import_module(spec)
     except Exception as exc:
-        raise PluginError(f"--plugin {spec}: {type(exc).__name__}: {exc}") from exc
+        raise PluginError(f"--plugin {spec}: {_why(exc)}") from exc
     return spec
+
+
+def _why(exc: Exception) -> str:
+    """The exception in one line, and where in the user's code it was raised: the last
+    frame outside pkmctl and the import machinery (a ZeroDivisionError said no line)."""
+    import traceback
+
+    package = Path(__file__).resolve().parent
+    where = ""
+    for frame in traceback.extract_tb(exc.__traceback__):
+        file = Path(frame.filename)
+        if frame.filename.startswith("<") or file.resolve().is_relative_to(package):
+            continue
+        where = f" ({file.name}, line {frame.lineno}" + (f": {frame.line})" if frame.line
+                                                           else ")")  # fmt: skip
+    text = f"{type(exc).__name__}: {exc}"
+    if isinstance(exc, SyntaxError):  # its message names the file and line itself
+        return text
+    return text + where
 
 
 def load_plugins(specs: list[str]) -> list[str]:
