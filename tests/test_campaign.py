@@ -1382,3 +1382,18 @@ def test_run_says_what_it_will_do_with_its_workers_and_a_resume_of_nothing(tmp_p
     assert res.exit_code == 0, res.output
     assert f"--resume: {str(out)!r} holds no campaign yet: starting it there" in res.output
     assert "in 1 task on 1 local worker;" in res.output
+
+
+def test_a_damaged_task_file_is_named_with_what_to_do(tmp_path):
+    """A truncated task file gave pyarrow's "Parquet magic bytes not found in footer"."""
+    out = tmp_path / "c"
+    _fake_campaign(out, HEAD.replace('["smc"]', '["smc", "pd"]'))
+    task = sorted((out / "runs").glob("task-*.parquet"))[0]
+    task.write_bytes(task.read_bytes()[:100])
+    resume = ["campaign", "run", str(out / "spec.toml"), "--out", str(out), "--resume"]
+    for args in (["campaign", "report", str(out)], resume):
+        res = runner.invoke(app, args)
+        assert res.exit_code == 2, res.output
+        line = res.output.strip().splitlines()[-1]  # (run says what it will run first)
+        assert line.startswith(f"error: {task}: not a readable task file (Parquet magic")
+        assert line.endswith("; delete it, and --resume runs its task again")

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 from pathlib import Path
 
 import pyarrow as pa
@@ -512,7 +513,7 @@ def completed_tasks(runs: Path, digest: str | None = None) -> set[int]:
     done = set()
     for index, p in _own_files(runs).items():
         if digest is not None:
-            hashes = pq.read_table(p, columns=["spec_hash"]).column("spec_hash").unique()
+            hashes = _read(p, columns=["spec_hash"]).column("spec_hash").unique()
             if set(hashes.to_pylist()) != {digest}:
                 raise _foreign(p, hashes.to_pylist(), digest)
         done.add(index)
@@ -525,10 +526,24 @@ def stored_statuses(runs: Path, n_tasks: int | None = None) -> dict[int, dict[st
     out = {}
     for index, p in _own_files(runs, n_tasks).items():
         counts: dict[str, int] = {}
-        for s in pq.read_table(p, columns=["status"]).column("status").to_pylist():
+        for s in _read(p, columns=["status"]).column("status").to_pylist():
             counts[s] = counts.get(s, 0) + 1
         out[index] = counts
     return out
+
+
+def _read(path: Path, **options) -> pa.Table:
+    """A task file's table; one line naming the file if it cannot be read (it is written
+    whole or not at all, so something else damaged it: pyarrow said only "Parquet magic
+    bytes not found in footer")."""
+    try:
+        return pq.read_table(path, **options)
+    except (pa.ArrowException, OSError) as exc:
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        why = re.sub(r"^Could not open Parquet input source '[^']*': ", "", why)  # (the path)
+        raise SpecError(
+            f"{path}: not a readable task file ({why}); delete it, and --resume runs its task again"
+        ) from None
 
 
 def write_task(runs: Path, index: int, table: pa.Table) -> Path:
@@ -551,7 +566,7 @@ def read_records(out: str | Path, *, timing: bool = True) -> pa.Table:
     tables = []
     seen: dict[tuple, Path] = {}
     for f in files.values():
-        t = pq.read_table(f, schema=sch)
+        t = _read(f, schema=sch)
         hashes = t.column("spec_hash").unique().to_pylist()
         if hashes and set(hashes) != {spec.digest}:
             raise _foreign(f, hashes, spec.digest)
