@@ -626,3 +626,26 @@ def test_sigint_while_compiling_stops_at_once_and_keeps_previous_results(
     assert last.startswith("interrupted after ") and "keeps its previous results" in last, last
     assert "Traceback" not in "".join(seen)
     assert untouched(old_results) and not leftovers(old_results.parent)
+
+
+def test_sigint_while_the_command_starts_is_one_line_and_130(tmp_path):
+    """Ctrl-C in the first second of `pkmctl` (its imports) printed a 20-40 line
+    traceback. The console script, as a user runs it."""
+    script = Path(sys.executable).parent / "pkmctl"
+    if not script.is_file():
+        pytest.skip("no pkmctl console script beside this Python")
+    proc = subprocess.Popen(
+        [str(script), "simulate", "paper", "--duration", "0.01", "--out", str(tmp_path / "o")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # (see above)
+    )  # fmt: skip
+    time.sleep(0.25)  # Python is up, pkmctl's imports are not done (about a second)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "o").exists()
+    # a library user's Ctrl-C is Python's own: KeyboardInterrupt
+    code = "import pkmctl, signal as s; print(s.getsignal(s.SIGINT) is s.default_int_handler)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "True"

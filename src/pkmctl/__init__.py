@@ -11,7 +11,10 @@ Parts of the loop (controllers, sensors, actuators, plants) are added with
 :func:`register_controller` and its siblings (docs/parts.md).
 """
 
-from pkmctl import fuzzy
+from pkmctl import (
+    _start,  # noqa: F401  (first: a quiet Ctrl-C while importing)
+    fuzzy,
+)
 from pkmctl.control import (
     AFSMC,
     CONTROLLERS,

@@ -1014,7 +1014,10 @@ def main() -> None:
     (freeing what they hold), flushes the standard streams and runs the atexit
     functions."""
     import gc
+    import signal
 
+    if threading.current_thread() is threading.main_thread():  # (pkmctl/__init__.py's quiet
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # start-up handler off)
     try:
         app(prog_name="pkmctl")
     finally:

@@ -1,0 +1,23 @@
+"""The ``pkmctl`` command's start-up: Ctrl-C while pkmctl's imports run (about a
+second) printed a Python traceback of 20-40 lines. For that command only (not for a
+library user's process), an interrupt then exits at once with status 130 and one line;
+:func:`pkmctl.cli.main` puts Python's own handler back before any work."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+
+
+def _quiet_interrupt(signum, frame) -> None:  # (nothing to clean up before the command runs)
+    sys.stderr.write("interrupted while starting: nothing done\n")
+    os._exit(130)
+
+
+if (
+    os.path.basename(sys.argv[0] if sys.argv else "") == "pkmctl"
+    and threading.current_thread() is threading.main_thread()
+):
+    signal.signal(signal.SIGINT, _quiet_interrupt)
