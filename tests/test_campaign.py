@@ -1297,6 +1297,13 @@ def test_a_folders_own_spec_resumes_with_its_stored_scenario(tmp_path):
     assert read_records(out, timing=False).equals(first)
     res = runner.invoke(app, ["campaign", "show", str(out / "spec.toml")])
     assert res.exit_code == 0, res.output
+    # edited, it is no longer the campaign's: read as written, not with the stored copy
+    own = (out / "spec.toml").read_text()
+    (out / "spec.toml").write_text(own.replace('scenario = "mysc.toml"', 'scenario = "prototype"'))
+    assert CampaignSpec.from_toml(out / "spec.toml").base.name == "prototype"
+    (out / "spec.toml").write_text(own.replace("seeds = 1", "seeds = 2"))
+    with pytest.raises(pkmctl.ScenarioError, match="mysc.toml': No such file"):  # not there
+        CampaignSpec.from_toml(out / "spec.toml")
 
 
 def _erring(monkeypatch, cells: set):

@@ -34,3 +34,15 @@ def test_a_metric_undefined_in_every_run_is_said_not_blamed_on_the_runs(tmp_path
     assert "no pair of runs where both ended ok" not in md
     assert ("- pd vs smc: no pair to compare: in 12 pairs that ended ok the metric is not "
             "finite") in md  # fmt: skip
+
+
+def test_runs_not_run_yet_are_not_called_runs_that_did_not_end_ok(tmp_path):
+    """An interrupted campaign's missing runs were counted as runs that did not end ok
+    ("listed below", and nothing was)."""
+    out = tmp_path / "c"
+    _fake_campaign(out, SPEC)
+    sorted((out / "runs").glob("task-*.parquet"))[-1].unlink()  # as if interrupted
+    write_report(out)
+    md = (out / "report" / "report.md").read_text()
+    assert "runs that did not end ok took pairs away" not in md
+    assert "runs not run yet (the campaign is not complete)" in md

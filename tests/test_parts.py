@@ -368,8 +368,20 @@ def test_an_exception_a_users_part_raises_as_the_loop_runs_names_the_part(monkey
         "t = 0 s or later)"
     )
     # pkmctl's own parts alone: the exception as it is (an internal error, with its type)
-    with pytest.raises(ValueError, match="^boom$"):
+    with pytest.raises(ValueError, match="^boom$") as info:
         pkmctl.simulate("paper", controller="pd", duration=0.001)
+    assert info.value.__cause__ is not info.value
+
+    # what the progress callback raises is the caller's, not the part's
+    class Cancel(Exception):
+        pass
+
+    def stop(done, total):
+        raise Cancel("stop")
+
+    monkeypatch.setattr(loop_module, "loop_for", lambda parts: lambda *args: (0, 0))
+    with pytest.raises(Cancel):
+        pkmctl.simulate("paper", controller="x-raising", duration=0.001, progress=stop)
 
 
 def test_build_limits_and_options_of_a_users_part_fail_in_one_line_naming_them():
@@ -410,6 +422,10 @@ def test_a_plugin_that_fails_to_load_says_where_and_a_taken_name_by_whom(tmp_pat
     assert str(info.value) == (
         f"--plugin {bad}: ZeroDivisionError: division by zero (zd_plugin.py, line 3: y = x / 0)"
     )
+    bad = tmp_path / "json_plugin.py"  # raised in the standard library: the plugin's line
+    bad.write_text('import json\nCONFIG = json.loads("{not json")\n')
+    with pytest.raises(PluginError, match=r"\(json_plugin.py, line 2: CONFIG = json.loads"):
+        load_plugins([str(bad)])
     pkmctl.register_controller("x-taken", params=_P, build=lambda c: _P(1.0))(
         lambda p, state, work, y, ref, F: None
     )

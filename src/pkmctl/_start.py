@@ -1,10 +1,11 @@
 """The ``pkmctl`` command's start-up: Ctrl-C while pkmctl's imports run (about a
 second) printed a Python traceback of 20-40 lines. For that command only (not for a
 library user's process), an interrupt then exits at once with status 130 and one line;
-:func:`pkmctl.cli.main` puts Python's own handler back before any work."""
+the command's first step (its options parsed) puts Python's own handler back."""
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import signal
 import sys
@@ -18,6 +19,7 @@ def _quiet_interrupt(signum, frame) -> None:  # (nothing to clean up before the 
 
 if (
     os.path.basename(sys.argv[0] if sys.argv else "") == "pkmctl"
+    and multiprocessing.parent_process() is None  # (a spawned worker has the same argv)
     and threading.current_thread() is threading.main_thread()
 ):
     signal.signal(signal.SIGINT, _quiet_interrupt)

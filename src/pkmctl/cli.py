@@ -81,6 +81,8 @@ class _OneLineGroup(TyperGroup):
             _print_error(f"{exc.format_message()} (see {name} --help)")
             sys.exit(exc.exit_code)
         except typer.Abort:  # Ctrl-C between a command's interruptible steps
+            code = 130
+        if code == 130:  # (Typer >= 0.29 returns Exit(130) for a KeyboardInterrupt: silent)
             # os._exit, not sys.exit: an interpreter shutdown would wait for worker
             # processes still compiling (concurrent.futures joins them at exit)
             kept = f": {_KEPT['note']}" if _KEPT["note"] else ""
@@ -240,6 +242,10 @@ def _main(
         ),
     ] = None,
 ) -> None:
+    import signal
+
+    if threading.current_thread() is threading.main_thread():  # the start-up's quiet handler
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # off (pkmctl/_start.py)
     ctx.obj = {"debug": debug}
     if plugin:
         from pkmctl.plugins import load_plugins
@@ -1014,10 +1020,7 @@ def main() -> None:
     (freeing what they hold), flushes the standard streams and runs the atexit
     functions."""
     import gc
-    import signal
 
-    if threading.current_thread() is threading.main_thread():  # (pkmctl/__init__.py's quiet
-        signal.signal(signal.SIGINT, signal.default_int_handler)  # start-up handler off)
     try:
         app(prog_name="pkmctl")
     finally:

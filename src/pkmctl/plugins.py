@@ -60,7 +60,7 @@ def _import(spec: str) -> str:
             loader.loader.exec_module(module)
         except Exception as exc:
             del sys.modules[name]
-            raise PluginError(f"--plugin {spec}: {_why(exc)}") from exc
+            raise PluginError(f"--plugin {spec}: {_why(exc, path)}") from exc
         return str(path)
     try:
         importlib.import_module(spec)
@@ -69,19 +69,34 @@ def _import(spec: str) -> str:
     return spec
 
 
-def _why(exc: Exception) -> str:
-    """The exception in one line, and where in the user's code it was raised: the last
-    frame outside pkmctl and the import machinery (a ZeroDivisionError said no line)."""
+def _why(exc: Exception, own: Path | None = None) -> str:
+    """The exception in one line, and where in the user's code it was raised (a
+    ZeroDivisionError said no line): the last frame in the plugin's own file ``own``,
+    else the last one outside pkmctl, the import machinery and the installed packages
+    (not json's decoder.py for a json.loads in the plugin)."""
+    import sysconfig
     import traceback
 
     package = Path(__file__).resolve().parent
-    where = ""
+    installed = {Path(p).resolve() for p in (sysconfig.get_paths()["stdlib"],
+                                             sysconfig.get_paths()["purelib"],
+                                             sysconfig.get_paths()["platlib"])}  # fmt: skip
+    mine, theirs = None, None
     for frame in traceback.extract_tb(exc.__traceback__):
-        file = Path(frame.filename)
-        if frame.filename.startswith("<") or file.resolve().is_relative_to(package):
+        if frame.filename.startswith("<"):
             continue
-        where = f" ({file.name}, line {frame.lineno}" + (f": {frame.line})" if frame.line
-                                                           else ")")  # fmt: skip
+        file = Path(frame.filename).resolve()
+        if own is not None and file == own:
+            mine = frame
+        elif not file.is_relative_to(package) and not any(file.is_relative_to(d)
+                                                           for d in installed):  # fmt: skip
+            theirs = frame
+    frame = mine or theirs
+    where = ""
+    if frame is not None:
+        where = f" ({Path(frame.filename).name}, line {frame.lineno}" + (
+            f": {frame.line})" if frame.line else ")"
+        )
     text = f"{type(exc).__name__}: {exc}"
     if isinstance(exc, SyntaxError):  # its message names the file and line itself
         return text

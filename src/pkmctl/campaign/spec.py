@@ -459,7 +459,7 @@ class CampaignSpec:
         if path is not None and path.name == "spec.toml":
             from pkmctl.campaign.store import stored_inputs
 
-            stored = stored_inputs(folder)
+            stored = stored_inputs(folder, text)
             if stored is not None:  # a campaign folder's own spec: its stored copies
                 scenario, fis_files = stored
                 data = {**data, "scenario": scenario}

@@ -231,10 +231,17 @@ def paired_differences(spec: CampaignSpec, table: pa.Table, metrics: list[str]) 
     are equal (neither wins), ``better`` is ``"a"`` or ``"b"`` when the 95 % interval of
     the mean difference excludes 0 over at least :data:`MIN_PAIRS` pairs, ``"unclear"``
     when the data cannot tell; what is not a pair: ``a_failed`` / ``b_failed`` the seeds
-    whose run of a / b did not end ok, ``undefined`` those where both did but the metric
-    is not finite in one of them.
+    whose run of a / b is recorded as not ended ok, ``undefined`` those where both ended
+    ok but the metric is not finite in one of them, ``not_run`` those where a's or b's
+    run has no record yet (an interrupted campaign).
     """
     c = _columns(table, ["cell", "controller", "seed", "status", *metrics])
+    status = {
+        (int(cell), ctrl, int(seed)): st
+        for cell, ctrl, seed, st in zip(
+            c["cell"], c["controller"], c["seed"], c["status"], strict=True
+        )  # fmt: skip
+    }
     index = {
         (int(cell), ctrl, int(seed)): i
         for i, (cell, ctrl, seed, st) in enumerate(
@@ -248,13 +255,16 @@ def paired_differences(spec: CampaignSpec, table: pa.Table, metrics: list[str]) 
         for b in ctrls[ia + 1 :]:
             for m in metrics:
                 per_cell: dict[int, list[float]] = {}
-                lost: dict[int, list[int]] = {}  # a not ok, b not ok, metric undefined
+                # a not ok, b not ok (recorded so), metric undefined, a or b not run yet
+                lost: dict[int, list[int]] = {}
                 for cell in range(len(spec.cells)):
-                    d, why = [], [0, 0, 0]
+                    d, why = [], [0, 0, 0, 0]
                     for s in spec.seeds:
                         i, j = index.get((cell, a, s)), index.get((cell, b, s))
-                        why[0] += i is None
-                        why[1] += j is None
+                        sa, sb = status.get((cell, a, s)), status.get((cell, b, s))
+                        why[0] += sa is not None and sa != "ok"
+                        why[1] += sb is not None and sb != "ok"
+                        why[3] += sa is None or sb is None
                         if i is not None and j is not None:
                             va, vb = c[m][i], c[m][j]
                             if math.isfinite(va) and math.isfinite(vb):
@@ -263,7 +273,7 @@ def paired_differences(spec: CampaignSpec, table: pa.Table, metrics: list[str]) 
                                 why[2] += 1
                     per_cell[cell], lost[cell] = d, why
                 per_cell[-1] = [x for cell in range(len(spec.cells)) for x in per_cell[cell]]
-                lost[-1] = [sum(lost[k][i] for k in range(len(spec.cells))) for i in range(3)]
+                lost[-1] = [sum(lost[k][i] for k in range(len(spec.cells))) for i in range(4)]
                 for cell in [*range(len(spec.cells)), -1]:
                     d = np.asarray(per_cell[cell], dtype=float)
                     lo, hi = bootstrap_interval(d, seed=_seed(cell, a, b, m))
@@ -283,6 +293,7 @@ def paired_differences(spec: CampaignSpec, table: pa.Table, metrics: list[str]) 
                             "a_failed": lost[cell][0],
                             "b_failed": lost[cell][1],
                             "undefined": lost[cell][2],
+                            "not_run": lost[cell][3],
                         }
                     )
     return rows

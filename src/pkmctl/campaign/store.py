@@ -25,6 +25,7 @@ refused. Read every record with :func:`read_records`
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import re
@@ -253,6 +254,8 @@ def _manifest(spec: CampaignSpec, fis_copies: dict[str, str] | None = None,
         "task_seconds": TASK_SECONDS,
         "task_multiple": TASK_MULTIPLE,
         "columns": schema(spec).names,
+        # spec.toml as written: while its text is this, it is read with the stored inputs
+        "spec_text_sha256": hashlib.sha256(spec.text.encode()).hexdigest(),
     }
     if fis_copies:
         out["fis_copies"] = fis_copies
@@ -443,17 +446,22 @@ def _stored(out: Path, manifest: dict) -> tuple[str, dict[str, str]]:
     return str((out / "scenario.toml").absolute()), fis_files
 
 
-def stored_inputs(folder: str | Path) -> tuple[str, dict[str, str] | None] | None:
-    """For a campaign folder's own ``spec.toml``: (its stored scenario, its stored .fis
-    copies, or None for a folder that has none) that the spec must be read with, so that
-    the folder is complete on its own (``pkmctl campaign run DIR/spec.toml --out DIR
-    --resume``); None if ``folder`` is not a campaign folder."""
+def stored_inputs(folder: str | Path, text: str) -> tuple[str, dict[str, str] | None] | None:
+    """For a campaign folder's own ``spec.toml`` of ``text``: (its stored scenario, its
+    stored .fis copies, or None for a folder that has none) that the spec is read with
+    while it is the campaign's, so that the folder is complete on its own (``pkmctl
+    campaign run DIR/spec.toml --out DIR --resume``); None if ``folder`` is not a campaign
+    folder, or the text is not the one the campaign was started with (edited since: it
+    is read as written; a folder made before the text was recorded: always the copies)."""
     folder = Path(folder)
     try:
         manifest = json.loads((folder / "campaign.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
     if not (isinstance(manifest, dict) and (folder / "scenario.toml").is_file()):
+        return None
+    recorded = manifest.get("spec_text_sha256")
+    if recorded is not None and recorded != hashlib.sha256(text.encode()).hexdigest():
         return None
     scenario, fis_files = _stored(folder, manifest)
     return scenario, (fis_files or None)

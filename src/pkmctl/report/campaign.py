@@ -303,6 +303,9 @@ def _few(unclear: list[dict]) -> str:
     undefined = sum(r.get("undefined", 0) > 0 for r in short)
     if undefined:
         why.append(f"in {undefined} of them, the metric is not finite in runs that ended ok")
+    not_run = sum(r.get("not_run", 0) > 0 for r in short)
+    if not_run:
+        why.append(f"in {not_run} of them, runs not run yet (the campaign is not complete)")
     because = f"; {'; '.join(why)}" if why else ""
     return f" ({many} with fewer than the {stats.MIN_PAIRS} pairs a verdict takes{because})"
 
@@ -316,8 +319,10 @@ def _failed(r: dict) -> int:
 def _no_pair(a: str, b: str, r: dict) -> str:
     """Why a comparison over all cells has no pair: which side's runs did not end ok, or
     the metric not finite where both did."""
-    parts = [f"{n} runs of {who} did not end ok" for who, n in
+    parts = [f"{n} run{'s' * (n != 1)} of {who} did not end ok" for who, n in
              ((a, r.get("a_failed", 0)), (b, r.get("b_failed", 0))) if n]  # fmt: skip
+    if r.get("not_run", 0):
+        parts.append(f"{r['not_run']} pairs not run yet (the campaign is not complete)")
     if r.get("undefined", 0):
         parts.append(
             f"in {r['undefined']} pairs that ended ok the metric is not finite (e.g. a "

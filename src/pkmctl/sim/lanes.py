@@ -28,7 +28,6 @@ import math
 import time
 
 import numpy as np
-from numba.core.errors import NumbaError
 
 from pkmctl._jit import kernel, ready, specialise
 from pkmctl.model.lanes import make_lane_work, wide_vectors
@@ -53,10 +52,9 @@ from pkmctl.sim.loop import (
     LogBuffers,
     LoopOutput,
     accumulate_metrics_lanes,
-    compile_error,
+    blame,
     metric_windows,
     pose_status,
-    raised,
 )
 
 __all__ = [
@@ -421,21 +419,17 @@ def run_lanes(
             float(period), int(substeps))  # fmt: skip
     tail = (kx, kz, xs, zs, vec, logs, log_c, log_s, row_c, row_s, acc, accL, mpL, mwL,
             alive, status, kstop, fin, init, frz)  # fmt: skip
-    dt, k0 = 0.0, 0
-    try:
-        for k0, ref, qdes, dist_index in shared.chunks():
-            args = (*head, k0, shared.every, ref, qdes, dist_values, dist_index, *tail)
+    dt = 0.0
+    for k0, ref, qdes, dist_index in shared.chunks():
+        args = (*head, k0, shared.every, ref, qdes, dist_values, dist_index, *tail)
+        with blame(parts, k0, period):
             if k0 == 0:  # compiling or loading the loop is not its time
                 ready(loop, *args)
             t0 = time.perf_counter()
             left = loop(*args)
             dt += time.perf_counter() - t0
-            if left == 0:
-                break
-    except NumbaError as exc:
-        raise compile_error(parts, exc) from exc
-    except Exception as exc:  # raised by a part's code as the lanes ran
-        raise raised(parts, exc, k0, period) from exc
+        if left == 0:
+            break
     runs = runs[:n_runs]
     for kind, s, f in zip(("plant", "sensor", "controller", "actuator"), states, fin, strict=True):
         for i, run in enumerate(runs):

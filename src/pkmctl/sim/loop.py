@@ -593,18 +593,25 @@ def compile_error(parts: dict[str, Part], exc: Exception) -> PartError:
     return PartError(f"{_describe(parts)} {verb} not compile: {_reason(exc)}")
 
 
-def raised(parts: dict[str, Part], exc: Exception, k: int, period: float) -> Exception:
-    """What to raise for an exception from a compiled loop's run: with a user's part in
-    it, a one-line PartError naming the part(s), the exception and the time (the user's
-    ``raise ValueError("boom")`` read "error: boom"; a RuntimeError "an internal
-    error"); the exception itself when every part is pkmctl's."""
-    if all(p.builtin for p in parts.values()):
-        return exc
-    verb = "raises" if sum(not p.builtin for p in parts.values()) == 1 else "raise"
-    return PartError(
-        f"{_describe(parts)} {verb} {type(exc).__name__}: {str(exc)[:300]} (in the period "
-        f"starting at t = {k * period:.6g} s or later)"
-    )
+@contextlib.contextmanager
+def blame(parts: dict[str, Part], k: int, period: float) -> Iterator[None]:
+    """Around a call of the parts' compiled code (from period ``k`` on): a Numba error is
+    a one-line compile error (:func:`compile_error`); another exception, with a user's
+    part in the loop, a one-line PartError naming the part(s), the exception and the time
+    (the user's ``raise ValueError("boom")`` read "error: boom"; a RuntimeError "an
+    internal error"); with pkmctl's parts alone, the exception as it is."""
+    try:
+        yield
+    except NumbaError as exc:
+        raise compile_error(parts, exc) from exc
+    except Exception as exc:
+        if all(p.builtin for p in parts.values()):
+            raise
+        verb = "raises" if sum(not p.builtin for p in parts.values()) == 1 else "raise"
+        raise PartError(
+            f"{_describe(parts)} {verb} {type(exc).__name__}: {str(exc)[:300]} (in the "
+            f"period starting at t = {k * period:.6g} s or later)"
+        ) from exc
 
 
 def run_parts(
@@ -634,22 +641,18 @@ def run_parts(
             float(period), int(substeps))  # fmt: skip
     tail = (rk, ast_s, vec, logs.arrays, logs.controller, logs.sensor, run.metrics,
             inputs.metrics, run.metric_work)  # fmt: skip
-    status, k, dt, k0 = 0, inputs.periods, 0.0, 0
-    try:
-        for k0, ref, qdes, dist_index in inputs.chunks():
-            args = (*head, k0, run.every, ref, qdes, inputs.dist_values, dist_index, *tail)
+    status, k, dt = 0, inputs.periods, 0.0
+    for k0, ref, qdes, dist_index in inputs.chunks():
+        args = (*head, k0, run.every, ref, qdes, inputs.dist_values, dist_index, *tail)
+        with blame(parts, k0, period):  # (only the compiled code: not progress's)
             if k0 == 0:  # compiling or loading the loop is not its time
                 ready(loop, *args)
             t0 = time.perf_counter()
             status, k = loop(*args)
             dt += time.perf_counter() - t0
-            if status:
-                break
-            if progress is not None:
-                progress(k0 + ref.shape[0], inputs.periods)
-    except NumbaError as exc:
-        raise compile_error(parts, exc) from exc
-    except Exception as exc:  # raised by a part's code as the loop ran
-        raise raised(parts, exc, k0, period) from exc
+        if status:
+            break
+        if progress is not None:
+            progress(k0 + ref.shape[0], inputs.periods)
     _mark_compiled(loop)
     return run.output(status, k if status else inputs.periods, dt)

@@ -23,7 +23,6 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-from numba.core.errors import NumbaError
 
 from pkmctl._jit import ready, specialise
 from pkmctl.parts import (
@@ -45,9 +44,8 @@ from pkmctl.sim.loop import (
     _key,
     _mark_compiled,
     accumulate_metrics,
-    compile_error,
+    blame,
     pose_status,
-    raised,
     setup,
 )
 
@@ -164,16 +162,19 @@ def run_stepped(
     machine.reset(x[:6])
     status, m = machine.read(x, q), 0
     t0 = time.perf_counter()
+    k, in_parts = 0, False  # in_parts: in the parts' compiled code (not the stepper's)
     try:
         for k0, ref, qdes, dist_index in inputs.chunks() if status == 0 else ():
             for j in range(ref.shape[0]):
                 k = k0 + j
                 dist = dist_values[dist_index[j]]
                 row = k // every if k % every == 0 else -1
+                in_parts = True
                 if k == 0:  # compiling or loading the period is not the run's time
                     ready(step, *args, k, row, ref[j], qdes[j], dist, *tail)
                     t0 = time.perf_counter()
                 status = step(*args, k, row, ref[j], qdes[j], dist, *tail)
+                in_parts = False
                 if status:
                     m = k
                     break
@@ -187,10 +188,11 @@ def run_stepped(
                     progress(m, inputs.periods)
             if status:
                 break
-    except NumbaError as exc:
-        raise compile_error(parts, exc) from exc
-    except Exception as exc:  # raised by a part's code (or the stepper) as the run went
-        raise raised(parts, exc, m, period) from exc
+    except Exception:
+        if not in_parts:  # the stepper's (MuJoCo's) or progress's own: as it is
+            raise
+        with blame(parts, k, period):
+            raise
     dt = time.perf_counter() - t0
     if progress is not None and status == 0:
         progress(inputs.periods, inputs.periods)
