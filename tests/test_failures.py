@@ -17,6 +17,7 @@ import stat
 import subprocess
 import sys
 import tempfile
+import textwrap
 import threading
 import time
 from pathlib import Path
@@ -681,3 +682,22 @@ def test_sigint_before_the_commands_own_handling_still_says_so(tmp_path):
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 130, err
     assert err.strip().startswith("interrupted after ") and "Traceback" not in err, err
+
+
+def test_the_start_ups_quiet_ctrl_c_is_the_commands_alone(tmp_path):
+    """A spawned worker (campaigns, precompile, figures) has the command's argv: it took
+    the start-up's handler too, and each printed "interrupted while starting" on Ctrl-C."""
+    script = tmp_path / "probe.py"
+    script.write_text(textwrap.dedent('''
+        import multiprocessing as mp, signal, sys
+        def handler():
+            import pkmctl
+            return getattr(signal.getsignal(signal.SIGINT), "__module__", "?")
+        if __name__ == "__main__":
+            sys.argv[0] = "/somewhere/bin/pkmctl"
+            with mp.get_context("spawn").Pool(1) as pool:
+                print(handler(), pool.apply(handler))
+    '''))  # fmt: skip
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         check=True, timeout=120).stdout.split()  # fmt: skip
+    assert out == ["pkmctl._start", "_signal"], out  # the command's; the worker's Python's
