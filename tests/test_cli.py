@@ -268,7 +268,10 @@ def test_plugin_registers_a_users_part_for_the_command_and_its_workers(tmp_path,
     ("content", "message"),
     [
         (None, "--plugin {path}: no such file"),
-        ("raise RuntimeError('boom')", "--plugin {path}: RuntimeError: boom"),
+        (
+            "raise RuntimeError('boom')",
+            "--plugin {path}: RuntimeError: boom (bad_plugin.py, line 1: raise RuntimeError('boom'))",
+        ),
     ],
 )
 def test_a_plugin_that_fails_is_one_line(tmp_path, content, message):
