@@ -270,7 +270,8 @@ def test_plugin_registers_a_users_part_for_the_command_and_its_workers(tmp_path,
         (None, "--plugin {path}: no such file"),
         (
             "raise RuntimeError('boom')",
-            "--plugin {path}: RuntimeError: boom (bad_plugin.py, line 1: raise RuntimeError('boom'))",
+            "--plugin {path}: RuntimeError: boom (bad_plugin.py, line 1: raise "
+            "RuntimeError('boom'))",
         ),
     ],
 )
