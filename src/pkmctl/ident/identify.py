@@ -40,6 +40,7 @@ From limb lengths q(t) and limb forces tau(t):
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 import threading
@@ -847,6 +848,46 @@ def _physical(
     return T @ res.x, np.flatnonzero(res.active_mask != 0)
 
 
+def _compile_time_apart(fn):
+    """``fn`` (an identification) with the time a first compilation of the kernels it
+    needed took apart from its ``seconds``: in ``compile_seconds``."""
+
+    @functools.wraps(fn)
+    def timed(*args, **kwargs) -> Identification:
+        from pkmctl import _jit  # (so written: the text would make this file a kernel source)
+
+        clock = _CompileClock()
+        with _jit.announce(clock):
+            idn = fn(*args, **kwargs)
+        spent = clock.seconds
+        return dataclasses.replace(idn, seconds=max(0.0, idn.seconds - spent),
+                                   compile_seconds=spent)  # fmt: skip
+
+    return timed
+
+
+class _CompileClock:
+    """The wall time during which at least one compilation ran (in any thread), from
+    the compile announcements' events."""
+
+    def __init__(self) -> None:
+        self.active, self.since, self.seconds = 0, 0.0, 0.0
+        self._lock = threading.Lock()
+
+    def __call__(self, event: str, what: str, seconds: float) -> None:
+        with self._lock:
+            now = time.perf_counter()
+            if event == "start":
+                if self.active == 0:
+                    self.since = now
+                self.active += 1
+            elif self.active > 0:
+                self.active -= 1
+                if self.active == 0:
+                    self.seconds += now - self.since
+
+
+@_compile_time_apart
 def identify(
     log: Log,
     scenario: Scenario,
@@ -872,54 +913,6 @@ def identify(
 
     ``seconds`` of the result is the identification's own time; a first compilation of
     kernels it needed (once per machine) is ``compile_seconds``, not in it."""
-    from pkmctl import _jit  # (so written: the text would make this file a kernel source)
-
-    clock = _CompileClock()
-    with _jit.announce(clock):
-        idn = _identify(
-            log, scenario, cutoff=cutoff, decimation=decimation, physical=physical,
-            friction_velocity=friction_velocity, force_lead=force_lead,
-            scenario_label=scenario_label, max_residual=max_residual, mass_ratio=mass_ratio,
-        )  # fmt: skip
-    spent = clock.seconds
-    return dataclasses.replace(idn, seconds=max(0.0, idn.seconds - spent), compile_seconds=spent)
-
-
-class _CompileClock:
-    """The wall time during which at least one compilation ran (in any thread), from
-    the compile announcements' events."""
-
-    def __init__(self) -> None:
-        self.active, self.since, self.seconds = 0, 0.0, 0.0
-        self._lock = threading.Lock()
-
-    def __call__(self, event: str, what: str, seconds: float) -> None:
-        with self._lock:
-            now = time.perf_counter()
-            if event == "start":
-                if self.active == 0:
-                    self.since = now
-                self.active += 1
-            elif self.active > 0:
-                self.active -= 1
-                if self.active == 0:
-                    self.seconds += now - self.since
-
-
-def _identify(
-    log: Log,
-    scenario: Scenario,
-    *,
-    cutoff: float = 10.0,
-    decimation: int | None = None,
-    physical: bool = True,
-    friction_velocity: float | None = None,
-    force_lead: float | None = 0.0,
-    scenario_label: str | None = None,
-    max_residual: float | None = MAX_RELATIVE_RESIDUAL,
-    mass_ratio: tuple[float, float] | None = MASS_RATIO,
-) -> Identification:
-    """:func:`identify` without its compile clock."""
     t0 = time.perf_counter()
     label = scenario_label or f"scenario {scenario.name!r}"
     _check_rate(log, cutoff, None)  # a bad log is refused before any work
