@@ -382,9 +382,10 @@ def test_a_diverged_run_is_a_record_with_its_time(tmp_path):
     assert said in md and md.count("did not end ok") == 1
 
 
-def test_a_run_that_errs_says_why_in_the_command_and_the_report(tmp_path):
-    """A cell whose machine the plant cannot model (Coulomb friction on the MuJoCo plant) is
-    a record with status "error"; `campaign run` prints its message, the report names it."""
+def test_a_cell_the_plant_cannot_model_is_refused_before_any_run(tmp_path):
+    """Coulomb friction on the MuJoCo plant: refused when the spec is read, naming the field
+    and the cell's value, with nothing written (it had run as error records, exit 1). A run
+    that errs is a record (tests/test_campaign_plugins.py)."""
     pytest.importorskip("mujoco", reason="MuJoCo is not installed (pkmctl[mujoco])")
     base = pkmctl.Scenario.builtin("paper").replace(**{"plant.kind": "mujoco"})
     (tmp_path / "mj.toml").write_text(base.to_toml())
@@ -395,14 +396,10 @@ def test_a_run_that_errs_says_why_in_the_command_and_the_report(tmp_path):
     out = tmp_path / "c"
     res = runner.invoke(app, ["campaign", "run", str(tmp_path / "spec.toml"), "--out", str(out),
                               "--workers", "1"])  # fmt: skip
-    assert res.exit_code == 1, res.output  # a run that failed with an error: not a result
-    why = "PartError: plant 'mujoco': plant.friction_coulomb = 5.0: MuJoCo's dry friction"
-    assert f"1 run failed: {why}" in res.stderr, res.stderr
-    assert [r["status"] for r in read_records(out).to_pylist()] == ["ok", "error"]
-    res = runner.invoke(app, ["campaign", "report", str(out)])
-    assert res.exit_code == 0, res.output
-    md = (out / "report" / "report.md").read_text()
-    assert f"at plant.friction_coulomb = 5; 1 error: {why}" in md, md
+    assert res.exit_code == 2, res.output
+    assert len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert "plant.friction_coulomb = 5.0: plant.kind = 'mujoco' cannot model it" in res.stderr
+    assert not out.exists()
 
 
 def test_a_scheduler_that_cannot_be_reached_leaves_nothing(spec_file, tmp_path):

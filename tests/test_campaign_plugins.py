@@ -17,7 +17,7 @@ import pkmctl
 from pkmctl.campaign import CampaignSpec
 from pkmctl.campaign.execute import run_campaign
 from pkmctl.campaign.spec import SpecError
-from pkmctl.campaign.store import check_store, open_store
+from pkmctl.campaign.store import check_store, open_store, read_records
 from pkmctl.cli import app
 from pkmctl.plugins import ENV
 
@@ -163,3 +163,32 @@ def test_a_campaign_of_a_plugin_part_read_without_it_says_to_pass_it(tmp_path, m
         r"your own: pass the plugin that registers it, pkmctl --plugin FILE.py",
     ):
         CampaignSpec.from_toml(_spec(tmp_path, ["no-such-law"]))  # fmt: skip
+
+
+#: A controller whose build refuses a payload: every run of a cell with one is an error.
+NO_PAYLOAD = LAW.replace(
+    "        return cls(GAIN)",
+    "        if ctx.scenario.payload.mass > 0:\n"
+    "            raise ValueError('no payload, please')\n"
+    "        return cls(GAIN)",
+)
+
+
+def test_a_run_that_errs_says_why_in_the_command_and_the_report(tmp_path, monkeypatch):
+    """A run that raises is a record with status "error": `campaign run` prints its message
+    and exits 1 (an error is not a result), the report names it at its cell."""
+    monkeypatch.setenv(ENV, "")
+    plugin, name = _plugin(tmp_path, NO_PAYLOAD)
+    spec_file = _spec(tmp_path, [name], seeds=1)
+    spec_file.write_text(spec_file.read_text() + '[factors."payload.mass"]\nvalues = [0.0, 5.0]\n')
+    out = tmp_path / "c"
+    res = runner.invoke(app, ["--plugin", str(plugin), "campaign", "run", str(spec_file),
+                              "--out", str(out), "--workers", "1"])  # fmt: skip
+    assert res.exit_code == 1, res.output  # a run that failed with an error: not a result
+    why = f"PartError: controller {name!r}: build failed: ValueError: no payload, please"
+    assert f"1 run failed: {why}" in res.stderr, res.stderr
+    assert [r["status"] for r in read_records(out).to_pylist()] == ["ok", "error"]
+    res = runner.invoke(app, ["--plugin", str(plugin), "campaign", "report", str(out)])
+    assert res.exit_code == 0, res.output
+    md = (out / "report" / "report.md").read_text()
+    assert f"at payload.mass = 5; 1 error: {why}" in md, md

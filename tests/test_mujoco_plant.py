@@ -53,13 +53,17 @@ def test_the_scenarios_machine_options_and_payload_reach_the_mujoco_plant(contro
 
 
 def test_coulomb_friction_on_the_mujoco_plant_is_refused_naming_the_field():
-    sc = _on_mujoco(pkmctl.Scenario.builtin("prototype"))  # F_c = 30 N
+    """When the scenario is read, not when a run builds the plant."""
     with pytest.raises(
-        pkmctl.PartError,
-        match=r"^plant 'mujoco': plant\.friction_coulomb = "
-        r"30\.0: MuJoCo's dry friction \(frictionloss\) is a soft constraint",
+        pkmctl.ScenarioError,
+        match=r"^plant\.friction_coulomb = 30\.0: plant\.kind = 'mujoco' cannot model it "
+        r"\(MuJoCo's dry friction, frictionloss, is a soft constraint",
     ):
-        pkmctl.simulate(sc, "pd", duration=0.01)
+        _on_mujoco(pkmctl.Scenario.builtin("prototype"))  # F_c = 30 N
+    sc = _on_mujoco(pkmctl.Scenario.builtin("paper"))
+    with pytest.raises(pkmctl.ScenarioError, match=r"^plant\.friction_coulomb = 5\.0: "):
+        sc.replace(**{"plant.friction_coulomb": 5.0})
+    sc.replace(**{"plant.friction_coulomb": 0.0, "plant.friction_viscous": 300.0})  # allowed
 
 
 class _Kick(NamedTuple):

@@ -189,14 +189,27 @@ class Part:
     #: the NamedTuple class of the stacked bundle (default: made from ``params``)
     lane_params: type | None = None
 
-    def make(self, ctx: PartContext) -> tuple[Any, np.ndarray, np.ndarray]:
-        """(parameter bundle, initial state, work) for one run."""
-        p = self.build(ctx)
+    def bundle(self, ctx: PartContext) -> Any:
+        """The parameter bundle ``build`` makes for ``ctx``, checked; what a user's build
+        raises comes as a :class:`PartError` naming the part."""
+        try:
+            p = self.build(ctx)
+        except PartError:
+            raise
+        except Exception as exc:  # a user's build: name the part and what it raised
+            raise PartError(
+                f"{self.kind} {self.name!r}: build failed: {type(exc).__name__}: {exc}"
+            ) from exc
         if type(p) is not self.params:
             raise PartError(
                 f"{self.kind} {self.name!r}: build returned {type(p).__name__}, "
                 f"expected {self.params.__name__}"
             )
+        return p
+
+    def make(self, ctx: PartContext) -> tuple[Any, np.ndarray, np.ndarray]:
+        """(parameter bundle, initial state, work) for one run."""
+        p = self.bundle(ctx)
         n = int(self.state_size(p))
         if self.continuous > n:  # the loop would integrate entries past the state's end
             raise PartError(

@@ -79,7 +79,7 @@ def _log_buffers(prep, parts, lanes: int):
     ctx = PartContext(prep.plant, prep.model, prep.gains, sc.timing.control_period,
                       prep.flc, sc)  # fmt: skip
     ctrl = parts["controller"]
-    return LogBuffers.stacked(lanes, prep.t.size, int(ctrl.log_size(ctrl.build(ctx))))
+    return LogBuffers.stacked(lanes, prep.t.size, int(ctrl.log_size(ctrl.bundle(ctx))))
 
 
 #: The last cells' prepared scenarios of this process, by (spec digest, cell).
@@ -152,13 +152,15 @@ def run_task(spec: CampaignSpec, task: Task, lanes: int | None = None) -> pa.Tab
         runs = [r for r in task.runs if r.controller == controller]
         try:
             parts = resolve_parts(prep.scenario, controller)
+            n = lanes if lanes is not None else lane_count() if lanes_supported(parts) else 1
+            chunks = in_batches(runs, n)
+            widest = max(len(c) for c in chunks)
+            # builds the controller's bundle: a user's build that refuses this cell is
+            # every run's error record, not the campaign's end
+            buffers = _log_buffers(prep, parts, padded_lanes(widest) if widest > 1 else 1)
         except Exception as exc:  # noqa: BLE001 - recorded; the campaign goes on
             batches.append((runs, [(exc, math.nan)] * len(runs)))
             continue
-        n = lanes if lanes is not None else lane_count() if lanes_supported(parts) else 1
-        chunks = in_batches(runs, n)
-        widest = max(len(c) for c in chunks)
-        buffers = _log_buffers(prep, parts, padded_lanes(widest) if widest > 1 else 1)
         for chunk in chunks:
             out, wall = _outcomes(prep, parts, [r.seed for r in chunk], buffers)
             done = []

@@ -494,6 +494,19 @@ class PlantSpec(_Model):
     def _kind(cls, v: str) -> str:
         return _check_kind("plant", v)
 
+    @model_validator(mode="after")
+    def _modelled(self) -> PlantSpec:
+        # Refused here, not when the run builds its plant: a campaign's cell of MuJoCo with
+        # dry friction was a run of error records (and exit 1) after the others had run.
+        if self.kind == "mujoco" and self.friction_coulomb != 0.0:
+            raise ValueError(
+                f".friction_coulomb = {self.friction_coulomb!r}: plant.kind = 'mujoco' cannot "
+                "model it (MuJoCo's dry friction, frictionloss, is a soft constraint, not the "
+                "rigid plant's tanh force; docs/machine.md); set it to 0.0 or use "
+                "plant.kind = 'rigid'"
+            )
+        return self
+
 
 class PayloadSpec(_Model):
     """A point mass on the platform (DESIGN.md §8): ``mass`` (kg) at ``offset`` (m, platform

@@ -435,7 +435,7 @@ def log_columns(scenario: Scenario, parts: dict[str, Part]) -> int:
                               gains=scenario.controller_gains(),
                               period=scenario.timing.control_period,
                               flc=scenario.fuzzy_system(), scenario=scenario)  # fmt: skip
-        n += int(part.log_size(part.build(ctx)))
+        n += int(part.log_size(part.bundle(ctx)))
     return n
 
 
@@ -720,7 +720,7 @@ def simulate_many(
     if keep == "metrics":
         ctx = PartContext(prep.plant, prep.model, prep.gains,
                           prep.scenario.timing.control_period, prep.flc, prep.scenario)  # fmt: skip
-        n_log = int(parts["controller"].log_size(parts["controller"].build(ctx)))
+        n_log = int(parts["controller"].log_size(parts["controller"].bundle(ctx)))
 
     def buffers(n: int) -> list[LogBuffers]:  # a thread's batches: lanes of one stack
         if not hasattr(local, "buffers"):  # as many as a padded lane loop logs into
