@@ -131,6 +131,23 @@ def test_a_whole_runs_chunks_do_not_show_and_report_its_progress(monkeypatch):
     assert seen == [(min(k + 333, 2000), 2000) for k in range(0, 2000, 333)]
 
 
+def test_a_watched_run_reports_about_every_hundredth_and_runs_the_same(monkeypatch):
+    """With ``progress`` a run logged every period goes in chunks of 1 % of it (at least
+    PROGRESS_MIN_PERIODS): a 0.5 s run's 10,000 periods in 5 reports, not one."""
+    monkeypatch.setattr(sim, "PROGRESS_MIN_PERIODS", 2000)
+    sc = _scenario(**{"timing.duration": 0.5})  # 10,000 periods: chunks of 2,000
+    whole = pkmctl.simulate(sc, "afsmc")
+    seen: list[tuple[int, int]] = []
+    watched = pkmctl.simulate(sc, "afsmc", progress=lambda done, total: seen.append((done, total)))
+    _assert_rows(whole, watched, 1)
+    _assert_same_loop_metrics(whole, watched)
+    assert seen == [(k, 10_000) for k in range(2000, 10_001, 2000)]
+    monkeypatch.setattr(sim, "PROGRESS_STEPS", 4)  # 1/4 of the run: 2,500 periods a chunk
+    seen.clear()
+    pkmctl.simulate(sc, "pd", progress=lambda done, total: seen.append((done, total)))
+    assert seen == [(k, 10_000) for k in range(2500, 10_001, 2500)]
+
+
 def test_decimated_partial_result_of_a_diverged_run():
     absurd = {"gains.K": [1e9, 1e9, 1e9], "timing.duration": 0.5}
     with pytest.raises(pkmctl.SimulationDiverged) as full:
