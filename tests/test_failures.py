@@ -701,3 +701,24 @@ def test_the_start_ups_quiet_ctrl_c_is_the_commands_alone(tmp_path):
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
                          check=True, timeout=120).stdout.split()  # fmt: skip
     assert out == ["pkmctl._start", "_signal"], out  # the command's; the worker's Python's
+
+
+def test_a_spawned_worker_importing_pkmctl_as_it_prepares_keeps_pythons_ctrl_c(tmp_path):
+    """The console script imports pkmctl at its top, so a spawned worker (reproduce's
+    compile workers) imports it while it prepares, with the parent's argv and before
+    parent_process() is set: each printed "interrupted while starting" after the
+    command's own line on Ctrl-C."""
+    script = tmp_path / "bin" / "pkmctl"  # the console script's name, as argv[0]
+    script.parent.mkdir()
+    script.write_text(textwrap.dedent('''
+        import multiprocessing as mp, signal
+        import pkmctl.cli
+        def handler():
+            return getattr(signal.getsignal(signal.SIGINT), "__module__", "?")
+        if __name__ == "__main__":
+            with mp.get_context("spawn").Pool(1) as pool:
+                print(handler(), pool.apply(handler))
+    '''))  # fmt: skip
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         check=True, timeout=120).stdout.split()  # fmt: skip
+    assert out == ["pkmctl._start", "_signal"], out

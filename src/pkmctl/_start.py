@@ -19,7 +19,11 @@ def _quiet_interrupt(signum, frame) -> None:  # (nothing to clean up before the 
 
 if (
     os.path.basename(sys.argv[0] if sys.argv else "") == "pkmctl"
-    and multiprocessing.parent_process() is None  # (a spawned worker has the same argv)
+    # not in a spawned worker, which imports this as it prepares, with the parent's argv:
+    # parent_process() is still None then, but the process has its worker's name (the
+    # compile workers of `reproduce` each printed this line after the parent's)
+    and multiprocessing.current_process().name == "MainProcess"
+    and not getattr(multiprocessing.current_process(), "_inheriting", False)
     and threading.current_thread() is threading.main_thread()
 ):
     signal.signal(signal.SIGINT, _quiet_interrupt)
