@@ -148,6 +148,28 @@ def test_console_script_installed():
     assert res.returncode == 0 and 'name = "paper"' in res.stdout
 
 
+@pytest.mark.parametrize("args", [["scenario", "paper"], ["campaign", "show", "paper-claims"]])
+def test_printing_to_a_closed_or_full_stdout_is_one_line(args):
+    """stdout closed (``>&-``) was an internal AttributeError, and for ``campaign show`` a
+    traceback; ``> /dev/full`` did not say it was stdout."""
+    import os
+
+    what = "the scenario" if args[0] == "scenario" else "the spec"
+    closed = subprocess.run([sys.executable, "-m", "pkmctl", *args], stdout=None,
+                            stderr=subprocess.PIPE, text=True, preexec_fn=lambda: os.close(1),
+                            timeout=120)  # fmt: skip
+    assert closed.returncode == 2, closed.stderr
+    assert closed.stderr.strip() == f"error: stdout is closed: nowhere to print {what} " \
+        "(redirect it to a file)"  # fmt: skip
+    with open("/dev/full", "w") as full:
+        res = subprocess.run([sys.executable, "-m", "pkmctl", *args], stdout=full,
+                             stderr=subprocess.PIPE, text=True, timeout=120)  # fmt: skip
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip() == (
+        f"error: printing {what} to stdout failed: No space left on device"
+    )
+
+
 @pytest.mark.parametrize(
     ("command", "text"),
     [(["identify"], "scenario [controller_model] block"), (["mujoco-model"], "The [plant] options"),

@@ -164,6 +164,19 @@ def _handle(ctx: typer.Context, exc: BaseException, *, suffix: str = "") -> NoRe
     _fail(_describe(exc) + suffix, code)
 
 
+def _to_stdout(text: str, what: str) -> None:
+    """Write ``what`` (e.g. "the scenario") to stdout, or fail in one line saying it was
+    stdout that could not take it: closed (``>&-``: sys.stdout is None, an
+    AttributeError before) or failing (``> /dev/full``: "No space left on device")."""
+    if sys.stdout is None:
+        raise OSError(f"stdout is closed: nowhere to print {what} (redirect it to a file)")
+    try:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    except OSError as exc:
+        raise OSError(f"printing {what} to stdout failed: {exc.strerror or exc}") from None
+
+
 def _hard_exit(code: int) -> NoReturn:
     """Exit now, abandoning worker threads (a compiling thread cannot be stopped), once
     no compiled code is being written to the cache (no half-written file left there)."""
@@ -572,7 +585,7 @@ def scenario(
     from pkmctl.sim.scenario import Scenario
 
     try:
-        sys.stdout.write(Scenario.builtin(name).to_toml())
+        _to_stdout(Scenario.builtin(name).to_toml(), "the scenario")
     except Exception as exc:
         _handle(ctx, exc)
 
@@ -931,7 +944,10 @@ def campaign_show(
         spec = _interruptible(lambda: CampaignSpec.from_toml(Path(spec_file)), lambda: "")
     except Exception as exc:
         _campaign_handle(ctx, exc, "reading the spec")
-    sys.stdout.write(spec.text if spec.text.endswith("\n") else spec.text + "\n")
+    try:
+        _to_stdout(spec.text if spec.text.endswith("\n") else spec.text + "\n", "the spec")
+    except OSError as exc:
+        _handle(ctx, exc)
     work = spec.n_runs * spec.run_seconds()
     cores = os.cpu_count() or 1
     _say(
