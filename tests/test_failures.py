@@ -388,6 +388,17 @@ def test_memory_estimate_is_the_size_of_the_logs():
         (["simulate", "paper", "--format", "xls"], "--format = 'xls'"),
         (["reproduce", "--duration", "1e300"], "--duration = 1e+300 (timing.duration): "),
         (["reproduce", "--duration", "nan"], "--duration = nan (timing.duration): "),
+        # a run of one logged sample: refused before any run (it failed in the figures)
+        (
+            ["reproduce", "--duration", "0.00005"],
+            "--duration = 5e-05 (timing.duration): reproduce draws each run over time and "
+            "needs 2 logged samples at least, this logs 1 (1 control period of 5e-05 s); "
+            "allowed: timing.duration >= 0.0001 s",
+        ),
+        (
+            ["reproduce", "--scenario", "paper-1khz", "--duration", "0.001"],
+            "allowed: timing.duration >= 0.002 s",
+        ),
         (["simulate", "[abc].toml"], "'[abc].toml': No such file"),
     ],
 )
@@ -397,6 +408,22 @@ def test_bad_arguments_one_line(args, match, tmp_path):
     )
     assert match in line
     assert not (tmp_path / "o").exists()
+
+
+def test_a_decimated_reproduce_of_one_sample_names_both_fixes(tmp_path):
+    from pkmctl.experiment import check_samples, reproduce
+
+    sc = pkmctl.Scenario.builtin("paper").replace(**{"timing.duration": 0.01, "logging.every": 200})
+    with pytest.raises(pkmctl.ScenarioError) as err:
+        check_samples(sc)
+    assert str(err.value).endswith(
+        "this logs 1 (200 control periods of 5e-05 s, one row every 200); allowed: "
+        "timing.duration >= 0.01005 s, or logging.every <= 199"
+    )
+    with pytest.raises(pkmctl.ScenarioError, match="needs 2 logged samples"):
+        reproduce(sc, tmp_path / "o")  # the library's too, before anything
+    assert not (tmp_path / "o").exists()
+    check_samples(sc.replace(**{"logging.every": 199}))  # 2 rows: t = 0 and 199 T_c
 
 
 @pytest.mark.parametrize(

@@ -302,14 +302,18 @@ def _scenario(ctx: typer.Context, spec: str, seed, duration, kept: str):
                 lambda: kept + compiles.kept(),
             )
     except Exception as exc:
-        # a value given as an option is named as the option the user typed
-        text = str(exc)
-        for option, field, given in (("--seed", "disturbance.seed", seed),
-                                     ("--duration", "timing.duration", duration)):  # fmt: skip
-            if given is not None and text.startswith(f"{field} = ") and ": " in text:
-                why = text.split(": ", 1)[1]
-                exc = type(exc)(f"{option} = {given!r} ({field}): {why}")
-        _handle(ctx, exc)
+        _handle(ctx, _as_typed(exc, seed, duration))
+
+
+def _as_typed(exc: Exception, seed, duration) -> Exception:
+    """``exc`` with a value given as an option named as the option the user typed."""
+    text = str(exc)
+    for option, field, given in (("--seed", "disturbance.seed", seed),
+                                 ("--duration", "timing.duration", duration)):  # fmt: skip
+        if given is not None and text.startswith(f"{field} = ") and ": " in text:
+            why = text.split(": ", 1)[1]
+            exc = type(exc)(f"{option} = {given!r} ({field}): {why}")
+    return exc
 
 
 class _Compiles:
@@ -404,7 +408,7 @@ def reproduce(
     The files appear all at once when the run is complete; a failed or interrupted run
     leaves OUT as it was.
     """
-    from pkmctl.experiment import CONTROLLER_ORDER
+    from pkmctl.experiment import CONTROLLER_ORDER, check_samples
     from pkmctl.experiment import reproduce as run
     from pkmctl.io.atomic import check_output_folder, staged_folder
 
@@ -415,6 +419,10 @@ def reproduce(
     existed = out.is_dir()
     _KEPT["note"] = _untouched(out, existed)
     sc = _scenario(ctx, scenario, seed, duration, _untouched(out, existed))
+    try:
+        check_samples(sc)  # before the compile and the runs, not in the figures after them
+    except Exception as exc:
+        _handle(ctx, _as_typed(exc, seed, duration))
     steps = ["compile", *CONTROLLER_ORDER, "series", "table", "figures", "report", "machine"]
     with Progress(
         SpinnerColumn(),

@@ -29,7 +29,7 @@ import numpy as np
 from pkmctl.io.atomic import atomic_write, check_output_folder, staged_folder
 from pkmctl.io.results import save_result
 from pkmctl.sim.result import Result
-from pkmctl.sim.scenario import Scenario
+from pkmctl.sim.scenario import Scenario, ScenarioError
 from pkmctl.sim.simulate import (
     check_memory,
     disturbance_count,
@@ -64,6 +64,25 @@ class ReproduceOutput:
     phases: dict[str, float] = field(default_factory=dict)
 
 
+def check_samples(scenario: Scenario) -> None:
+    """Refuse a scenario whose runs log fewer than 2 rows: the figures draw each run over
+    time (a 1-sample run failed only after all five runs, in the figures)."""
+    t, every = scenario.timing, scenario.logging.every
+    n = t.periods
+    rows = -(-n // every)
+    if rows >= 2:
+        return
+    fix = f"timing.duration >= {(every + 1) * t.control_period:.6g} s"
+    if every > 1:
+        fix += f", or logging.every <= {max(1, n - 1)}"
+    raise ScenarioError(
+        f"timing.duration = {t.duration!r}: reproduce draws each run over time and needs 2 "
+        f"logged samples at least, this logs {rows} ({n} control period"
+        f"{'s' * (n != 1)} of {t.control_period:g} s"
+        f"{f', one row every {every}' if every > 1 else ''}); allowed: {fix}"
+    )
+
+
 def reproduce(
     scenario: Scenario,
     out: Path,
@@ -88,6 +107,7 @@ def reproduce(
         raise TypeError(f"scenario: expected a pkmctl.Scenario, got {scenario!r}")
     if duration is not None:
         scenario = scenario.replace(**{"timing.duration": float(duration)})
+    check_samples(scenario)
     n = scenario.timing.periods
     # All five runs' results are kept for the tables and figures: they must fit together.
     runs = len(CONTROLLER_ORDER)
