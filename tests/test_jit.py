@@ -190,6 +190,45 @@ def test_compilations_are_announced_with_their_time():
     assert [e for e, _, _ in heard] == ["start", "failed"]
 
 
+def test_a_cache_that_cannot_be_written_is_said_once_and_not_called_cached(tmp_path, monkeypatch):
+    """PKMCTL_CACHE_DIR under a file (or read-only): every run compiled again while the
+    CLI said "(cached)" and "once per machine", and reproduce compiled its loops in
+    worker processes whose work was thrown away."""
+    from pkmctl import _jit, cli
+    from pkmctl.sim.simulate import precompile
+
+    (tmp_path / "afile").write_text("")
+    code = "import pkmctl._jit as j; print(j.cache_writable())"
+    for root, said in ((tmp_path / "afile" / "cache", "False"), (tmp_path / "ok", "True")):
+        env = {**os.environ, "PKMCTL_CACHE_DIR": str(root)}
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                             text=True, check=True).stdout.strip()  # fmt: skip
+        assert out == said, (root, out)
+    lines = []
+    monkeypatch.setattr(cli, "_say", lines.append)
+    monkeypatch.setattr(cli, "_CACHE_WARNED", [])
+    monkeypatch.setattr(_jit, "cache_writable", lambda: False)
+    compiles = cli._Compiles()
+    for _ in range(2):
+        compiles("start", "the control loop", 0.0)
+        compiles("end", "the control loop", 2.5)
+    warning = [line for line in lines if line.startswith("warning: ")]
+    assert len(warning) == 1 and "cannot be written" in warning[0], lines
+    assert "PKMCTL_CACHE_DIR" in warning[0]
+    assert "compiled the control loop in 2.5 s (not cached)" in lines
+    assert not any("(cached)" in line or "once per machine" in line for line in lines)
+    from pkmctl.sim import simulate as sim
+    from pkmctl.sim import workers
+
+    def no_pool(n):
+        raise AssertionError("precompile started worker processes")
+
+    monkeypatch.setattr(sim, "is_compiled", lambda parts: False)  # as on a fresh machine
+    monkeypatch.setattr(workers, "spawn_pool", no_pool)
+    paper = pkmctl.Scenario.builtin("paper")
+    assert precompile(paper, ["smc", "fsmc"], workers=2) == []  # nothing could be shared
+
+
 _HELPER = """
 from numba import njit
 

@@ -30,7 +30,8 @@ specialised for a user's parts (:func:`specialise`) goes into a folder whose has
 covers the source files of those parts. The cache root is ``$PKMCTL_CACHE_DIR``, else
 ``$XDG_CACHE_HOME/pkmctl``, else ``~/.cache/pkmctl``; an installed and an editable copy
 of the same sources therefore share one cache. If the root cannot be written, kernels
-compile in memory on every run (slower, never wrong).
+compile in memory on every run (slower, never wrong; :func:`cache_writable`, and the CLI
+says so once).
 
 Compilation is announced: inside :func:`announce`, a callback hears when a compilation
 starts and ends (the CLI shows "compiling the control loop (once per machine; minutes on
@@ -61,6 +62,7 @@ __all__ = [
     "announce",
     "cache_dir",
     "cache_root",
+    "cache_writable",
     "kernel",
     "settle",
     "source_stamp",
@@ -243,6 +245,15 @@ def _writable(path: Path) -> bool:
     except OSError:
         return False
     return True
+
+
+@functools.cache
+def cache_writable() -> bool:
+    """Whether compiled code is kept on disk: the cache folder of pkmctl's sources can be
+    written (else every process compiles again; the CLI says so once, and
+    :func:`pkmctl.sim.simulate.precompile` does not compile in worker processes whose
+    work could not be shared). Checked once per process."""
+    return _writable(cache_dir())
 
 
 def _attach_cache(disp, path: Path, stamp: str):

@@ -316,6 +316,10 @@ def _as_typed(exc: Exception, seed, duration) -> Exception:
     return exc
 
 
+#: whether this process said that the compile cache cannot be written (said once)
+_CACHE_WARNED: list[bool] = []
+
+
 class _Compiles:
     """Say what compiles while it compiles: in the progress bar on a terminal (its
     elapsed-time column runs), as plain lines otherwise (a log, CI). Counts what was
@@ -327,11 +331,22 @@ class _Compiles:
     def __call__(self, event: str, what: str, seconds: float) -> None:
         if event == "failed":  # its error follows in one line
             return
+        from pkmctl import _jit
+
+        kept = _jit.cache_writable()
         if event == "start":
-            msg = f"compiling {what} (once per machine; minutes on a first run)…"
+            if not kept and not _CACHE_WARNED:
+                _CACHE_WARNED.append(True)
+                _say(
+                    f"warning: the compile cache {str(_jit.cache_root())!r} cannot be written: "
+                    "compiled code is kept in memory only, and every run compiles again "
+                    "(set PKMCTL_CACHE_DIR to a writable folder)"
+                )
+            when = "once per machine; minutes on a first run" if kept else "not cached"
+            msg = f"compiling {what} ({when})…"
         else:
             self.done += 1
-            msg = f"compiled {what} in {seconds:.1f} s (cached)"
+            msg = f"compiled {what} in {seconds:.1f} s " + ("(cached)" if kept else "(not cached)")
         if self.bar is not None and err_console.is_terminal:
             self.bar.update(self.task, description=msg)
         else:

@@ -849,12 +849,17 @@ def precompile(
     several cores, worker processes build them side by side, in the phases of
     :func:`_plan` so that no kernel is compiled twice. Loops already compiled on this
     machine, and combinations with parts registered outside pkmctl (a worker would not
-    import them), are skipped; so is everything when fewer than two workers would run.
+    import them), are skipped; so is everything when fewer than two workers would run, or
+    when the disk cache cannot be written (:func:`pkmctl._jit.cache_writable`).
     Calls ``on_start(controllers, workers)`` before it starts; returns the controllers
     whose loops were compiled.
     """
+    from pkmctl import _jit
+
     from .workers import spawn_pool
 
+    if not _jit.cache_writable():  # the workers' compiled loops could not be shared
+        return []
     todo, heavy = [], set()
     for c in controllers:
         parts = resolve_parts(scenario, c)
