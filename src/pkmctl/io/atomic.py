@@ -5,6 +5,10 @@ permissions a plain ``open`` would give under the current umask (``mkstemp`` mak
 it 0600), and renamed over the target only on success. On any error, Ctrl-C
 included, the temporary file is removed and the target is untouched.
 
+Files that describe each other (a result's table and its JSON) are written by
+:func:`atomic_files`: all to temporary files first, then renamed together, the earlier
+renames undone if a later one fails, so that an old file never sits beside a new one.
+
 A set of files (a run's outputs) is written into a staging folder by
 :func:`staged_folder` and moved into place when complete, so an interrupted or failed
 run leaves the previous results as they were; :func:`check_output_folder` refuses a bad
@@ -21,6 +25,7 @@ from pathlib import Path
 from typing import IO
 
 __all__ = [
+    "atomic_files",
     "atomic_write",
     "check_output_file",
     "check_output_folder",
@@ -65,6 +70,101 @@ def atomic_write(path: str | os.PathLike[str], mode: str = "w") -> Iterator[IO]:
         with suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+@contextmanager
+def atomic_files(*paths: str | os.PathLike[str]) -> Iterator[tuple[Path, ...]]:
+    """Yield a temporary file beside each of ``paths`` (empty, to write by path); when the
+    block ends without an error, rename them onto ``paths`` together, with Ctrl-C held off.
+
+    If a rename fails, those made are undone (each target gets its previous file back, or
+    is removed where there was none): the targets stay a set written together, never an
+    old file beside a new one. On any error, Ctrl-C included, the temporary files are
+    removed. A target that is a folder raises :class:`~pkmctl.errors.OutputError` before
+    anything is written.
+    """
+    from pkmctl.errors import OutputError
+
+    targets = [Path(p) for p in paths]
+    for target in targets:
+        if _is_folder(target):
+            raise OutputError(
+                f"{str(target)!r}: is a folder, where a file is to be written: move it away "
+                f"or choose another name"
+            )
+    tmps: list[Path] = []
+    try:
+        for target in targets:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+            os.close(fd)
+            tmps.append(Path(tmp))
+        yield tuple(tmps)
+        for tmp in tmps:
+            _fsync(tmp)
+            os.chmod(tmp, file_mode())
+        with _sigint_deferred():
+            _replace_together(tmps, targets)
+    except BaseException:
+        for tmp in tmps:
+            with suppress(OSError):
+                os.unlink(tmp)
+        raise
+
+
+def _fsync(path: Path) -> None:
+    """Flush a file written by path to disk, before it is renamed over an old one."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _replace_together(tmps: list[Path], targets: list[Path]) -> None:
+    """Rename each of ``tmps`` onto its target; if one fails, put back what was replaced."""
+    done: list[tuple[Path, Path | None]] = []  # (target replaced, its previous file aside)
+    try:
+        for tmp, target in zip(tmps, targets, strict=True):
+            there = target.exists() or target.is_symlink()
+            old, linked = _aside(target) if there else (None, False)
+            try:
+                os.replace(tmp, target)
+            except BaseException:
+                with suppress(OSError):  # this target not replaced: drop the link, or undo
+                    if linked:
+                        os.unlink(old)
+                    elif old is not None:
+                        os.rename(old, target)
+                raise
+            done.append((target, old))
+    except BaseException:
+        for target, old in reversed(done):
+            with suppress(OSError):
+                if old is None:
+                    os.unlink(target)
+                else:
+                    os.rename(old, target)
+        raise
+    for _, old in done:
+        if old is not None:
+            with suppress(OSError):
+                os.unlink(old)
+
+
+def _aside(target: Path) -> tuple[Path, bool]:
+    """A second name for ``target``'s file, to put it back by, and whether it is a hard
+    link (the target stays in place meanwhile) or, where the file system has none, the
+    file renamed."""
+    import secrets
+
+    old = target.with_name(f".{target.name}.old-{secrets.token_hex(4)}.tmp")
+    try:
+        os.link(target, old, follow_symlinks=False)
+    except OSError:
+        os.rename(target, old)
+        return old, False
+    return old, True
 
 
 # ---------------------------------------------------------------- a set of files at once

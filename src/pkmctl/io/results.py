@@ -21,18 +21,26 @@ the system the run used.
 Parquet is the default: a 10 s run at 20 kHz has 200,000 rows and up to 83 columns,
 which takes ~8 s to print as CSV with round-trip precision and ~0.2 s as Parquet
 (any dataframe library or DuckDB reads it; columns are stored byte-stream-split and
-zstd-compressed, about 54 MB for an AFSMC run). Every file is written to a temporary name
-in the same folder and renamed, so an interrupted run leaves no half-written file.
+zstd-compressed, about 54 MB for an AFSMC run).
+
+The two files are one result: both are written to temporary names in the same folder
+and renamed together (:func:`~pkmctl.io.atomic.atomic_files`), so a failure or Ctrl-C
+leaves the previous pair as it was, never a new table beside an old JSON. The JSON
+records the SHA-256 of the table file's bytes (``table_sha256``), and ``load_result``
+refuses a table that does not match it (for a JSON written before it did, a table whose
+row count is not ``samples``).
 """
 
 from __future__ import annotations
 
+import hashlib
+import io
 import json
 from pathlib import Path
 
 import numpy as np
 
-from pkmctl.io.atomic import atomic_write
+from pkmctl.io.atomic import atomic_files, atomic_write
 from pkmctl.sim import metrics
 from pkmctl.sim.result import Result
 from pkmctl.sim.scenario import Scenario
@@ -93,9 +101,11 @@ FORMATS = ("parquet", "csv")
 def save_result(
     result: Result, directory: Path, stem: str | None = None, *, fmt: str = "parquet"
 ) -> tuple[Path, Path]:
-    """Write the time series (``<stem>.parquet`` or ``.csv``) and ``<stem>.json``.
+    """Write the time series (``<stem>.parquet`` or ``.csv``) and ``<stem>.json``, both or
+    neither: on any error, Ctrl-C included, the folder keeps its previous files.
 
-    Returns the two paths (table, metadata).
+    Returns the two paths (table, metadata). A target that is a folder raises
+    :class:`~pkmctl.errors.OutputError` before anything is written.
     """
     if fmt not in FORMATS:
         raise ValueError(f"fmt = {fmt!r}: must be one of {', '.join(FORMATS)}")
@@ -103,33 +113,7 @@ def save_result(
     stem = stem or result.controller
     names, columns = _columns(result)
     table_path, json_path = directory / f"{stem}.{fmt}", directory / f"{stem}.json"
-    if fmt == "csv":
-        with atomic_write(table_path) as fh:
-            # repr precision: the file reads back to the same doubles
-            np.savetxt(
-                fh,
-                np.column_stack(columns),
-                delimiter=",",
-                header=",".join(names),
-                comments="",
-                fmt="%.17g",
-            )
-    else:
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-
-        table = pa.table(dict(zip(names, columns, strict=True)))
-        with atomic_write(table_path, "wb") as fh:
-            # Byte-stream-split + zstd suits floating-point series (a standard Parquet
-            # encoding): 8x faster to write and 40 % smaller than the dictionary default.
-            pq.write_table(
-                table,
-                fh,
-                compression="zstd",
-                use_dictionary=False,
-                column_encoding="BYTE_STREAM_SPLIT",
-            )
-    meta = {
+    meta = {  # all of it before any file is written: an error here leaves nothing
         "format_version": FORMAT_VERSION,
         "controller": result.controller,
         "success": result.success,
@@ -137,6 +121,7 @@ def save_result(
         "samples": int(result.t.size),
         "columns": names,
         "table": table_path.name,
+        "table_sha256": None,  # of the table file's bytes, once written
         # one logged row still has the loop's metrics over every period
         "metrics": metrics.summary(result)
         if result.t.size > 1 or result.loop_metrics is not None
@@ -152,9 +137,43 @@ def save_result(
             meta["fis_text"] = Path(fis).read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError):
             pass  # gone since the run: the result names it, as before
-    with atomic_write(json_path) as fh:
-        json.dump(_finite(meta), fh, indent=2, allow_nan=False)
+    meta = _finite(meta)
+    json.dumps(meta, allow_nan=False)  # a value JSON cannot hold fails here, not midway
+    with atomic_files(table_path, json_path) as (table_tmp, json_tmp):
+        _write_table(table_tmp, names, columns, fmt)
+        meta["table_sha256"] = hashlib.sha256(table_tmp.read_bytes()).hexdigest()
+        with open(json_tmp, "w", encoding="utf-8", newline="\n") as fh:
+            json.dump(meta, fh, indent=2, allow_nan=False)
     return table_path, json_path
+
+
+def _write_table(path: Path, names: list[str], columns: list[np.ndarray], fmt: str) -> None:
+    """Write the columns to ``path`` as ``fmt`` (a temporary file: see :func:`save_result`)."""
+    if fmt == "csv":
+        with open(path, "w", encoding="utf-8", newline="\n") as fh:
+            # repr precision: the file reads back to the same doubles
+            np.savetxt(
+                fh,
+                np.column_stack(columns),
+                delimiter=",",
+                header=",".join(names),
+                comments="",
+                fmt="%.17g",
+            )
+        return
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.table(dict(zip(names, columns, strict=True)))
+    # Byte-stream-split + zstd suits floating-point series (a standard Parquet encoding):
+    # 8x faster to write and 40 % smaller than the dictionary default.
+    pq.write_table(
+        table,
+        str(path),
+        compression="zstd",
+        use_dictionary=False,
+        column_encoding="BYTE_STREAM_SPLIT",
+    )
 
 
 def _plain(value):
@@ -187,10 +206,9 @@ def _scenario(meta: dict) -> Scenario:
     text = meta["scenario_toml"]
     fis_text = meta.get("fis_text")
     if fis_text is not None:
-        import hashlib
         import tomllib
 
-        from pkmctl._jit import cache_root
+        from pkmctl import _jit  # so spelled, this module (no compiled code) is no kernel source
 
         data = tomllib.loads(text)
         path = Path(data["fuzzy"]["fis"])
@@ -200,7 +218,7 @@ def _scenario(meta: dict) -> Scenario:
             same = False
         if not same:
             digest = hashlib.sha256(fis_text.encode()).hexdigest()[:16]
-            copy = cache_root() / "fis" / f"{digest}-{path.name}"
+            copy = _jit.cache_root() / "fis" / f"{digest}-{path.name}"
             if not copy.exists():
                 copy.parent.mkdir(parents=True, exist_ok=True)
                 with atomic_write(copy) as fh:
@@ -218,15 +236,28 @@ def load_result(json_path: Path) -> Result:
         raise ValueError(f"{json_path}: unsupported format_version {meta.get('format_version')}")
     names = meta["columns"]
     table_path = json_path.with_name(meta["table"])
+    blob = table_path.read_bytes()  # once: the bytes checked are the bytes read
+    recorded = meta.get("table_sha256")  # None in a JSON written before it was recorded
+    if recorded is not None and hashlib.sha256(blob).hexdigest() != recorded:
+        raise ValueError(
+            f"{table_path} does not match {json_path}: its SHA-256 is not the table_sha256 "
+            f"the JSON records (the two files come from different saves)"
+        )
     if table_path.suffix == ".csv":
-        data = np.loadtxt(table_path, delimiter=",", skiprows=1, ndmin=2)
+        data = np.loadtxt(io.StringIO(blob.decode("utf-8")), delimiter=",", skiprows=1, ndmin=2)
     else:
+        import pyarrow as pa
         import pyarrow.parquet as pq
 
-        table = pq.read_table(table_path)
+        table = pq.read_table(pa.BufferReader(blob))
         data = np.column_stack([table.column(n).to_numpy() for n in names])
     if data.shape[1] != len(names):
         raise ValueError(f"{table_path}: expected {len(names)} columns")
+    if "samples" in meta and data.shape[0] != meta["samples"]:
+        raise ValueError(
+            f"{table_path} does not match {json_path}: {data.shape[0]} rows, the JSON's "
+            f"samples = {meta['samples']} (the two files come from different saves)"
+        )
     fields, col = {"t": data[:, 0]}, 1
     for name, width, _ in _FIELDS:
         fields[name] = data[:, col : col + width]

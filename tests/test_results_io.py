@@ -1,0 +1,136 @@
+"""A result on disk is one pair: its table and its JSON are written both or neither, and
+a table beside the JSON of another save is refused on reading (issue: a seed-9 table
+read back as seed 0 after a Ctrl-C between the two writes)."""
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import pkmctl
+from pkmctl.io.results import load_result, save_result
+
+
+@pytest.fixture(scope="module")
+def runs() -> dict[str, pkmctl.Result]:
+    """Three pd runs: seed 0 and seed 9 of 0.01 s (200 rows each), seed 9 of 0.02 s."""
+    paper = pkmctl.Scenario.builtin("paper")
+    nine = paper.replace(**{"disturbance.seed": 9})
+    return {
+        "seed0": pkmctl.simulate(paper, "pd", duration=0.01),
+        "seed9": pkmctl.simulate(nine, "pd", duration=0.01),
+        "seed9long": pkmctl.simulate(nine, "pd", duration=0.02),
+    }
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
+
+
+def _same(back: pkmctl.Result, r: pkmctl.Result) -> None:
+    for name in ("t", "X", "q", "tau", "disturbance"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(r, name), err_msg=name)
+    assert back.scenario == r.scenario
+
+
+def _interrupt_json_write(monkeypatch, json_path: Path, where: str) -> None:
+    """Ctrl-C as the JSON is written (``json.dump``) or renamed into place (the table
+    already renamed: the last moment the pair can still be split)."""
+    if where == "json.dump":
+
+        def dump(*args, **kwargs):
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(json, "dump", dump)
+        return
+    replace = os.replace
+
+    def replace_but_the_json(src, dst, *args, **kwargs):
+        if Path(dst) == json_path:
+            raise KeyboardInterrupt
+        return replace(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(os, "replace", replace_but_the_json)
+
+
+@pytest.mark.parametrize("fmt", ["parquet", "csv"])
+@pytest.mark.parametrize("where", ["json.dump", "os.replace"])
+def test_ctrl_c_between_the_two_writes_keeps_the_old_pair(runs, tmp_path, monkeypatch, fmt, where):
+    out = tmp_path / "sr"
+    save_result(runs["seed0"], out, fmt=fmt)
+    before = _files(out)
+    _interrupt_json_write(monkeypatch, out / "pd.json", where)
+    with pytest.raises(KeyboardInterrupt):
+        save_result(runs["seed9long"], out, fmt=fmt)
+    monkeypatch.undo()
+    assert _files(out) == before  # no new table beside the old JSON, no temporary file
+    _same(load_result(out / "pd.json"), runs["seed0"])
+
+
+@pytest.mark.parametrize("where", ["json.dump", "os.replace"])
+def test_ctrl_c_in_a_first_save_leaves_no_file(runs, tmp_path, monkeypatch, where):
+    out = tmp_path / "sr"
+    out.mkdir()
+    _interrupt_json_write(monkeypatch, out / "pd.json", where)
+    with pytest.raises(KeyboardInterrupt):
+        save_result(runs["seed0"], out)
+    assert list(out.iterdir()) == []
+
+
+@pytest.mark.parametrize("folder", ["pd.json", "pd.parquet"])
+def test_a_folder_in_place_of_a_file_fails_before_anything_is_written(runs, tmp_path, folder):
+    out = tmp_path / "sr"
+    (out / folder).mkdir(parents=True)
+    with pytest.raises(OSError) as err:
+        save_result(runs["seed0"], out)
+    assert [p.name for p in out.iterdir()] == [folder] and not any((out / folder).iterdir())
+    assert f"{folder}': is a folder" in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("fmt", ["parquet", "csv"])
+@pytest.mark.parametrize("other", ["seed9", "seed9long"])
+def test_a_table_of_another_save_is_refused(runs, tmp_path, fmt, other):
+    """Of the same row count (seed 9 beside seed 0's JSON) too: the JSON holds the
+    table's SHA-256."""
+    mine, theirs = tmp_path / "mine", tmp_path / "theirs"
+    save_result(runs["seed0"], mine, fmt=fmt)
+    save_result(runs[other], theirs, fmt=fmt)
+    shutil.copyfile(theirs / f"pd.{fmt}", mine / f"pd.{fmt}")
+    with pytest.raises(ValueError, match=rf"pd\.{fmt} does not match .*pd\.json") as err:
+        load_result(mine / "pd.json")
+    assert "\n" not in str(err.value) and str(mine) in str(err.value)
+
+
+def _without_digest(json_path: Path) -> None:
+    """The JSON as written before it recorded the table's SHA-256."""
+    meta = json.loads(json_path.read_text())
+    meta.pop("table_sha256", None)
+    json_path.write_text(json.dumps(meta, indent=2))
+
+
+@pytest.mark.parametrize("fmt", ["parquet", "csv"])
+def test_a_json_without_the_digest_loads_and_its_row_count_is_checked(runs, tmp_path, fmt):
+    old, longer = tmp_path / "old", tmp_path / "longer"
+    save_result(runs["seed0"], old, fmt=fmt)
+    _without_digest(old / "pd.json")
+    _same(load_result(old / "pd.json"), runs["seed0"])
+    save_result(runs["seed9long"], longer, fmt=fmt)
+    shutil.copyfile(longer / f"pd.{fmt}", old / f"pd.{fmt}")
+    with pytest.raises(ValueError, match="400 rows, the JSON's samples = 200"):
+        load_result(old / "pd.json")
+
+
+def test_a_save_over_a_pair_replaces_both_and_follows_the_umask(runs, tmp_path):
+    out = tmp_path / "sr"
+    save_result(runs["seed0"], out)
+    mask = os.umask(0o027)
+    try:
+        table, meta = save_result(runs["seed9long"], out)
+    finally:
+        os.umask(mask)
+    assert sorted(p.name for p in out.iterdir()) == ["pd.json", "pd.parquet"]  # no .tmp
+    assert {p.stat().st_mode & 0o777 for p in (table, meta)} == {0o640}
+    _same(load_result(meta), runs["seed9long"])
