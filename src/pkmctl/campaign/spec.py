@@ -437,7 +437,8 @@ class CampaignSpec:
         if isinstance(source, Path) or "\n" not in str(source):
             path = Path(source)
             try:
-                text = path.read_text(encoding="utf-8")
+                # -sig: a Windows editor's BOM is no part of the text (nor of its hash)
+                text = path.read_text(encoding="utf-8-sig")
             except FileNotFoundError:
                 raise _fail(
                     f"campaign spec {str(path)!r}: no such file, nor a built-in campaign "
@@ -450,7 +451,7 @@ class CampaignSpec:
             folder = path.absolute().parent
             where = f"campaign spec {str(path)!r}"
         else:
-            text, folder, where = str(source), Path.cwd(), "campaign spec"
+            text, folder, where = str(source).removeprefix("\ufeff"), Path.cwd(), "campaign spec"
             path = None
         try:
             data = tomllib.loads(text)

@@ -415,7 +415,7 @@ def read_spec(out: str | Path) -> CampaignSpec:
 
     out = Path(out)
     try:
-        text = (out / "spec.toml").read_text(encoding="utf-8")
+        text = (out / "spec.toml").read_text(encoding="utf-8-sig")  # as CampaignSpec reads it
         data = tomllib.loads(text)
         manifest = json.loads((out / "campaign.json").read_text(encoding="utf-8"))
         digest = manifest["spec_hash"]

@@ -800,7 +800,7 @@ class Scenario(_Model):
             path = Path(source)
             where = f"scenario file {str(path)!r}"
             try:
-                text = path.read_text(encoding="utf-8")
+                text = path.read_text(encoding="utf-8-sig")  # -sig: a Windows editor's BOM
             except OSError as exc:
                 raise ScenarioError(f"{where}: {exc.strerror or exc}") from None
             except UnicodeDecodeError as exc:
@@ -809,7 +809,7 @@ class Scenario(_Model):
                     f"at offset {exc.start})"
                 ) from None
         else:
-            text, where = str(source), "scenario TOML"
+            text, where = str(source).removeprefix("\ufeff"), "scenario TOML"
         try:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
