@@ -227,6 +227,66 @@ def test_a_folder_where_a_run_writes_a_file_is_refused_and_kept(tmp_path):
     assert sorted(p.name for p in out.rglob("*")) == ["important.txt", "pd.parquet"]
 
 
+def _no_work(*args, **kwargs):
+    raise AssertionError("the work started")
+
+
+@pytest.mark.parametrize(
+    ("command", "make", "said"),
+    [
+        (["simulate", "paper", "--controller", "pd"], "pd.json/", "pd.json' is a folder"),
+        (["simulate", "paper", "--controller", "pd", "--format", "csv"], "pd.csv/",
+         "pd.csv' is a folder"),
+        (["reproduce"], "timeseries", "timeseries' is a file, where this run writes a folder"),
+        (["reproduce"], "figures/fig12.png/", "fig12.png' is a folder, where this run writes"),
+        (["reproduce"], "report.md/", "report.md' is a folder, where this run writes a file"),
+        (["identify", "no-such-log.parquet"], "fit.png/", "fit.png' is a folder"),
+    ],
+)  # fmt: skip
+def test_an_entry_of_the_wrong_kind_is_refused_before_any_work(tmp_path, monkeypatch, command,
+                                                                make, said):  # fmt: skip
+    """A folder where a run writes a file (or a file where it writes a folder) was refused
+    only when the finished run was moved into place: an hour's run lost."""
+    from pkmctl import experiment
+    from pkmctl.sim import simulate as sim
+
+    monkeypatch.setattr(sim, "simulate", _no_work)
+    monkeypatch.setattr(experiment, "reproduce", _no_work)
+    out = tmp_path / "o"
+    target = out / make.rstrip("/")
+    target.parent.mkdir(parents=True)
+    if make.endswith("/"):
+        target.mkdir()
+    else:
+        target.write_text("mine")
+    line = one_line(runner.invoke(app, [*command, "--out", str(out)]), 2)
+    assert said in line and line.endswith("move it away or choose another output folder"), line
+    if command[0] == "reproduce":  # the library's too, before its memory check
+        from pkmctl.errors import OutputError
+
+        monkeypatch.undo()
+        with pytest.raises(OutputError, match=re.escape(said)):
+            experiment.reproduce(pkmctl.Scenario.builtin("paper"), out, duration=3600.0)
+    made = Path(make.rstrip("/"))  # and nothing else: the entry and the folders above it
+    expected = {made, *made.parents} - {Path(".")}
+    assert {p.relative_to(out) for p in out.rglob("*")} == expected
+
+
+def test_an_out_that_links_to_nothing_is_refused_before_any_work(tmp_path, monkeypatch):
+    """It was refused after the run, naming the staging folder ("Not a directory")."""
+    from pkmctl.sim import simulate as sim
+
+    monkeypatch.setattr(sim, "simulate", _no_work)
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    args = ["simulate", "paper", "--controller", "pd", "--out", str(tmp_path / "dangling")]
+    line = one_line(runner.invoke(app, args), 2)
+    assert line.endswith(
+        f"dangling': a symbolic link to {str(tmp_path / 'nowhere')!r}, which does not exist: "
+        "create that folder, or choose another output folder"
+    ), line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dangling"]
+
+
 def test_publish_failing_midway_leaves_the_previous_set(tmp_path, monkeypatch):
     """A rename failing midway (a nested folder on another file system: EXDEV) left old
     and new files mixed and the trash folder behind until 2026-12-06."""

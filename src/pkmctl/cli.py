@@ -423,12 +423,12 @@ def reproduce(
     The files appear all at once when the run is complete; a failed or interrupted run
     leaves OUT as it was.
     """
-    from pkmctl.experiment import CONTROLLER_ORDER, check_samples
+    from pkmctl.experiment import CONTROLLER_ORDER, check_samples, reproduce_writes
     from pkmctl.experiment import reproduce as run
     from pkmctl.io.atomic import check_output_folder, staged_folder
 
     try:  # (a str, not a Path: Path("") is ".", and --out '' must be refused)
-        out = check_output_folder(out, what="--out")
+        out = check_output_folder(out, what="--out", writes=reproduce_writes())
     except Exception as exc:
         _handle(ctx, exc)
     existed = out.is_dir()
@@ -545,7 +545,8 @@ def simulate(
             " (your own: pkmctl --plugin FILE.py simulate ...)"
         )
     try:
-        out = check_output_folder(out, what="--out")
+        writes = (f"{controller}.{fmt}", f"{controller}.json")
+        out = check_output_folder(out, what="--out", writes=writes)
     except Exception as exc:
         _handle(ctx, exc)
     existed = out.is_dir()

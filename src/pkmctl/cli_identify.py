@@ -250,7 +250,7 @@ def identify(
 
     from pkmctl.ident.identify import IdentificationError, check_log_file, predict, read_log
     from pkmctl.ident.identify import identify as run_identify
-    from pkmctl.ident.report import remove_stale, write_identification
+    from pkmctl.ident.report import OUTPUT_NAMES, remove_stale, write_identification
     from pkmctl.io.atomic import check_output_folder, discard, staged_folder
 
     if force_lead == "auto":
@@ -267,7 +267,7 @@ def identify(
     if not 0 < max_residual <= 100:  # NaN too
         _fail(f"--max-residual = {max_residual:g}: must be in (0, 100] %")
     try:  # before the long work (the output first, as every command does)
-        out = check_output_folder(out, what="--out")
+        out = check_output_folder(out, what="--out", writes=OUTPUT_NAMES)
         check_log_file(log)
         if validate is not None:
             check_log_file(validate, what="--validate")

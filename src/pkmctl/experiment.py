@@ -64,6 +64,28 @@ class ReproduceOutput:
     phases: dict[str, float] = field(default_factory=dict)
 
 
+#: The poses :func:`_machine_images` renders, by name (figures/machine_<name>.png).
+MACHINE_POSES = ("home", "largest-tilt", "end")
+
+
+def reproduce_writes() -> list[str]:
+    """Every path, relative to the output folder, that :func:`reproduce` writes (a
+    folder's ending in "/"): checked before any work (a file named ``timeseries`` there
+    was refused only after all the runs and figures)."""
+    from pkmctl.report.figures import FIGURES
+
+    return [
+        "timeseries/",
+        "figures/",
+        "table4.csv",
+        "table4.md",
+        "report.md",
+        *(f"timeseries/{c}.{ext}" for c in CONTROLLER_ORDER for ext in ("parquet", "json")),
+        *(f"figures/{spec.filename}" for spec in FIGURES),
+        *(f"figures/machine_{name}.png" for name in MACHINE_POSES),
+    ]
+
+
 def check_samples(scenario: Scenario) -> None:
     """Refuse a scenario whose runs log fewer than 2 rows: the figures draw each run over
     time (a 1-sample run failed only after all five runs, in the figures)."""
@@ -102,7 +124,7 @@ def reproduce(
 
     say = progress or (lambda _msg: None)
     t0 = time.perf_counter()
-    out = check_output_folder(out)
+    out = check_output_folder(out, writes=reproduce_writes())
     if not isinstance(scenario, Scenario):
         raise TypeError(f"scenario: expected a pkmctl.Scenario, got {scenario!r}")
     if duration is not None:
@@ -231,7 +253,7 @@ def _machine_images(results: dict[str, Result], folder: Path) -> tuple[list[Path
     # the platform normal's angle from vertical: R = Rx(alpha) Ry(beta) takes e_z to
     # (sin b, -sin a cos b, cos a cos b) (|a| + |b| picked 29.6 deg over 30.0 here)
     tilt = np.arccos(np.clip(np.cos(res.X[:, 1]) * np.cos(res.X[:, 2]), -1.0, 1.0))
-    picks = {"home": 0, "largest-tilt": int(np.argmax(tilt)), "end": res.t.size - 1}
+    picks = dict(zip(MACHINE_POSES, (0, int(np.argmax(tilt)), res.t.size - 1), strict=True))
     try:
         images = render_poses(res.scenario.plant(), res.X[list(picks.values())])
     except RuntimeError as exc:

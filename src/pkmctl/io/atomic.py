@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import IO
@@ -178,10 +178,16 @@ def _name_max(folder: Path) -> int:
         return 255
 
 
-def check_output_folder(path: str | os.PathLike[str], *, what: str = "output folder") -> Path:
+def check_output_folder(
+    path: str | os.PathLike[str], *, what: str = "output folder", writes: Iterable[str] = ()
+) -> Path:
     """Check, before any work, that ``path`` can be an output folder: not empty, not an
-    existing file, no component too long, and the folder (or the nearest existing folder
-    above it) writable. Returns ``path`` as a :class:`~pathlib.Path`.
+    existing file nor a link to nothing, no component too long, and the folder (or the
+    nearest existing folder above it) writable; and that none of ``writes`` (the paths,
+    relative to it, that the run will write; a folder's ends in "/") is there as the
+    other kind, a folder where a file goes or a file where a folder goes, which
+    :func:`publish` would refuse only at the end, the work lost. Returns ``path`` as a
+    :class:`~pathlib.Path`.
 
     Raises :class:`~pkmctl.errors.OutputError` with one line naming the path and why.
     """
@@ -198,8 +204,16 @@ def check_output_folder(path: str | os.PathLike[str], *, what: str = "output fol
             raise OutputError(
                 f"{what} {shown}: the name {part[:20] + '...'!r} is longer than {limit} bytes"
             )
+    if path.is_symlink() and not path.exists():  # the run's folder could not be put there
+        raise OutputError(
+            f"{what} {shown}: a symbolic link to {os.readlink(path)!r}, which does not exist: "
+            "create that folder, or choose another output folder"
+        )
     if path.exists() and not path.is_dir():
         raise OutputError(f"{what} {shown}: exists and is not a folder")
+    if path.is_dir():
+        for rel in writes:
+            _check_kind(path, rel)
     probe = path.absolute()
     while not probe.exists():
         probe = probe.parent
@@ -216,6 +230,26 @@ def check_output_folder(path: str | os.PathLike[str], *, what: str = "output fol
             f"{why})"
         ) from None
     return path
+
+
+def _check_kind(dest: Path, rel: str) -> None:
+    """Refuse an entry on the way to ``dest / rel`` of the other kind than the run writes
+    there (as :func:`_check_kinds` does at the end; a symbolic link is replaced)."""
+    from pkmctl.errors import OutputError
+
+    parts = Path(rel.rstrip("/")).parts
+    here = dest
+    for i, part in enumerate(parts):
+        here = here / part
+        if here.is_symlink() or not here.exists():
+            return
+        folder = rel.endswith("/") or i < len(parts) - 1
+        if _is_folder(here) != folder:
+            mine, theirs = ("a folder", "file") if folder else ("a file", "folder")
+            raise OutputError(
+                f"output folder: {str(here)!r} is a {theirs}, where this run writes {mine}: "
+                "move it away or choose another output folder"
+            )
 
 
 def _stage_parent(dest: Path) -> Path:
