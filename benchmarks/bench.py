@@ -10,6 +10,7 @@ import os
 import platform
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
@@ -131,25 +132,55 @@ def bench_model(quick: bool = False) -> dict[str, float]:
 BENCH_CONTROLLERS = ("smc", "fsmc", "afsmc", "pd", "ctc", "my-law")
 
 
+def user_law_file() -> Path:
+    """docs/parts.md's ``my_law.py`` block saved as a file of its own, as a user would:
+    ``<cache root>/bench/<hash of its text>/my_law.py`` (:func:`pkmctl._jit.cache_root`),
+    written by the first run and used by every later one while the block is unchanged.
+
+    Not a temporary folder per run: those were never removed (65 had piled up in /tmp),
+    and no ``finally`` here could remove them on Ctrl-C, which ends ``pkmctl bench`` at
+    once (``os._exit``, see ``pkmctl.cli``) while the benchmarks run in another thread.
+    A file that stays is also one a worker process can always import. The compiled loop
+    does not depend on the folder: its cache is keyed on the file's name and text
+    (:func:`pkmctl._jit.cache_dir`), and hit from another folder. If the cache root
+    cannot be written, a temporary folder, removed when the process exits normally."""
+    import atexit
+    import hashlib
+    import re
+    import shutil
+    import tempfile
+
+    from pkmctl._jit import cache_root
+    from pkmctl.io.atomic import atomic_write
+
+    doc = Path(__file__).resolve().parents[1] / "docs" / "parts.md"
+    blocks = re.findall(r"```python\n(.*?)```", doc.read_text(encoding="utf-8"), flags=re.S)
+    code = next(b for b in blocks if b.startswith("# my_law.py"))
+    digest = hashlib.sha256(code.encode()).hexdigest()[:16]
+    file = cache_root() / "bench" / digest / "my_law.py"
+    try:
+        if not file.is_file() or file.read_text(encoding="utf-8") != code:
+            with atomic_write(file) as fh:  # whole or absent for another bench run at once
+                fh.write(code)
+    except OSError:  # an unwritable cache root
+        folder = Path(tempfile.mkdtemp(prefix="pkmctl-bench-"))
+        atexit.register(shutil.rmtree, folder, ignore_errors=True)
+        file = folder / "my_law.py"
+        file.write_text(code, encoding="utf-8")
+    return file
+
+
 def load_user_law() -> str:
     """Register docs/parts.md's ``my-law`` as a user would: its block saved as a file of
-    their own (in a temporary folder) and imported. Returns the controller's name."""
+    their own (:func:`user_law_file`) and imported. Returns the controller's name."""
     import importlib
-    import re
     import sys
-    import tempfile
-    from pathlib import Path
 
     from pkmctl.parts import names
 
     if "my-law" in names("controller"):
         return "my-law"
-    doc = Path(__file__).resolve().parents[1] / "docs" / "parts.md"
-    blocks = re.findall(r"```python\n(.*?)```", doc.read_text(encoding="utf-8"), flags=re.S)
-    code = next(b for b in blocks if b.startswith("# my_law.py"))
-    folder = Path(tempfile.mkdtemp(prefix="pkmctl-bench-"))
-    (folder / "my_law.py").write_text(code, encoding="utf-8")
-    sys.path.insert(0, str(folder))
+    sys.path.insert(0, str(user_law_file().parent))
     importlib.import_module("my_law")
     return "my-law"
 
@@ -300,8 +331,6 @@ def bench_fis_corpus(quick: bool) -> dict:
     and pyfuzzylite side by side, per evaluation (issue 15.4). The corpus is test data
     outside the project: ``$PKMCTL_FIS_CORPUS`` or ``../shared/fis-corpus`` beside the
     checkout; without it the row says so."""
-    from pathlib import Path
-
     from benchmarks.fuzzy_bench import CORPUS_FILE, run_corpus
 
     here = Path(__file__).resolve().parents[1]
@@ -433,6 +462,14 @@ def bench_identify(quick: bool) -> dict[str, float]:
 def run_all(quick: bool = False, progress: Callable[[str], None] | None = None) -> dict:
     """Run every benchmark; ``quick`` shortens them to a smoke test."""
     say = progress or (lambda _m: None)
+    # The campaigns section starts worker processes (a spawn pool of its own, a Dask
+    # cluster), the first of which started multiprocessing's resource tracker with this
+    # process's stderr: after Ctrl-C (os._exit) it printed "leaked semaphore objects"
+    # and a source line below the command's one line (2 of 3 interrupts there). Started
+    # now, quietly, it is the one they all use.
+    from pkmctl.sim.workers import _quiet_resource_tracker
+
+    _quiet_resource_tracker()
     res: dict = {
         "machine": {
             "cpu": platform.processor() or platform.machine(),

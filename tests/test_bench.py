@@ -1,18 +1,24 @@
 """`pkmctl bench --quick` runs once as a smoke test. Timing is never asserted here."""
 
 import json
+import shutil
+import tempfile
+from pathlib import Path
 
 from typer.testing import CliRunner
 
-from benchmarks.bench import render, rows
+from benchmarks.bench import render, rows, user_law_file
 from benchmarks.flops import count
 from pkmctl.cli import app
 
 
 def test_bench_quick_smoke(tmp_path):
     out = tmp_path / "bench.json"
+    before = set(Path(tempfile.gettempdir()).glob("pkmctl-bench-*"))
     res = CliRunner().invoke(app, ["bench", "--quick", "--json", str(out)])
     assert res.exit_code == 0, res.output
+    # the user's my_law.py is kept in the cache folder: a run left a folder in /tmp
+    assert not set(Path(tempfile.gettempdir()).glob("pkmctl-bench-*")) - before
     data = json.loads(out.read_text())
     assert set(data["steps"]) == {"smc", "fsmc", "afsmc", "pd", "ctc", "my-law"}
     assert data["mujoco"]["steps_per_s"] > 0  # the test command installs MuJoCo
@@ -68,6 +74,26 @@ def test_bench_quick_smoke(tmp_path):
     assert {r[0]: r[3] for r in rows(fast)}["closed loop afsmc, one core"] == "yes"
     assert {r[0]: r[3] for r in rows(data)}["closed loop afsmc, one core"] == "-"
     assert render(slow).splitlines()[1].split() == ["measurement", "result", "target", "held"]
+
+
+def test_user_law_file_kept_by_its_text(tmp_path, monkeypatch):
+    # one file per text of docs/parts.md's block, in the cache root, written once (a
+    # temporary folder per run was never removed: 65 piled up in /tmp)
+    monkeypatch.setenv("PKMCTL_CACHE_DIR", str(tmp_path / "cache"))
+    file = user_law_file()
+    assert file.name == "my_law.py" and file.parent.parent == tmp_path / "cache" / "bench"
+    code = file.read_text(encoding="utf-8")
+    assert code.startswith("# my_law.py") and "register_controller" in code
+    written = file.stat().st_mtime_ns
+    assert user_law_file() == file and file.stat().st_mtime_ns == written
+    file.write_text("# damaged", encoding="utf-8")
+    assert user_law_file().read_text(encoding="utf-8") == code
+    # a cache root that cannot be written: a temporary folder (removed at exit)
+    (tmp_path / "a-file").write_text("")
+    monkeypatch.setenv("PKMCTL_CACHE_DIR", str(tmp_path / "a-file" / "cache"))
+    other = user_law_file()
+    assert other.read_text(encoding="utf-8") == code
+    shutil.rmtree(other.parent)
 
 
 def test_flop_counter_counts_what_it_should():
