@@ -70,11 +70,11 @@ def parallel_ceiling(seconds: float = 5.0) -> dict[str, float]:
     """What two processes get on this machine now: plain simulate() loops, one process
     alone, then two at once (their rates summed). On a machine others share, this bounds
     what 2 campaign workers can do; on 2 free cores it is ~2."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
+    from pkmctl.sim.workers import spawn_pool
 
-    spawn = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(2, mp_context=spawn) as pool:
+    # the pool campaigns use: its workers die with this process (Ctrl-C ends the bench at
+    # once) and its resource tracker stays quiet
+    with spawn_pool(2) as pool:
         pool.submit(_loops, 0.1).result()  # start and warm the processes
         one = pool.submit(_loops, seconds).result()
         both = sum(f.result() for f in [pool.submit(_loops, seconds) for _ in range(2)])

@@ -779,7 +779,7 @@ def test_the_start_ups_quiet_ctrl_c_is_the_commands_alone(tmp_path):
         import multiprocessing as mp, signal, sys
         def handler():
             import pkmctl
-            return getattr(signal.getsignal(signal.SIGINT), "__module__", "?")
+            return getattr(signal.getsignal(signal.SIGINT), "__name__", "?")
         if __name__ == "__main__":
             sys.argv[0] = "/somewhere/bin/pkmctl"
             with mp.get_context("spawn").Pool(1) as pool:
@@ -787,7 +787,7 @@ def test_the_start_ups_quiet_ctrl_c_is_the_commands_alone(tmp_path):
     '''))  # fmt: skip
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
                          check=True, timeout=120).stdout.split()  # fmt: skip
-    assert out == ["pkmctl._start", "_signal"], out  # the command's; the worker's Python's
+    assert out == ["_quiet_interrupt", "_quiet_worker_interrupt"], out  # command's; worker's
 
 
 def test_a_spawned_worker_importing_pkmctl_as_it_prepares_keeps_pythons_ctrl_c(tmp_path):
@@ -798,14 +798,28 @@ def test_a_spawned_worker_importing_pkmctl_as_it_prepares_keeps_pythons_ctrl_c(t
     script = tmp_path / "bin" / "pkmctl"  # the console script's name, as argv[0]
     script.parent.mkdir()
     script.write_text(textwrap.dedent('''
-        import multiprocessing as mp, signal
+        import multiprocessing as mp, os, signal, time
         import pkmctl.cli
         def handler():
-            return getattr(signal.getsignal(signal.SIGINT), "__module__", "?")
+            return getattr(signal.getsignal(signal.SIGINT), "__name__", "?")
+        def idle(ready):
+            ready.set()
+            time.sleep(60)
         if __name__ == "__main__":
-            with mp.get_context("spawn").Pool(1) as pool:
+            ctx = mp.get_context("spawn")
+            with ctx.Pool(1) as pool:
                 print(handler(), pool.apply(handler))
+            ready = ctx.Event()
+            worker = ctx.Process(target=idle, args=(ready,))
+            worker.start()
+            ready.wait(60)
+            os.kill(worker.pid, signal.SIGINT)  # Ctrl-C reaches the whole process group
+            worker.join(60)
+            print(worker.exitcode)
     '''))  # fmt: skip
-    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
-                         check=True, timeout=120).stdout.split()  # fmt: skip
-    assert out == ["pkmctl._start", "_signal"], out
+    res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         check=True, timeout=120)  # fmt: skip
+    # the command's quiet line; a worker's quiet exit (it printed a KeyboardInterrupt
+    # traceback below the command's line, and "interrupted while starting" before that)
+    assert res.stdout.split() == ["_quiet_interrupt", "_quiet_worker_interrupt", "130"], res
+    assert res.stderr == "", res.stderr

@@ -1,7 +1,14 @@
 """The ``pkmctl`` command's start-up: Ctrl-C while pkmctl's imports run (about a
 second) printed a Python traceback of 20-40 lines. For that command only (not for a
 library user's process), an interrupt then exits at once with status 130 and one line;
-the command's first step (its options parsed) puts Python's own handler back."""
+the command's first step (its options parsed) puts Python's own handler back.
+
+The command's spawned workers (campaigns, ``reproduce``'s compile workers, a Dask
+cluster's) import this too, as they prepare. Ctrl-C reaches every process of the
+terminal's group, and a worker then printed a KeyboardInterrupt traceback below the
+command's one line (while it started, or idle between tasks). In a worker an interrupt
+is ``SystemExit(130)`` instead: it unwinds as KeyboardInterrupt would (``finally``
+blocks run, a task returns it to its pool), but ends the process without a word."""
 
 from __future__ import annotations
 
@@ -17,13 +24,19 @@ def _quiet_interrupt(signum, frame) -> None:  # (nothing to clean up before the 
     os._exit(130)
 
 
+def _quiet_worker_interrupt(signum, frame) -> None:
+    raise SystemExit(130)
+
+
 if (
     os.path.basename(sys.argv[0] if sys.argv else "") == "pkmctl"
-    # not in a spawned worker, which imports this as it prepares, with the parent's argv:
-    # parent_process() is still None then, but the process has its worker's name (the
-    # compile workers of `reproduce` each printed this line after the parent's)
-    and multiprocessing.current_process().name == "MainProcess"
-    and not getattr(multiprocessing.current_process(), "_inheriting", False)
     and threading.current_thread() is threading.main_thread()
 ):
-    signal.signal(signal.SIGINT, _quiet_interrupt)
+    # A spawned worker imports this as it prepares, with the parent's argv:
+    # parent_process() is still None then, but the process has its worker's name (the
+    # compile workers of `reproduce` each printed the command's line after the parent's).
+    _me = multiprocessing.current_process()
+    if _me.name == "MainProcess" and not getattr(_me, "_inheriting", False):
+        signal.signal(signal.SIGINT, _quiet_interrupt)
+    else:
+        signal.signal(signal.SIGINT, _quiet_worker_interrupt)
