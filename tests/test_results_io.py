@@ -134,3 +134,51 @@ def test_a_save_over_a_pair_replaces_both_and_follows_the_umask(runs, tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["pd.json", "pd.parquet"]  # no .tmp
     assert {p.stat().st_mode & 0o777 for p in (table, meta)} == {0o640}
     _same(load_result(meta), runs["seed9long"])
+
+
+def test_a_ctrl_c_held_while_the_pair_is_renamed_goes_to_the_handler_that_was_there(
+    runs, tmp_path, monkeypatch
+):
+    """Held off while the files are renamed, a Ctrl-C then raised KeyboardInterrupt
+    whatever the handler was: a library user's own handler was never called, and a
+    process that ignores SIGINT got the exception."""
+    import signal
+
+    from pkmctl.io import atomic
+
+    real = atomic._replace_together
+
+    def interrupted(tmps, targets):
+        os.kill(os.getpid(), signal.SIGINT)  # arrives while the renames are held
+        real(tmps, targets)
+
+    monkeypatch.setattr(atomic, "_replace_together", interrupted)
+    heard = []
+    previous = signal.signal(signal.SIGINT, lambda *a: heard.append(a[0]))
+    try:
+        save_result(runs["seed0"], tmp_path / "own")  # the user's handler hears it
+        assert heard == [signal.SIGINT]
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        save_result(runs["seed0"], tmp_path / "ignored")  # ignored: no exception
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        with pytest.raises(KeyboardInterrupt):  # Python's own: the pair is written first
+            save_result(runs["seed0"], tmp_path / "default")
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    for name in ("own", "ignored", "default"):
+        _same(load_result(tmp_path / name / "pd.json"), runs["seed0"])
+
+
+def test_a_csv_loads_in_about_its_own_size_of_memory(runs, tmp_path):
+    """A StringIO of the decoded text held 4 bytes a character (1.9 GB for a 335 MB CSV)."""
+    import tracemalloc
+
+    _, meta = save_result(runs["seed9long"], tmp_path, fmt="csv")
+    size = (tmp_path / "pd.csv").stat().st_size
+    tracemalloc.start()
+    try:
+        load_result(meta)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 3 * size, (peak, size)

@@ -216,6 +216,12 @@ def check_output_folder(
             _check_kind(path, rel)
     probe = path.absolute()
     while not probe.exists():
+        if probe.is_symlink():  # a link to nothing above it: makedirs would fail there
+            raise OutputError(
+                f"{what} {shown}: {str(probe)!r} is a symbolic link to "
+                f"{os.readlink(probe)!r}, which does not exist: create that folder, or "
+                "choose another output folder"
+            )
         probe = probe.parent
     if not probe.is_dir():
         raise OutputError(f"{what} {shown}: {str(probe)!r} is a file, not a folder")
@@ -397,8 +403,11 @@ def _sigint_deferred() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGINT, signal.SIG_DFL if previous is None else previous)
-    if caught:
-        raise KeyboardInterrupt
+    if caught:  # to the handler that was there (a library user's own, or none at all)
+        if callable(previous):
+            previous(*caught[0])
+        elif previous != signal.SIG_IGN:
+            raise KeyboardInterrupt
 
 
 def check_output_file(path: str | os.PathLike[str], *, what: str = "output file") -> Path:
