@@ -159,7 +159,7 @@ def user_law_file() -> Path:
     digest = hashlib.sha256(code.encode()).hexdigest()[:16]
     file = cache_root() / "bench" / digest / "my_law.py"
     try:
-        if not file.is_file() or file.read_text(encoding="utf-8") != code:
+        if not file.is_file() or file.read_bytes() != code.encode():  # (bytes: any damage)
             with atomic_write(file) as fh:  # whole or absent for another bench run at once
                 fh.write(code)
     except OSError:  # an unwritable cache root

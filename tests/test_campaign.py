@@ -402,6 +402,30 @@ def test_a_cell_the_plant_cannot_model_is_refused_before_any_run(tmp_path):
     assert not out.exists()
 
 
+def test_a_folder_whose_spec_is_refused_now_says_so_and_where_its_records_are(tmp_path):
+    """A folder made before a check was added (a MuJoCo cell with Coulomb friction ran as
+    error records) was refused by report and --resume with the bare scenario error."""
+    from pkmctl.campaign.store import open_store
+
+    (tmp_path / "spec.toml").write_text(
+        'scenario = "paper"\ncontrollers = ["pd"]\nseeds = [1]\nduration = 0.01\n'
+    )
+    out = tmp_path / "c"
+    open_store(out, CampaignSpec.from_toml(tmp_path / "spec.toml"), resume=False)
+    stored = (out / "scenario.toml").read_text()  # as such a folder holds it
+    stored = stored.replace('[plant]\nkind = "rigid"', '[plant]\nkind = "mujoco"')
+    (out / "scenario.toml").write_text(stored.replace("friction_coulomb = 0.0",
+                                                      "friction_coulomb = 5.0"))  # fmt: skip
+    assert 'kind = "mujoco"' in (out / "scenario.toml").read_text()
+    res = runner.invoke(app, ["campaign", "report", str(out)])
+    assert res.exit_code == 2, res.output
+    line = res.stderr.strip()
+    assert line.startswith(f"error: {str(out)!r}: its spec is refused as read now ("), line
+    assert "plant.friction_coulomb = 5.0: plant.kind = 'mujoco' cannot model it" in line
+    assert line.endswith("its records are the Parquet files in its runs/ folder, which "
+                         "DuckDB or pyarrow read as they are"), line  # fmt: skip
+
+
 def test_a_scheduler_that_cannot_be_reached_leaves_nothing(spec_file, tmp_path):
     out = tmp_path / "c"
     args = ["campaign", "run", str(spec_file), "--out", str(out), "--scheduler", "nonsense"]

@@ -285,6 +285,40 @@ def test_an_out_that_links_to_nothing_is_refused_before_any_work(tmp_path, monke
         "create that folder, or choose another output folder"
     ), line
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dangling"]
+    # a link to nothing above it: makedirs failed there ("File exists"), for the library's
+    # reproduce after its compile
+    deeper = str(tmp_path / "dangling" / "sub")
+    line = one_line(runner.invoke(app, [*args[:-1], deeper]), 2)
+    assert f"{str(tmp_path / 'dangling')!r} is a symbolic link to" in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dangling"]
+
+
+def test_a_spawned_worker_interrupted_in_its_initializer_ends_quietly(tmp_path):
+    """Ctrl-C while a worker imports the user's plugins (seconds, for some) was logged by
+    the pool as "Exception in initializer" with a traceback."""
+    from pkmctl.plugins import ENV
+
+    plugin = tmp_path / "slow_plugin.py"
+    plugin.write_text("import os, signal\nos.kill(os.getpid(), signal.SIGINT)\n")
+    script = tmp_path / "bin" / "pkmctl"  # a worker of the command, as campaigns start them
+    script.parent.mkdir()
+    script.write_text(textwrap.dedent('''
+        import sys
+        from concurrent.futures.process import BrokenProcessPool
+        import pkmctl.cli
+        from pkmctl.sim.workers import spawn_pool
+        if __name__ == "__main__":
+            with spawn_pool(1) as pool:
+                try:
+                    pool.submit(abs, -1).result()
+                except BrokenProcessPool:
+                    print("broken")
+    '''))  # fmt: skip
+    env = {**os.environ, ENV: str(plugin)}
+    res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         env=env, timeout=120)  # fmt: skip
+    assert res.stdout.split() == ["broken"], res
+    assert "Traceback" not in res.stderr and "initializer" not in res.stderr, res.stderr
 
 
 def test_publish_failing_midway_leaves_the_previous_set(tmp_path, monkeypatch):

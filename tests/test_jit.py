@@ -204,6 +204,11 @@ def test_a_cache_that_cannot_be_written_is_said_once_and_not_called_cached(tmp_p
         out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                              text=True, check=True).stdout.strip()  # fmt: skip
         assert out == said, (root, out)
+    # asked again for another cache folder in the same process (it was once per process)
+    monkeypatch.setenv("PKMCTL_CACHE_DIR", str(tmp_path / "afile" / "cache"))
+    assert _jit.cache_writable() is False
+    monkeypatch.setenv("PKMCTL_CACHE_DIR", str(tmp_path / "ok"))
+    assert _jit.cache_writable() is True
     lines = []
     monkeypatch.setattr(cli, "_say", lines.append)
     monkeypatch.setattr(cli, "_CACHE_WARNED", [])

@@ -247,13 +247,17 @@ def _writable(path: Path) -> bool:
     return True
 
 
-@functools.cache
 def cache_writable() -> bool:
     """Whether compiled code is kept on disk: the cache folder of pkmctl's sources can be
     written (else every process compiles again; the CLI says so once, and
     :func:`pkmctl.sim.simulate.precompile` does not compile in worker processes whose
-    work could not be shared). Checked once per process."""
-    return _writable(cache_dir())
+    work could not be shared). Checked once per cache folder and process."""
+    return _writable_once(cache_dir())
+
+
+@functools.cache
+def _writable_once(path: Path) -> bool:
+    return _writable(path)
 
 
 def _attach_cache(disp, path: Path, stamp: str):

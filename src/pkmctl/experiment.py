@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pkmctl import _jit  # (so spelled: this module holds no compiled code)
 from pkmctl.io.atomic import atomic_write, check_output_folder, staged_folder
 from pkmctl.io.results import save_result
 from pkmctl.sim.result import Result
@@ -147,7 +148,8 @@ def reproduce(
         say(f"compiling {len(todo)} control loops in {n} processes (once per machine)…")
 
     if not precompile(scenario, CONTROLLER_ORDER, on_start=compiling):
-        say("compiled loops found in the cache")
+        say("compiled loops found in the cache" if _jit.cache_writable() else
+            "no compile cache: each run compiles its loop")  # fmt: skip
     with staged_folder(out) as stage:
         names: list[Path] = []
 

@@ -423,7 +423,16 @@ def read_spec(out: str | Path) -> CampaignSpec:
         raise SpecError(f"{str(out)!r}: not a readable campaign folder ({exc})") from None
     _need_plugins(out, manifest)
     data["scenario"], fis_files = _stored(out, manifest)
-    spec = CampaignSpec.from_dict(data, text=text, folder=out, fis_files=fis_files)
+    from pkmctl.sim.scenario import ScenarioError
+
+    try:
+        spec = CampaignSpec.from_dict(data, text=text, folder=out, fis_files=fis_files)
+    except (SpecError, ScenarioError) as exc:  # a check added after the folder was made
+        raise SpecError(
+            f"{str(out)!r}: its spec is refused as read now ({exc}): made by an earlier "
+            "pkmctl, or edited; its records are the Parquet files in its runs/ folder, "
+            "which DuckDB or pyarrow read as they are"
+        ) from None
     if spec.digest != digest and digest in spec.legacy_digests():
         # a folder made before a .fis file counted by its content (and was copied here)
         import dataclasses

@@ -68,9 +68,14 @@ def spawn_pool(workers: int) -> ProcessPoolExecutor:
 
 def _start(parent: int) -> None:
     """A worker's start: it dies with ``parent``, and imports the user's plugins
-    (``pkmctl --plugin``), whose parts its runs may use."""
-    die_with_parent(parent)
-    if os.environ.get("PKMCTL_PLUGINS"):
-        from pkmctl.plugins import load_from_env
+    (``pkmctl --plugin``), whose parts its runs may use. Ctrl-C here (a plugin's import
+    can take seconds) ends it quietly: the pool would log the exception with a traceback
+    ("Exception in initializer")."""
+    try:
+        die_with_parent(parent)
+        if os.environ.get("PKMCTL_PLUGINS"):
+            from pkmctl.plugins import load_from_env
 
-        load_from_env()
+            load_from_env()
+    except (KeyboardInterrupt, SystemExit):
+        os._exit(130)
