@@ -2,6 +2,7 @@
 
 import contextlib
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -400,6 +401,22 @@ def test_a_cell_the_plant_cannot_model_is_refused_before_any_run(tmp_path):
     assert len(res.stderr.strip().splitlines()) == 1, res.stderr
     assert "plant.friction_coulomb = 5.0: plant.kind = 'mujoco' cannot model it" in res.stderr
     assert not out.exists()
+
+
+def test_a_logged_campaign_says_the_time_left(spec_file, tmp_path):
+    """Progress lines (a log, not a terminal) give the time left at the rate so far."""
+    out = tmp_path / "c"
+    res = runner.invoke(app, ["campaign", "run", str(spec_file), "--out", str(out),
+                              "--workers", "1"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    lines = [ln for ln in res.stderr.splitlines() if re.match(r"\d+/16 runs, ", ln)]
+    assert lines and lines[-1].startswith("16/16 runs, 0 failed, "), res.stderr
+    assert not lines[-1].endswith(" left")  # done: nothing left to say
+    before = [ln for ln in lines if not ln.startswith("16/16")]
+    assert before and all(
+        re.fullmatch(r"\d+/16 runs, 0 failed, [\d.]+ runs/s, about [\d.]+ (s|min) left", ln)
+        for ln in before
+    ), before
 
 
 def test_a_folder_whose_spec_is_refused_now_says_so_and_where_its_records_are(tmp_path):

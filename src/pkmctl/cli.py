@@ -856,18 +856,25 @@ def campaign_run(
         TextColumn("{task.fields[failures]} failed"),
         TextColumn("{task.fields[rate]:.1f} runs/s"),
         TimeElapsedColumn(),
+        TextColumn("{task.fields[left]}"),
         console=err_console,
         disable=not err_console.is_terminal,
     ) as bar:
-        task = bar.add_task("running", total=spec.n_runs, failures=0, rate=0.0)
+        task = bar.add_task("running", total=spec.n_runs, failures=0, rate=0.0, left="")
         state = {"done": 0}
 
         def progress(done, failures, total, rate):
+            # the time left at this session's rate so far (its start and first compile
+            # included: pessimistic at first, then close), for campaigns of hours
+            left = (
+                f"about {_seconds((total - done) / rate)} left" if rate > 0 and done < total else ""
+            )
             step = max(1, total // 10)  # a log (not a terminal) gets a line every 10 %
             if not err_console.is_terminal and done // step > state["done"] // step:
-                _say(f"{done}/{total} runs, {failures} failed, {rate:.1f} runs/s")
+                _say(f"{done}/{total} runs, {failures} failed, {rate:.1f} runs/s"
+                     + (f", {left}" if left else ""))  # fmt: skip
             state["done"] = done
-            bar.update(task, completed=done, failures=failures, rate=rate)
+            bar.update(task, completed=done, failures=failures, rate=rate, left=left)
 
         def on_client(client):
             from pkmctl.campaign.execute import dashboard_link
