@@ -67,6 +67,7 @@ name. A user adds one from their own module with a decorator
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import inspect
@@ -189,17 +190,24 @@ class Part:
     #: the NamedTuple class of the stacked bundle (default: made from ``params``)
     lane_params: type | None = None
 
-    def bundle(self, ctx: PartContext) -> Any:
-        """The parameter bundle ``build`` makes for ``ctx``, checked; what a user's build
-        raises comes as a :class:`PartError` naming the part."""
+    @contextlib.contextmanager
+    def _named(self):
+        """What a user's build (or size, initial state, work) raises comes as a
+        :class:`PartError` naming the part and the exception."""
         try:
-            p = self.build(ctx)
+            yield
         except PartError:
             raise
-        except Exception as exc:  # a user's build: name the part and what it raised
+        except Exception as exc:
             raise PartError(
                 f"{self.kind} {self.name!r}: build failed: {type(exc).__name__}: {exc}"
             ) from exc
+
+    def bundle(self, ctx: PartContext) -> Any:
+        """The parameter bundle ``build`` makes for ``ctx``, checked (a user's exception
+        named as :meth:`_named` says)."""
+        with self._named():
+            p = self.build(ctx)
         if type(p) is not self.params:
             raise PartError(
                 f"{self.kind} {self.name!r}: build returned {type(p).__name__}, "
@@ -209,6 +217,10 @@ class Part:
 
     def make(self, ctx: PartContext) -> tuple[Any, np.ndarray, np.ndarray]:
         """(parameter bundle, initial state, work) for one run."""
+        with self._named():
+            return self._make(ctx)
+
+    def _make(self, ctx: PartContext) -> tuple[Any, np.ndarray, np.ndarray]:
         p = self.bundle(ctx)
         n = int(self.state_size(p))
         if self.continuous > n:  # the loop would integrate entries past the state's end
