@@ -314,3 +314,17 @@ def test_the_toml_names_every_field_left_unset_in_a_comment():
         own = text.split(f"[{section}]\n", 1)[1].split("\n[", 1)[0]
         assert f"# {key} = (not set; optional)" in own
     assert pkmctl.Scenario.from_toml(text) == sc
+
+
+def test_a_scenario_is_hashable_as_it_is_frozen():
+    """pydantic's hash of a frozen model's values failed on its lists: a scenario could
+    not be a dict key or in a set."""
+    names = ("paper", "paper-1khz", "prototype", "prototype-model", "prototype-tuned")
+    seen = {pkmctl.Scenario.builtin(n): n for n in names}
+    assert len(seen) == len(names)
+    for n in names:  # equal scenarios are the same key
+        assert seen[pkmctl.Scenario.builtin(n)] == n
+    paper = pkmctl.Scenario.builtin("paper")
+    longer = paper.replace(**{"timing.duration": 1.0})
+    assert longer != paper and longer not in seen
+    assert pkmctl.Scenario.from_toml(paper.to_toml()) in seen  # read back: equal, same hash

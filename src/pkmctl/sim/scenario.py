@@ -80,6 +80,21 @@ class _Model(BaseModel):
         extra="forbid", strict=True, frozen=True, populate_by_name=True, allow_inf_nan=False
     )
 
+    def __hash__(self) -> int:
+        # frozen, yet pydantic's hash of its values failed on the lists ("unhashable type:
+        # 'list'"): a scenario could not be a dict key or in a set. Equal models have
+        # equal values, so equal hashes.
+        return hash((type(self), _hashable(self.__dict__)))
+
+
+def _hashable(value: Any) -> Any:
+    """``value`` with dicts and lists as tuples (for :meth:`_Model.__hash__`)."""
+    if isinstance(value, dict):
+        return tuple((k, _hashable(v)) for k, v in value.items())
+    if isinstance(value, list | tuple):
+        return tuple(_hashable(v) for v in value)
+    return value
+
 
 def _paper_theta() -> list[float]:
     return Mechanism.paper().theta.tolist()
