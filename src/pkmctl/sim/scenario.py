@@ -868,7 +868,10 @@ class Scenario(_Model):
     def replace(self, **changes: Any) -> Scenario:
         """A copy with top-level sections or dotted fields changed, validated again.
 
-        ``scenario.replace(**{"timing.duration": 2.0, "disturbance.seed": 7})``
+        ``scenario.replace(**{"timing.duration": 2.0, "disturbance.seed": 7})`` changes
+        those fields alone. A section given whole replaces it, its other fields at their
+        defaults: ``replace(timing={"duration": 2.0})`` of the 1 kHz ``prototype`` is a
+        run at the default 20 kHz.
         """
         return Scenario.from_dict(_changed(self.model_dump(by_alias=True), changes))
 
