@@ -222,7 +222,7 @@ def test_a_folder_where_a_run_writes_a_file_is_refused_and_kept(tmp_path):
     (out / "pd.parquet" / "important.txt").write_text("precious")
     args = ["simulate", "paper", "--controller", "pd", "--duration", "0.02", "--out", str(out)]
     line = one_line(runner.invoke(app, args), 2)
-    assert "pd.parquet' is a folder, where this run writes a file" in line
+    assert "pd.parquet' is a folder, where pkmctl puts a file of that name" in line
     assert (out / "pd.parquet" / "important.txt").read_text() == "precious"
     assert sorted(p.name for p in out.rglob("*")) == ["important.txt", "pd.parquet"]
 
@@ -237,9 +237,9 @@ def _no_work(*args, **kwargs):
         (["simulate", "paper", "--controller", "pd"], "pd.json/", "pd.json' is a folder"),
         (["simulate", "paper", "--controller", "pd", "--format", "csv"], "pd.csv/",
          "pd.csv' is a folder"),
-        (["reproduce"], "timeseries", "timeseries' is a file, where this run writes a folder"),
-        (["reproduce"], "figures/fig12.png/", "fig12.png' is a folder, where this run writes"),
-        (["reproduce"], "report.md/", "report.md' is a folder, where this run writes a file"),
+        (["reproduce"], "timeseries", "timeseries' is a file, where pkmctl puts a folder"),
+        (["reproduce"], "figures/fig12.png/", "fig12.png' is a folder, where pkmctl puts"),
+        (["reproduce"], "report.md/", "report.md' is a folder, where pkmctl puts a file"),
         (["identify", "no-such-log.parquet"], "fit.png/", "fit.png' is a folder"),
     ],
 )  # fmt: skip

@@ -387,6 +387,14 @@ def _untouched(out: Path, existed: bool) -> str:
     )
 
 
+def _kept(out: Path, existed: bool, stage: Path | None) -> str:
+    """What an interrupt after a command's work keeps: its results once its staging
+    folder is published (a Ctrl-C held during the renames comes after them)."""
+    from pkmctl.io.atomic import published
+
+    return f"the results are in {out}" if published(stage) else _untouched(out, existed)
+
+
 def _rmse_table(results: dict, title: str) -> Table:
     from pkmctl.sim.metrics import RMSE_KEYS
 
@@ -468,6 +476,7 @@ def reproduce(
                     task, description=f"{shown['msg']} (runs {100 * done / total:.0f} % done)"
                 )
 
+        stage = None
         try:
             with staged_folder(out) as stage:
 
@@ -483,9 +492,13 @@ def reproduce(
                         lambda: run(sc, stage, progress=progress, run_progress=run_progress),
                         interrupted,
                     )
+        except KeyboardInterrupt:
+            _KEPT["note"] = _kept(out, existed, stage)
+            raise
         except Exception as exc:
             bar.stop()
             _handle(ctx, exc, suffix="; " + _untouched(out, existed))
+        _KEPT["note"] = _kept(out, existed, stage)
         bar.update(task, completed=len(steps), description="done")
     console.print(_rmse_table(output.results, f"RMSE, scenario {sc.name!r}"))
     ph = output.phases
@@ -553,6 +566,7 @@ def simulate(
     _KEPT["note"] = _untouched(out, existed)
     sc = _scenario(ctx, scenario_file, seed, duration, _untouched(out, existed))
     doing = f"simulating {controller} on {sc.name!r}"
+    stage = None
     try:
         with (
             staged_folder(out) as stage,
@@ -574,8 +588,12 @@ def simulate(
                 return _untouched(out, existed) + compiles.kept()
 
             result, paths = _interruptible(work, interrupted)
+    except KeyboardInterrupt:
+        _KEPT["note"] = _kept(out, existed, stage)
+        raise
     except Exception as exc:
         _handle(ctx, exc, suffix="; " + _untouched(out, existed))
+    _KEPT["note"] = _kept(out, existed, stage)
     # the run's time series in the other format, of an earlier run, would now disagree
     # with the metadata beside it
     stale = [out / f"{controller}.{f}" for f in FORMATS if f != fmt]

@@ -252,9 +252,9 @@ def _check_kind(dest: Path, rel: str) -> None:
         folder = rel.endswith("/") or i < len(parts) - 1
         if _is_folder(here) != folder:
             mine, theirs = ("a folder", "file") if folder else ("a file", "folder")
-            raise OutputError(
-                f"output folder: {str(here)!r} is a {theirs}, where this run writes {mine}: "
-                "move it away or choose another output folder"
+            raise OutputError(  # (a name this run writes, or removes as an earlier run's)
+                f"output folder: {str(here)!r} is a {theirs}, where pkmctl puts {mine} of "
+                "that name: move it away or choose another output folder"
             )
 
 
@@ -287,13 +287,19 @@ def staged_folder(dest: str | os.PathLike[str]) -> Iterator[Path]:
 
         _remove_empty(made)
         raise OutputError(f"output folder {str(dest)!r}: {exc.strerror}") from None
+    _MADE[stage] = made  # discard(stage) removes them too (the CLI's Ctrl-C calls it)
     try:
         yield stage
         publish(stage, dest)
     except BaseException:
         discard(stage)
-        _remove_empty(made)
         raise
+    finally:
+        _MADE.pop(stage, None)
+
+
+#: The folders each live staging folder's run made above it (:func:`staged_folder`).
+_MADE: dict[Path, list[Path]] = {}
 
 
 def _remove_empty(folders: list[Path]) -> None:
@@ -307,10 +313,12 @@ def _remove_empty(folders: list[Path]) -> None:
 
 
 def discard(stage: Path) -> None:
-    """Remove a staging folder and what it holds (never raises)."""
+    """Remove a staging folder and what it holds, and the folders its run made above it
+    (:func:`staged_folder`) that are left empty (never raises)."""
     import shutil
 
     shutil.rmtree(stage, ignore_errors=True)
+    _remove_empty(_MADE.pop(stage, []))
 
 
 def publish(stage: Path, dest: Path) -> None:
@@ -329,10 +337,11 @@ def publish(stage: Path, dest: Path) -> None:
 
     if dest.exists():
         _check_kinds(stage, dest)
-    with _sigint_deferred():
+    with _sigint_deferred():  # (a Ctrl-C held here is raised once the set is in place)
         if not dest.exists():
             dest.parent.mkdir(parents=True, exist_ok=True)
             os.rename(stage, dest)
+            _PUBLISHED.add(stage)
             return
         trash = Path(tempfile.mkdtemp(prefix=_STAGE_PREFIX + "old-", suffix=".tmp", dir=dest))
         done: list[tuple[Path, Path]] = []  # each rename (from, to), to undo on an error
@@ -346,8 +355,20 @@ def publish(stage: Path, dest: Path) -> None:
                     os.rename(moved, source)
             shutil.rmtree(trash, ignore_errors=True)
             raise
-    shutil.rmtree(trash, ignore_errors=True)
-    shutil.rmtree(stage, ignore_errors=True)  # its emptied folders
+        _PUBLISHED.add(stage)
+        # (inside: a held Ctrl-C raised at the block's end left the old files in dest)
+        shutil.rmtree(trash, ignore_errors=True)
+        shutil.rmtree(stage, ignore_errors=True)  # its emptied folders
+
+
+#: The staging folders whose set :func:`publish` has put in place, in this process.
+_PUBLISHED: set[Path] = set()
+
+
+def published(stage: Path | None) -> bool:
+    """Whether :func:`publish` has put ``stage``'s set in place (a Ctrl-C it held until
+    then is raised after it: the CLI then says the results are there)."""
+    return stage in _PUBLISHED
 
 
 def _is_folder(path: Path) -> bool:

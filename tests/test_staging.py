@@ -1,0 +1,48 @@
+"""The staging folder of a command's outputs (pkmctl.io.atomic.staged_folder) on Ctrl-C:
+what the CLI's interrupt handler removes, and a Ctrl-C held during the renames."""
+
+import os
+import signal
+
+import pytest
+
+from pkmctl.io import atomic
+from pkmctl.io.atomic import discard, published, staged_folder
+
+
+def test_discard_removes_the_folders_the_run_made_above_its_output(tmp_path):
+    """The CLI's Ctrl-C handler discards the stage and exits at once, so the context's own
+    cleanup never runs: "nestC/x/y was not created" left nestC/x behind."""
+    (tmp_path / "kept").mkdir()
+    cm = staged_folder(tmp_path / "nest" / "x" / "y")
+    stage = cm.__enter__()  # (never exited: the command exits the process from here)
+    (stage / "pd.json").write_text("{}")
+    assert (tmp_path / "nest" / "x").is_dir()
+    discard(stage)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept"]
+    assert not published(stage)
+
+
+def test_a_ctrl_c_held_during_the_renames_comes_after_the_set_is_in_place(tmp_path, monkeypatch):
+    """The interrupt is raised once the new set replaced the old one; ``published`` then
+    says so (the CLI says "the results are in DIR", not "nothing written"), and the old
+    files' trash folder is gone, not left in the output folder."""
+    dest = tmp_path / "out"
+    dest.mkdir()
+    (dest / "a.txt").write_text("old")
+    merge = atomic._merge
+
+    def merge_then_ctrl_c(*args):
+        merge(*args)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(atomic, "_merge", merge_then_ctrl_c)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt), staged_folder(dest) as stage:
+            (stage / "a.txt").write_text("new")
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert (dest / "a.txt").read_text() == "new"
+    assert published(stage)
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["a.txt", "out"]
