@@ -255,6 +255,10 @@ def test_short_and_unexciting_logs_are_refused(exciting, proto):
     )
     with pytest.raises(IdentificationError, match="no excitation: the observation matrix has rank"):
         identify(synthetic_log(still, duration=10.0), still)
+    # the force lead searched on a log that moves nothing: the misfit is flat, and the
+    # search said "smallest at the edge ... give the lead in seconds" instead
+    with pytest.raises(IdentificationError, match="no excitation: the observation matrix has rank"):
+        identify(synthetic_log(still, duration=10.0), still, force_lead=None)
 
 
 def test_lengths_that_fit_no_pose_of_the_geometry_are_refused(exciting):
@@ -457,8 +461,15 @@ def test_identify_output_is_one_runs_and_names_its_log_and_machine(tmp_path, exc
         (["identify", "ok.csv", "--cutoff", "150"], "--cutoff = 150 Hz, which must be in (0, 20]"),
         (["identify", "ok.csv", "--validate", "nope.csv"], "--validate 'nope.csv': no such file"),
         (["identify", "."], "log '.': is a folder, not a file"),
+        (["identify", "/dev/null"], "log '/dev/null': not a regular file"),
+        (["identify", "ok.csv", "--validate", "/dev/null"], "--validate '/dev/null': not a"),
+        # 30 Hz harmonics: a 1 kHz log's filter (at most 20 Hz) would remove them
+        (["excite", "--base-frequency", "10", "--harmonics", "3"],
+         "--base-frequency x --harmonics = 30 Hz: pkmctl identify would filter the top harmonic "
+         "away (a 1000 Hz log allows --cutoff <= 20 Hz, which keeps 90 % of a harmonic up to "
+         "15.5 Hz)"),
     ],
-)
+)  # fmt: skip
 def test_command_errors_are_one_line_exit_2(tmp_path, args, words):
     (tmp_path / "cols.csv").write_text("t,q1,q2,q3,q4\n0,1,1,1,1\n")
     header = "t,q1,q2,q3,q4,tau1,tau2,tau3,tau4\n"
@@ -670,6 +681,43 @@ def test_a_json_beside_the_log_is_used_refused_or_said_to_be_foreign(tmp_path, e
     assert r.returncode == 0, r.stderr
     said = "the default: no --scenario and 'run.json' beside the log is not pkmctl's metadata"
     assert said in " ".join((tmp_path / "o" / "report.md").read_text().split())
+
+
+def test_a_pkmctl_log_gets_the_force_lead_searched_by_default(tmp_path, exciting, noisy):
+    """A pkmctl log's forces are commands held over a control period: the default lead 0
+    biased the friction by several std (the next step ``excite`` printed). With pkmctl's
+    .json beside the log the lead is now searched; a log without one keeps 0."""
+    _, sc = exciting
+    _write_csv(tmp_path / "run.csv", noisy)
+    r = _run("identify", "run.csv", "--out", "o", "--no-physical", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "force lead" not in r.stderr
+    assert json.loads((tmp_path / "o" / "estimate.json").read_text())["force_lead"] == 0.0
+    meta = {"scenario_toml": sc.to_toml(), "table": "run.csv"}
+    (tmp_path / "run.json").write_text(json.dumps(meta))
+    r = _run("identify", "run.csv", "--out", "o", "--no-physical", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "force lead (auto, the default for a pkmctl log): " in r.stderr
+    r = _run("identify", "run.csv", "--out", "o", "--no-physical", "--force-lead", "0",
+             cwd=tmp_path)  # fmt: skip
+    assert r.returncode == 0 and "force lead" not in r.stderr, r.stderr
+
+
+def test_excite_names_the_cutoff_its_harmonics_need(tmp_path):
+    """Harmonics up to 12 Hz pass the parallel filter at 10 Hz at half their amplitude or
+    less: excite says which --cutoff keeps 90 % of them, and times the log for it."""
+    from pkmctl.ident.identify import MIN_HARMONIC_GAIN, cutoff_for, filter_gain
+
+    cut = cutoff_for(12.0, 1000.0)
+    assert filter_gain(10.0, 1000.0, 12.0) < 0.2  # the default cutoff removes most of it
+    assert (
+        filter_gain(cut, 1000.0, 12.0) >= MIN_HARMONIC_GAIN > filter_gain(cut - 0.1, 1000.0, 12.0)
+    )
+    assert cutoff_for(1.0, 1000.0) == 10.0  # the default, when it keeps them
+    r = _run("excite", "--out", "ex.toml", "--harmonics", "3", "--base-frequency", "4",
+             "--periods", "4", cwd=tmp_path)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert f"identify DIR/pd.parquet --cutoff {cut:g}" in " ".join(r.stdout.split())
 
 
 def test_identify_leaves_a_first_compilation_out_of_its_time():

@@ -20,6 +20,7 @@ from rich.table import Table
 from rich.text import Text
 
 from pkmctl.cli import (
+    _KEPT,
     _SCENARIO_NAMES,
     _Compiles,
     _debug,
@@ -27,12 +28,23 @@ from pkmctl.cli import (
     _fraction_bar,
     _handle,
     _interruptible,
+    _kept,
     _load_scenario,
     _say,
     _untouched,
     app,
     console,
 )
+
+
+def _metadata_scenario(log: Path) -> str | None:
+    """The scenario (TOML text) of pkmctl's metadata beside ``log`` (its .json); None if
+    there is none, or the .json is not pkmctl's."""
+    try:
+        text = json.loads(log.with_suffix(".json").read_text(encoding="utf-8"))["scenario_toml"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return text if isinstance(text, str) else None
 
 
 def _scenario_for(ctx: typer.Context, spec: str | None, log: Path | None):
@@ -47,14 +59,10 @@ def _scenario_for(ctx: typer.Context, spec: str | None, log: Path | None):
         if meta.is_file():
             from pkmctl.sim.scenario import Scenario
 
-            try:
-                text = json.loads(meta.read_text(encoding="utf-8"))["scenario_toml"]
-                if not isinstance(text, str):
-                    raise TypeError("scenario_toml is not a string")
-            except (OSError, ValueError, KeyError, TypeError):
-                text = None  # not pkmctl's metadata: fall back to the default
+            text = _metadata_scenario(log)
+            if text is None:  # not pkmctl's metadata: fall back to the default
                 why_not = f"{str(meta)!r} beside the log is not pkmctl's metadata"
-            if text is not None:
+            else:
                 try:
                     sc = Scenario.from_toml(text)
                 except Exception as exc:  # ScenarioError, a TOML error: one line
@@ -120,7 +128,25 @@ def excite(
         _handle(ctx, exc)
     base, _ = _scenario_for(ctx, scenario, None)
     from pkmctl.ident.excite import FORCE_MARGIN, SPEED_MARGIN, design_excitation
-    from pkmctl.ident.identify import minimum_duration
+    from pkmctl.ident.identify import (
+        MIN_HARMONIC_GAIN,
+        cutoff_for,
+        highest_harmonic,
+        max_cutoff,
+        minimum_duration,
+    )
+
+    # the top harmonic must pass identify's parallel filter (at most fs/50 of the log)
+    fs = 1.0 / (base.timing.control_period * base.logging.every)
+    top = harmonics * base_frequency
+    cut = cutoff_for(top, fs)
+    if cut is None:
+        _fail(
+            f"--base-frequency x --harmonics = {top:g} Hz: pkmctl identify would filter the top "
+            f"harmonic away (a {fs:g} Hz log allows --cutoff <= {max_cutoff(fs):g} Hz, which "
+            f"keeps {100 * MIN_HARMONIC_GAIN:g} % of a harmonic up to {highest_harmonic(fs):g} "
+            f"Hz); allowed: base frequency x harmonics <= {highest_harmonic(fs):g} Hz"
+        )
 
     doing = f"designing an exciting trajectory for {base.name!r}"
     try:
@@ -177,18 +203,20 @@ def excite(
     t.add_row(Text("z range [m]"), f"{exc_.z_range[0]:.3f}-{exc_.z_range[1]:.3f}", "0.62-0.78")
     t.add_row(Text("max |alpha|, |beta| [rad]"), f"{exc_.max_angle:.3f}", "0.5")
     console.print(t)
+    raise_cutoff = f" --cutoff {cut:g}" if cut > 10.0 else ""
     console.print(
         Text(
             f"wrote {out}: {exc_.duration:g} s; run it with "
-            f"pkmctl simulate {out} --controller pd --out DIR, then pkmctl identify DIR/pd.parquet"
+            f"pkmctl simulate {out} --controller pd --out DIR, then pkmctl identify "
+            f"DIR/pd.parquet{raise_cutoff}"
         )
     )
-    need = minimum_duration(10.0, exc_.base.count, 1.0 / base.timing.control_period)
+    need = minimum_duration(cut, exc_.base.count, fs)
     if exc_.duration < need:
+        at = f"--cutoff {cut:g} Hz" if raise_cutoff else "its default --cutoff 10 Hz"
         _say(
-            f"warning: {exc_.duration:g} s is too short for pkmctl identify at its default "
-            f"--cutoff 10 Hz, which needs >= {need:.3g} s: use --periods "
-            f">= {math.ceil(need * base_frequency - 1e-9)}"
+            f"warning: {exc_.duration:g} s is too short for pkmctl identify at {at}, which "
+            f"needs >= {need:.3g} s: use --periods >= {math.ceil(need * base_frequency - 1e-9)}"
         )
 
 
@@ -221,12 +249,14 @@ def identify(
         typer.Option(help="Parallel filter cutoff (Hz): in (0, fs/50], fs the log's sample rate."),
     ] = 10.0,
     force_lead: Annotated[
-        str,
+        str | None,
         typer.Option(
             help="Force timing: the force at t is the logged one at t - LEAD (s); 'auto' "
-            "estimates it (e.g. forces held over a control period: +T/2)."
+            "estimates it (e.g. forces held over a control period: +T/2). Default: auto "
+            "for a pkmctl log (its .json beside it), else 0 (instantaneous readings).",
+            show_default=False,
         ),
-    ] = "0",
+    ] = None,
     physical: Annotated[
         bool,
         typer.Option(
@@ -253,6 +283,10 @@ def identify(
     from pkmctl.ident.report import OUTPUT_NAMES, remove_stale, write_identification
     from pkmctl.io.atomic import check_output_folder, discard, staged_folder
 
+    how = "auto"
+    if force_lead is None:  # a pkmctl log's forces are commands held over a period
+        force_lead = "auto" if _metadata_scenario(log) is not None else "0"
+        how = "auto, the default for a pkmctl log"
     if force_lead == "auto":
         lead = None
     else:
@@ -274,8 +308,10 @@ def identify(
     except Exception as exc:
         _handle(ctx, exc)
     existed = out.is_dir()
+    _KEPT["note"] = _untouched(out, existed)
     sc, origin = _scenario_for(ctx, scenario, log)
     compiles = _Compiles()
+    stage = None
     try:
         with (
             staged_folder(out) as stage,
@@ -302,6 +338,9 @@ def identify(
                 return _untouched(out, existed) + compiles.kept()
 
             idn, val, paths = _interruptible(work, interrupted)
+    except KeyboardInterrupt:
+        _KEPT["note"] = _kept(out, existed, stage)
+        raise
     except MemoryError:
         _fail(
             f"out of memory identifying from {log} (about 1.2 kB per sample): cut the log, or "
@@ -311,6 +350,7 @@ def identify(
         if isinstance(exc, IdentificationError) and not _debug(ctx):
             exc = IdentificationError(_as_options(str(exc)))
         _handle(ctx, exc, suffix="; " + _untouched(out, existed))
+    _KEPT["note"] = _kept(out, existed, stage)
     stale = remove_stale(out, paths)
     obs = idn.observation
     used = obs.t.size
@@ -319,7 +359,7 @@ def identify(
         + "; ".join(f"{k} discarded ({why})" for why, k in obs.discarded.items())
     )
     if lead is None:
-        _say(f"force lead (auto): {1e3 * obs.force_lead:+.4g} ms")
+        _say(f"force lead ({how}): {1e3 * obs.force_lead:+.4g} ms")
     t = Table(title=f"{idn.base.count} base parameters (cond {idn.cond:.4g}), WLS")
     for c, j in (("#", "right"), ("base parameter", "left"), ("unit", "left"),
                  ("estimate", "right"), ("std %", "right")):  # fmt: skip

@@ -45,6 +45,7 @@ import math
 import os
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -167,6 +168,8 @@ def check_log_file(path: str | Path, *, what: str = "log") -> Path:
     if path.is_dir():
         raise IdentificationError(f"{where}: is a folder, not a file (give the .csv or .parquet)")
     if not path.is_file():
+        if path.exists():  # a FIFO, a device, a socket: not a log to read twice
+            raise IdentificationError(f"{where}: not a regular file (give the .csv or .parquet)")
         raise IdentificationError(f"{where}: no such file")
     if not os.access(path, os.R_OK):
         raise IdentificationError(f"{where}: not readable (permission denied)")
@@ -337,6 +340,52 @@ def max_cutoff(fs: float) -> float:
     filter (at :data:`DIFF_CUTOFF_RATIO` x fs) must be :data:`MIN_POSE_TO_CUTOFF` times
     above it."""
     return DIFF_CUTOFF_RATIO * fs / MIN_POSE_TO_CUTOFF
+
+
+#: The parallel filter's gain that ``pkmctl excite`` asks at its trajectory's top harmonic
+#: (:func:`cutoff_for`): the Hamming FIR of :func:`_lowpass` halves an amplitude at its
+#: cutoff and keeps 0.9 of it up to about 0.79 x the cutoff, nothing beyond 1.4 x.
+MIN_HARMONIC_GAIN = 0.9
+
+
+def filter_gain(cutoff: float, fs: float, f: float) -> float:
+    """The gain of the parallel filter at ``cutoff`` Hz (a log at ``fs`` Hz) at ``f`` Hz."""
+    h = _lowpass(cutoff, fs)
+    k = np.arange(h.size) - h.size // 2
+    return float(abs(np.sum(h * np.exp(-2j * np.pi * f / fs * k))))
+
+
+def cutoff_for(f: float, fs: float, least: float = 10.0) -> float | None:
+    """The least cutoff (Hz, to 0.1 Hz, at least ``least``) whose parallel filter keeps
+    :data:`MIN_HARMONIC_GAIN` of a harmonic at ``f`` Hz in a log at ``fs`` Hz; None if
+    even :func:`max_cutoff` does not (identify would filter the harmonic away)."""
+    top = max_cutoff(fs)
+    if filter_gain(top, fs, f) < MIN_HARMONIC_GAIN:
+        return None
+    lo, hi = least, top
+    if filter_gain(lo, fs, f) >= MIN_HARMONIC_GAIN:
+        return lo
+    while hi - lo > 0.05:  # the gain at f rises with the cutoff
+        mid = 0.5 * (lo + hi)
+        if filter_gain(mid, fs, f) >= MIN_HARMONIC_GAIN:
+            hi = mid
+        else:
+            lo = mid
+    return min(top, math.ceil(hi * 10.0 - 1e-9) / 10.0)
+
+
+def highest_harmonic(fs: float) -> float:
+    """The highest frequency (Hz, to 0.01 Hz) of which the parallel filter at the largest
+    cutoff a log at ``fs`` Hz allows keeps :data:`MIN_HARMONIC_GAIN`."""
+    top = max_cutoff(fs)
+    lo, hi = 0.0, top
+    while hi - lo > 0.005:
+        mid = 0.5 * (lo + hi)
+        if filter_gain(top, fs, mid) >= MIN_HARMONIC_GAIN:
+            lo = mid
+        else:
+            hi = mid
+    return math.floor(lo * 100.0) / 100.0
 
 
 def minimum_duration(cutoff: float, parameters: int, fs: float = 1000.0) -> float:
@@ -526,6 +575,7 @@ def observe(
     max_fk_residual: float = MAX_FK_RESIDUAL,
     machine: str = "the scenario",
     max_residual: float | None = None,
+    excited: Callable[[np.ndarray], None] | None = None,
 ) -> Observation:
     """The observation of a log (steps 1-3 of the module): see :class:`Observation`.
 
@@ -535,7 +585,9 @@ def observe(
     ``usable`` seconds whose shifted forces were logged (the samples whose filter reaches
     forces from beyond the log's ends are dropped). ``max_residual``: with ``force_lead``
     None, a search whose best lead still leaves more than this relative misfit is refused
-    as a problem of the data, not of timing."""
+    as a problem of the data, not of timing. ``excited(W)`` (W (n, 3, 48)), if given, is
+    called before the lead is searched: a log that moves too little to fit is refused for
+    that (:func:`check_excitation`), not for a lead that no fit can find."""
     h, fs, fd = _check_rate(log, cutoff, diff_cutoff)
     where = log.where
     # the filters' support, before anything is built (a tiny cutoff is a huge FIR)
@@ -617,6 +669,8 @@ def observe(
         return _fir_at(np.einsum("nij,ni->nj", J, tau), h_fir, keep)
 
     if force_lead is None:
+        if excited is not None:
+            excited(W)
         A = W.reshape(-1, W.shape[-1])
 
         def misfit(lead: float, relative: bool = False) -> float:
@@ -930,6 +984,7 @@ def identify(
         max_fk_residual=fk_limit(scenario),
         machine=label,
         max_residual=max_residual,
+        excited=lambda W: check_excitation(log.where, base, W),
     )
     n, r = obs.t.size, base.count
     where = log.where
@@ -940,16 +995,7 @@ def identify(
         )
     A = base.reduce(obs.W).reshape(3 * n, r)
     y = obs.y.reshape(3 * n)
-    sv = np.linalg.svd(A / np.linalg.norm(A, axis=0).clip(1e-300), compute_uv=False)
-    rank = int(np.sum(sv > 1e-9 * sv[0]))
-    cond = float(np.linalg.cond(A))
-    if rank < r:
-        weakest = [base.names[k] for k in np.argsort(np.linalg.norm(A, axis=0))[: r - rank]]
-        raise IdentificationError(
-            f"{where}: no excitation: the observation matrix has rank {rank} of {r} "
-            f"(cond {cond:.3g}); the trajectory does not move {', '.join(weakest)} "
-            "(use pkmctl excite)"
-        )
+    cond = check_excitation(where, base, obs.W)
     # blocks at least 2 / cutoff long (the filtered residuals' correlation), at most 40
     span = 2.0 / obs.cutoff * obs.sample_rate / obs.decimation
     blocks = int(min(JACKKNIFE_BLOCKS, n // max(1.0, span)))
@@ -1007,6 +1053,24 @@ def identify(
         base, obs, ols, wls, cond, phys, phys_fit, vs, time.perf_counter() - t0, notes,
         label, active if physical else (),
     )  # fmt: skip
+
+
+def check_excitation(where: str, base, W: np.ndarray) -> float:
+    """cond of the base observation matrix of W (n, 3, 48); refused if its rank is short
+    of ``base.count`` (the trajectory does not move some base parameters: named)."""
+    r = base.count
+    A = base.reduce(W).reshape(-1, r)
+    sv = np.linalg.svd(A / np.linalg.norm(A, axis=0).clip(1e-300), compute_uv=False)
+    rank = int(np.sum(sv > 1e-9 * sv[0]))
+    cond = float(np.linalg.cond(A))
+    if rank < r:
+        weakest = [base.names[k] for k in np.argsort(np.linalg.norm(A, axis=0))[: r - rank]]
+        raise IdentificationError(
+            f"{where}: no excitation: the observation matrix has rank {rank} of {r} "
+            f"(cond {cond:.3g}); the trajectory does not move {', '.join(weakest)} "
+            "(use pkmctl excite)"
+        )
+    return cond
 
 
 def _check_fit(
