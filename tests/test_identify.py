@@ -618,6 +618,20 @@ def test_max_residual_is_the_limit_for_a_machine_with_unmodelled_effects(excitin
     assert "raise max_residual" in msg
 
 
+def test_a_given_lead_far_worse_than_the_best_near_0_is_noted(exciting, noisy):
+    """A tester's -20 ms lead passed every gate (3.1 % misfit, m_platform 5 x its true
+    value) without a word; the best lead within +-10 samples left 0.06 %."""
+    _, sc = exciting
+    idn = identify(noisy, sc, force_lead=0.0, physical=False)
+    assert not [n for n in idn.notes if "force lead given" in n]
+    h = 1.0 / idn.observation.sample_rate
+    idn = identify(noisy, sc, force_lead=3 * h, physical=False)
+    (note,) = [n for n in idn.notes if "force lead given" in n]
+    assert note.startswith("the force lead given, +3 ms, leaves ") and "+0 ms, the best" in note
+    best, at_best, at_given = idn.observation.lead_check
+    assert best == 0.0 and at_given > 2 * at_best
+
+
 def test_a_force_lead_reads_no_force_from_beyond_the_log(exciting):
     """Forces logged 0.2 s early (lead -0.2 s): the samples whose filter would need forces
     after the log's end are dropped (np.interp would repeat the last one), and the fit is

@@ -278,7 +278,13 @@ def identify(
     and the estimate as a scenario [controller_model] block."""
     import numpy as np
 
-    from pkmctl.ident.identify import IdentificationError, check_log_file, predict, read_log
+    from pkmctl.ident.identify import (
+        IdentificationError,
+        check_log_file,
+        lead_note,
+        predict,
+        read_log,
+    )
     from pkmctl.ident.identify import identify as run_identify
     from pkmctl.ident.report import OUTPUT_NAMES, remove_stale, write_identification
     from pkmctl.io.atomic import check_output_folder, discard, staged_folder
@@ -360,6 +366,8 @@ def identify(
     )
     if lead is None:
         _say(f"force lead ({how}): {1e3 * obs.force_lead:+.4g} ms")
+    elif note := lead_note(obs):
+        _say(f"warning: {note}")
     t = Table(title=f"{idn.base.count} base parameters (cond {idn.cond:.4g}), WLS")
     for c, j in (("#", "right"), ("base parameter", "left"), ("unit", "left"),
                  ("estimate", "right"), ("std %", "right")):  # fmt: skip
