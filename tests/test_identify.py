@@ -364,11 +364,27 @@ def test_csv_quirks_are_read_or_refused_in_one_printable_line(tmp_path, exciting
     (tmp_path / "bin.csv").write_bytes(
         b"\x7fELF\x02\x01,\x00\x03\n\x00\x1b[2J,\x05,\x06,\x07\n" * 3
     )
-    with pytest.raises(IdentificationError, match="not a readable") as info:
+    with pytest.raises(IdentificationError, match="binary data, neither a Parquet") as info:
         read_log(tmp_path / "bin.csv")
     assert str(info.value).isprintable(), repr(str(info.value))
     with pytest.raises(IdentificationError, match="is a folder, not a file"):
         read_log(tmp_path)
+    # pyarrow's own messages quoted a Parquet file's bytes, or counted columns
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    pq.write_table(pa.table({"t": log.t}), tmp_path / "table.csv")
+    (tmp_path / "table.parquet").write_text(header + "\n" + body)
+    (tmp_path / "comment.csv").write_text("# run 7, by hand\n" + header + "\n" + body)
+    sniffed = {
+        "table.csv": "a Parquet file under another name (name it .parquet)",
+        "table.parquet": "text, not a Parquet file (a CSV table? name it .csv)",
+        "comment.csv": "the first line is a comment ('#...'): remove it",
+    }
+    for name, words in sniffed.items():
+        with pytest.raises(IdentificationError) as info:
+            read_log(tmp_path / name)
+        assert f"log '{tmp_path / name}': {words}" in str(info.value), str(info.value)
 
 
 def test_excitation_refuses_an_initial_pose_outside_its_limits(proto):

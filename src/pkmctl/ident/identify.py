@@ -184,6 +184,34 @@ def _is_number(text: str) -> bool:
     return True
 
 
+def _sniff(path: Path) -> str:
+    """Why a table that failed to read failed, when its first bytes say so ("" if not):
+    a Parquet file named otherwise, a CSV named .parquet, binary data, a comment line
+    (pyarrow's own message quoted the binary bytes, or a column count)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return ""
+    parquet = path.suffix.lower() == ".parquet"
+    if head.startswith(b"PAR1") and not parquet:
+        return "a Parquet file under another name (name it .parquet)"
+    try:
+        text = head.decode("utf-8-sig") if b"\0" not in head else None
+    except UnicodeDecodeError as exc:  # (a character cut at the 4096th byte is text)
+        text = head[: exc.start].decode("utf-8-sig") if exc.start > len(head) - 4 else None
+    if text is None:
+        return "binary data, neither a Parquet file nor a CSV table"
+    if parquet:
+        return "text, not a Parquet file (a CSV table? name it .csv)"
+    if text.lstrip().startswith("#"):
+        return (
+            "the first line is a comment ('#...'): remove it; the first line must name the "
+            "columns t, q1..q4, tau1..tau4"
+        )
+    return ""
+
+
 def _read_table(path: Path, what: str = "log") -> tuple[dict, dict[str, int], list[str]]:
     """The columns of a Parquet or CSV table by name (float arrays; None for a non-numeric
     one), the names that occur more than once (name: count; not read) and the header."""
@@ -199,6 +227,9 @@ def _read_table(path: Path, what: str = "log") -> tuple[dict, dict[str, int], li
 
             table = pacsv.read_csv(path)
     except Exception as exc:  # pyarrow's errors: ArrowInvalid, OSError, ...
+        hint = _sniff(path)
+        if hint:
+            raise IdentificationError(f"{where}: {hint}") from None
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise IdentificationError(
             f"{where}: not a readable Parquet or CSV table ({_printable(first, 80)})"

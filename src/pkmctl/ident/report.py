@@ -115,8 +115,8 @@ def _figures(idn: Identification, folder: Path, validation: dict | None, source:
             ax.set_ylabel(f"{name} [{unit}]")
         axs[0].legend(loc="upper right", fontsize=8)
         axs[0].set_title(
-            f"Validation on {Path(validation['source']).name} (estimate from "
-            f"{Path(source).name}): relative error {100 * validation['relative_error']:.3g} %"
+            f"Validation on {_tail(validation['source'])} (estimate from {_tail(source)}): "
+            f"relative error {100 * validation['relative_error']:.3g} %"
         )
         axs[-1].set_xlabel("t [s]")
         fig.tight_layout()
@@ -244,6 +244,12 @@ def _markdown(idn: Identification, validation: dict | None, source: str) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _tail(path: str) -> str:
+    """A log's file name with its folder (two runs' logs are both pd.parquet)."""
+    p = Path(path)
+    return str(Path(p.parent.name) / p.name) if p.parent.name else p.name
 
 
 def write_identification(
