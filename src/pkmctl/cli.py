@@ -26,6 +26,7 @@ abandoned: the process exits at once, after removing its staging folder).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import threading
@@ -327,6 +328,10 @@ class _Compiles:
 
     def __init__(self, bar: Progress | None = None, task=None) -> None:
         self.bar, self.task, self.done = bar, task, 0
+        # the group compiled last and its seconds so far, said when another group starts
+        # or listening ends: one pair of lines per group, not one per kernel of it
+        self.pending: tuple[str, float] | None = None
+        self.lock = threading.Lock()
 
     def __call__(self, event: str, what: str, seconds: float) -> None:
         if event == "failed":  # its error follows in one line
@@ -334,30 +339,51 @@ class _Compiles:
         from pkmctl import _jit
 
         kept = _jit.cache_writable()
-        if event == "start":
-            if not kept and not _CACHE_WARNED:
-                _CACHE_WARNED.append(True)
-                _say(
-                    f"warning: the compile cache {str(_jit.cache_root())!r} cannot be written: "
-                    "compiled code is kept in memory only, and every run compiles again "
-                    "(set PKMCTL_CACHE_DIR to a writable folder)"
-                )
-            when = "once per machine; minutes on a first run" if kept else "not cached"
-            msg = f"compiling {what} ({when})…"
-        else:
-            self.done += 1
-            msg = f"compiled {what} in {seconds:.1f} s " + ("(cached)" if kept else "(not cached)")
+        with self.lock:
+            if event == "start":
+                if self.pending is not None and self.pending[0] == what:
+                    return  # the same group goes on
+                self._flush(kept)
+                if not kept and not _CACHE_WARNED:
+                    _CACHE_WARNED.append(True)
+                    _say(
+                        f"warning: the compile cache {str(_jit.cache_root())!r} cannot be "
+                        "written: compiled code is kept in memory only, and every run compiles "
+                        "again (set PKMCTL_CACHE_DIR to a writable folder)"
+                    )
+                when = "once per machine; minutes on a first run" if kept else "not cached"
+                self._show(f"compiling {what} ({when})…")
+            else:
+                self.done += 1
+                before = self.pending[1] if self.pending and self.pending[0] == what else 0.0
+                self.pending = (what, before + seconds)
+
+    def _show(self, msg: str) -> None:
         if self.bar is not None and err_console.is_terminal:
             self.bar.update(self.task, description=msg)
         else:
             _say(msg)
 
+    def _flush(self, kept: bool) -> None:
+        if self.pending is not None:
+            what, seconds = self.pending
+            self.pending = None
+            self._show(
+                f"compiled {what} in {seconds:.1f} s " + ("(cached)" if kept else "(not cached)")
+            )
+
+    @contextlib.contextmanager
     def listen(self):
         # (imported as a module: the text "pkmctl" "._jit" would put cli.py into the
         # kernels' source hash, and every edit of the CLI would recompile them all)
         from pkmctl import _jit
 
-        return _jit.announce(self)
+        try:
+            with _jit.announce(self):
+                yield
+        finally:
+            with self.lock:
+                self._flush(_jit.cache_writable())
 
     def kept(self) -> str:
         return "; kernels compiled so far stay cached" if self.done else ""
