@@ -733,6 +733,25 @@ def test_a_pkmctl_log_gets_the_force_lead_searched_by_default(tmp_path, exciting
     assert r.returncode == 0 and "force lead" not in r.stderr, r.stderr
 
 
+def test_a_validation_log_of_another_machine_is_said_so(tmp_path, exciting, noisy):
+    """A tester validated on a log of another scenario (no rotors, no friction): 250 %,
+    and nothing said that its .json named another machine."""
+    _, sc = exciting
+    _write_csv(tmp_path / "run.csv", noisy)
+    _write_csv(tmp_path / "val.csv", noisy)
+    for name, scenario in (("run", sc), ("val", sc.replace(**{"payload.mass": 5.0}))):
+        meta = {"scenario_toml": scenario.to_toml(), "table": f"{name}.csv"}
+        (tmp_path / f"{name}.json").write_text(json.dumps(meta))
+    args = ["identify", "run.csv", "--out", "o", "--no-physical", "--validate", "val.csv"]
+    r = _run(*args, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    said = f"warning: --validate 'val.csv': its .json is of scenario {sc.name!r}, whose payload"
+    assert said in " ".join(r.stderr.split()), r.stderr
+    (tmp_path / "val.json").write_text((tmp_path / "run.json").read_text())
+    r = _run(*args, cwd=tmp_path)
+    assert r.returncode == 0 and "--validate" not in r.stderr, r.stderr
+
+
 def test_excite_names_the_cutoff_its_harmonics_need(tmp_path):
     """Harmonics up to 12 Hz pass the parallel filter at 10 Hz at half their amplitude or
     less: excite says which --cutoff keeps 90 % of them, and times the log for it."""

@@ -47,6 +47,27 @@ def _metadata_scenario(log: Path) -> str | None:
     return text if isinstance(text, str) else None
 
 
+def _other_machine(log: Path, assumed) -> str:
+    """Why a pkmctl log (its .json) is of another machine than the scenario ``assumed``
+    (its mechanism, plant or payload differ), or "" (the same, or no pkmctl .json)."""
+    from pkmctl.sim.scenario import Scenario
+
+    text = _metadata_scenario(log)
+    try:
+        sc = Scenario.from_toml(text) if text is not None else None
+    except Exception:  # (its own error would be the log's, not the validation's)
+        return ""
+    sections = ("mechanism", "plant_spec", "payload")
+    differ = [n for n in sections if sc is not None and getattr(sc, n) != getattr(assumed, n)]
+    if not differ:
+        return ""
+    names = ", ".join("plant" if n == "plant_spec" else n for n in differ)
+    return (
+        f"its .json is of scenario {sc.name!r}, whose {names} differ from the scenario "
+        f"assumed ({assumed.name!r}): the validation error compares two machines"
+    )
+
+
 def _scenario_for(ctx: typer.Context, spec: str | None, log: Path | None):
     """The named scenario; else the one beside a pkmctl log (its .json); else prototype;
     and a label saying which and where it came from (for errors and the report). A .json
@@ -389,6 +410,8 @@ def identify(
         msg += f"; validation on {validate}: {100 * val['relative_error']:.3g} %"
     console.print(Text(msg))
     console.print(Text(f"machine: {idn.scenario}"))
+    if validate is not None and (other := _other_machine(validate, sc)):
+        _say(f"warning: --validate {str(validate)!r}: {other}")
     wrote = f"wrote {out / 'report.md'} and {len(paths) - 1} more files"
     if stale:
         wrote += f"; removed {', '.join(p.name for p in stale)} of an earlier run"
