@@ -167,11 +167,14 @@ def _free_port() -> int:
 
 
 @contextlib.contextmanager
-def _cluster(n_workers: int, *, deadline_s: float = 180.0, dashboard: bool = False):
+def _cluster(n_workers: int, *, deadline_s: float = 180.0, dashboard: bool = False,
+             worker_args: tuple[str, ...] = (), pythonpath: tuple[str, ...] = ()):  # fmt: skip
     """A real dask.distributed cluster on 127.0.0.1: a scheduler and ``n_workers`` worker
     processes of one thread, without nannies (so a worker's pid is the process we started
-    and can kill). Yields (address, worker processes). A watchdog stops every process
-    after ``deadline_s``, so a hung campaign fails the test instead of hanging it."""
+    and can kill), each started with ``worker_args`` too (``--preload``) and
+    ``pythonpath`` first on its path. Yields (address, worker processes). A watchdog stops
+    every process after ``deadline_s``, so a hung campaign fails the test instead of
+    hanging it."""
     pytest.importorskip("distributed")
     from distributed import Client
 
@@ -179,7 +182,7 @@ def _cluster(n_workers: int, *, deadline_s: float = 180.0, dashboard: bool = Fal
     address = f"tcp://127.0.0.1:{port}"
     env = dict(os.environ)
     src = str(Path(pkmctl.__file__).resolve().parents[1])
-    env["PYTHONPATH"] = os.pathsep.join([src, env.get("PYTHONPATH", "")])
+    env["PYTHONPATH"] = os.pathsep.join([*pythonpath, src, env.get("PYTHONPATH", "")])
     env["DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES"] = "3"  # a task outlives 3 lost workers
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": env}
     board = ["--dashboard-address", f"127.0.0.1:{_free_port()}"] if dashboard else []
@@ -212,6 +215,7 @@ def _cluster(n_workers: int, *, deadline_s: float = 180.0, dashboard: bool = Fal
                         "--no-dashboard",
                         "--host",
                         "127.0.0.1",
+                        *worker_args,
                     ],
                     **quiet,
                 )  # fmt: skip
@@ -1442,3 +1446,34 @@ def test_a_damaged_task_file_is_named_with_what_to_do(tmp_path):
         line = res.output.strip().splitlines()[-1]  # (run says what it will run first)
         assert line.startswith(f"error: {task}: not a readable task file (Parquet magic")
         assert line.endswith("; delete it, and --resume runs its task again")
+
+
+def test_a_resume_refuses_a_task_file_holding_another_tasks_runs(tmp_path):
+    """A copy of task 0's file under task 1's name counted task 1 as done: --resume said
+    the campaign was complete, its runs were never run, and the report then refused the
+    folder (a run recorded twice)."""
+    import shutil
+
+    out = tmp_path / "c"
+    spec = _fake_campaign(out, HEAD.replace('["smc"]', '["smc", "pd"]'))
+    t0, t1 = spec.tasks()[:2]
+    assert {(r.controller, r.seed) for r in t0.runs} != {(r.controller, r.seed) for r in t1.runs}
+    runs = out / "runs"
+    first, second = runs / "task-00000.parquet", runs / "task-00001.parquet"
+    second.unlink()
+    shutil.copyfile(first, second)
+    resume = ["campaign", "run", str(out / "spec.toml"), "--out", str(out), "--resume",
+              "--workers", "1"]  # fmt: skip
+    res = runner.invoke(app, resume)
+    assert res.exit_code == 2, res.output
+    r = t0.runs[0]
+    assert res.stderr.strip().splitlines()[-1] == (
+        f"error: {second}: not this task's records (it holds run (cell {r.cell}, "
+        f"{r.controller}, seed {r.seed}), not one of task 1's: another task's file copied "
+        "to its name?); delete it, and --resume runs its task again"
+    )
+    assert sorted(p.name for p in runs.iterdir()) == ["task-00000.parquet", "task-00001.parquet"]
+    second.unlink()  # as the line says: the task runs again, the campaign is whole
+    res = runner.invoke(app, resume)
+    assert res.exit_code == 0, res.output
+    assert len(read_records(out)) == spec.n_runs

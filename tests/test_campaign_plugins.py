@@ -192,3 +192,109 @@ def test_a_run_that_errs_says_why_in_the_command_and_the_report(tmp_path, monkey
     assert res.exit_code == 0, res.output
     md = (out / "report" / "report.md").read_text()
     assert f"at payload.mass = 5; 1 error: {why}" in md, md
+
+
+def _mismatch(name: str, ran: str, recorded: str) -> str:
+    return (
+        f"PluginMismatch: controller {name!r}: the worker ran another version of it (source "
+        f"hash {ran}; the campaign's is {recorded}): make the workers import the plugin this "
+        "campaign was started with, then --resume"
+    )
+
+
+def _recorded(out: Path, name: str) -> str:
+    return json.loads((out / "campaign.json").read_text())["user_parts"][f"controller {name}"][
+        "sha256"
+    ]
+
+
+def test_runs_of_another_version_of_a_part_than_the_recorded_one_are_error_records(
+    tmp_path, monkeypatch
+):
+    """A process runs the part it imported; its file edited since (not imported again),
+    campaign.json recorded the edited file's hash while the records came from the code
+    imported before. Each task now says which version its runs ran."""
+    monkeypatch.setenv(ENV, "")
+    plugin, name = _plugin(tmp_path, LAW)
+    spec = CampaignSpec.from_toml(_spec(tmp_path, ["pd", name]))
+    first = run_campaign(spec, tmp_path / "a", workers=1)  # the imported version, recorded
+    assert first.complete and first.errors == 0
+    before = _recorded(tmp_path / "a", name)
+    plugin.write_text(plugin.read_text().replace("GAIN = 1.0e4", "GAIN = 2.0e4"))
+    out = tmp_path / "b"
+    done = run_campaign(spec, out, workers=1)
+    after = _recorded(out, name)
+    assert after != before
+    rows = read_records(out).to_pylist()
+    assert {r["status"] for r in rows if r["controller"] == "pd"} == {"ok"}
+    mine = [r for r in rows if r["controller"] == name]
+    assert len(mine) == 2 and done.errors == 2
+    assert {r["message"] for r in mine} == {_mismatch(name, before, after)}
+    assert all(r["rmse_z_mm"] is None and r["status"] == "error" for r in mine)
+
+
+@pytest.mark.cluster
+def test_dask_workers_running_another_version_of_a_plugin_make_error_records(tmp_path):
+    """The workers preload their own copy of the plugin (another GAIN); the client's copy,
+    whose hash campaign.json records, is not what made their records: those runs are
+    error records naming the mismatch, and the command exits 1."""
+    from tests.test_campaign import _cluster
+
+    module = "law_" + uuid.uuid4().hex[:10]
+    name = module.replace("_", "-")
+    theirs, mine = tmp_path / "workers", tmp_path / "client"
+    theirs.mkdir()
+    mine.mkdir()
+    (theirs / f"{module}.py").write_text(LAW.replace("NAME", name).replace("1.0e4", "3.0e4"))
+    (mine / f"{module}.py").write_text(LAW.replace("NAME", name))
+    spec_file = _spec(tmp_path, ["pd", name])
+    out = tmp_path / "c"
+    with _cluster(1, worker_args=("--preload", module), pythonpath=(str(theirs),)) as (
+        address, _
+    ):  # fmt: skip
+        proc = _pkmctl("--plugin", str(mine / f"{module}.py"), "campaign", "run",
+                       str(spec_file), "--out", str(out), "--scheduler", address)  # fmt: skip
+        _, err = proc.communicate(timeout=170)
+    assert proc.returncode == 1, err
+    _plugin_at(mine / f"{module}.py", module)  # to read the records here
+    recorded = _recorded(out, name)
+    rows = read_records(out).to_pylist()
+    assert {r["status"] for r in rows if r["controller"] == "pd"} == {"ok"}
+    messages = {r["message"] for r in rows if r["controller"] == name}
+    assert len(messages) == 1, messages
+    (message,) = messages
+    assert message.startswith(f"PluginMismatch: controller {name!r}: the worker ran another ")
+    assert f"the campaign's is {recorded})" in message
+    ran = message.split("(source hash ", 1)[1].split(";", 1)[0]
+    assert ran != recorded
+    assert f"2 runs failed: {message}" in err, err
+
+
+@pytest.mark.cluster
+def test_dask_workers_preloading_the_plugin_file_run_its_part(tmp_path):
+    """``dask worker --preload my_law.py`` (docs/parts.md) imports the file, then reloads
+    it: the second registration of the same part from the same text killed the worker."""
+    from tests.test_campaign import _cluster
+
+    module = "law_" + uuid.uuid4().hex[:10]
+    name = module.replace("_", "-")
+    plugin = tmp_path / f"{module}.py"
+    plugin.write_text(LAW.replace("NAME", name))
+    spec_file = _spec(tmp_path, ["pd", name])
+    out = tmp_path / "c"
+    with _cluster(1, worker_args=("--preload", str(plugin))) as (address, workers):
+        proc = _pkmctl("--plugin", str(plugin), "campaign", "run", str(spec_file), "--out",
+                       str(out), "--scheduler", address)  # fmt: skip
+        _, err = proc.communicate(timeout=170)
+        assert workers[0].poll() is None  # alive
+    assert proc.returncode == 0, err
+    _plugin_at(plugin, module)
+    rows = read_records(out).to_pylist()
+    assert len(rows) == 4 and {r["status"] for r in rows} == {"ok"}
+
+
+def _plugin_at(path: Path, module: str) -> None:
+    """Import the plugin file ``path`` as ``module`` in this process (to read records)."""
+    loader = importlib.util.spec_from_file_location(module, path)
+    sys.modules[module] = importlib.util.module_from_spec(loader)
+    loader.loader.exec_module(sys.modules[module])

@@ -315,6 +315,37 @@ def _origin(part: Part) -> str:
     return f"by {files[0]}" if files else "by another plugin"
 
 
+#: Per user part, by (kind, name): the modules of its functions and a hash of the text
+#: of their files when it was registered (:func:`_source_stamp`).
+_STAMPS: dict[tuple[str, str], tuple] = {}
+
+
+def _source_stamp(functions: dict[str, Callable]) -> tuple | None:
+    """Where a user part's functions are defined (module, name, line), and the SHA-256 of
+    the text of each file they are read from (and of the user's modules they reach,
+    :func:`user_sources`), now: equal for the same module imported again, also from a
+    copy of its file (Dask's ``--preload FILE.py`` imports the file, then reloads the
+    copy it made). None if a function has no file (typed at a prompt) or one cannot be
+    read: then a second registration of the name is never taken for the first one."""
+    files: set[str] = set()
+    try:
+        pys = {role: getattr(fn, "py_func", fn) for role, fn in functions.items()}
+        # where each function is defined (not another part of the same file)
+        modules = tuple(sorted((role, py.__module__, py.__qualname__, py.__code__.co_firstlineno)
+                               for role, py in pys.items()))  # fmt: skip
+        for py in pys.values():
+            files |= user_sources(py)
+        if not files:
+            return None
+        digests = []
+        for f in files:
+            with open(f, "rb") as fh:
+                digests.append(hashlib.sha256(fh.read()).hexdigest())
+        return modules, tuple(sorted(set(digests)))
+    except (OSError, TypeError, AttributeError):
+        return None
+
+
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
 
@@ -353,10 +384,17 @@ def _register(
             f"{kind} name {name!r}: must be 1-64 letters, digits, '_', '.' or '-', starting "
             "with a letter or digit"
         )
+    stamp = None if builtin else _source_stamp(functions)
     if name in reg:
-        raise PartError(
-            f"{kind} {name!r}: a {kind} of that name is already registered ({_origin(reg[name])})"
-        )
+        old = reg[name]
+        if stamp is None or _STAMPS.get((kind, name)) != stamp:
+            raise PartError(
+                f"{kind} {name!r}: a {kind} of that name is already registered ({_origin(old)})"
+            )
+        # the same module of the same text registering it again, imported twice (Dask's
+        # --preload FILE.py imports it, then reloads a copy): the new one replaces it
+        del reg[name]
+        _BY_TYPE.pop((kind, old.params), None)
     if not (isinstance(params, type) and issubclass(params, tuple) and hasattr(params, "_fields")):
         raise PartError(f"{kind} {name!r}: params = {params!r}: must be a typing.NamedTuple class")
     if (kind, params) in _BY_TYPE:
@@ -445,6 +483,8 @@ def _register(
     )
     reg[name] = part
     _BY_TYPE[(kind, params)] = part
+    if stamp is not None:
+        _STAMPS[(kind, name)] = stamp
     if lanes:
         part = attach_lanes(kind, name, lanes, lane_work=lane_work, lane_ok=lane_ok)
     return part

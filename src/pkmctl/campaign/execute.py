@@ -5,7 +5,10 @@ A task (:meth:`CampaignSpec.tasks`) is a pure function of the spec and its runs:
 client writes each table to the store as it arrives (:func:`pkmctl.campaign.store.
 write_task`), so workers need no shared file system, a retried task (Dask reruns the
 tasks of a lost worker) cannot leave a second copy, and the records do not depend on
-where or in which order the tasks ran.
+where or in which order the tasks ran. With its records a task sends back the source
+hash of each user part (a plugin's) it ran: a worker that imported another version of
+the plugin than the client's (a Dask worker's own copy) makes error records that say so
+(:func:`_same_sources`), not records of code the campaign does not record.
 
 Local execution uses a ``ProcessPoolExecutor`` of spawned processes rather than a Dask
 ``LocalCluster``: it starts in a fraction of a second, opens no ports, and needs no
@@ -33,7 +36,9 @@ from pkmctl.campaign.store import (
     completed_tasks,
     factor_column,
     factor_value,
+    metric_columns,
     open_store,
+    part_digest,
     read_spec,
     record_session,
     schema,
@@ -199,6 +204,74 @@ def run_task(spec: CampaignSpec, task: Task, lanes: int | None = None) -> pa.Tab
     return pa.Table.from_pylist(rows, schema=schema(spec))
 
 
+#: The source hash of each user part this process ran (:func:`_ran_sources`), by part:
+#: taken when it first ran it, as the code it runs is the code imported then.
+_RAN: dict[int, tuple[object, str]] = {}
+
+
+def _ran_sources(spec: CampaignSpec, task: Task) -> dict[str, dict[str, str]]:
+    """By controller of ``task``: the source hash (:func:`~pkmctl.campaign.store.
+    part_digest`) of each user part its runs use in this process, by ``"KIND NAME"``
+    (empty for pkmctl's own parts; a controller this process cannot resolve is left out:
+    its runs are error records already)."""
+    from pkmctl.sim.simulate import resolve_parts
+
+    scenario = _prepared(spec, task.runs[0].cell).scenario
+    out = {}
+    for controller in dict.fromkeys(r.controller for r in task.runs):
+        try:
+            parts = resolve_parts(scenario, controller)
+        except Exception:  # noqa: BLE001, S112 - run_task records it for every run
+            continue
+        hashes = {}
+        for part in parts.values():
+            if part.builtin:
+                continue
+            seen = _RAN.get(id(part))
+            if seen is None or seen[0] is not part:
+                seen = _RAN[id(part)] = (part, part_digest(part)["sha256"])
+            hashes[f"{part.kind} {part.name}"] = seen[1]
+        out[controller] = hashes
+    return out
+
+
+def _task_result(spec: CampaignSpec, task: Task) -> tuple[pa.Table, dict]:
+    """What a worker sends back for ``task``: its records (:func:`run_task`) and the source
+    hash of each user part they were made with there (:func:`_ran_sources`), for the
+    client to check against the hashes the campaign records (:func:`_same_sources`)."""
+    ran = _ran_sources(spec, task)
+    return run_task(spec, task), ran
+
+
+def _same_sources(spec: CampaignSpec, table: pa.Table, ran: dict, parts: dict) -> pa.Table:
+    """``table``, with each run whose user part was another version than the campaign's
+    (``ran``: :func:`_ran_sources` of the worker; ``parts``: :func:`~pkmctl.campaign.
+    store.user_parts` of this process, in campaign.json) made an error record that says
+    so: a worker that imported another version of a plugin (a Dask worker's own copy) ran
+    it, and its records are not those of the code the campaign records. As any error
+    record, they are run again by ``--resume`` (once the workers run the campaign's
+    version), and the other runs are kept."""
+    why = {}
+    for controller, hashes in ran.items():
+        for key, h in hashes.items():
+            want = (parts.get(key) or {}).get("sha256")
+            if h != want and controller not in why:
+                kind, name = key.split(" ", 1)
+                why[controller] = (
+                    f"PluginMismatch: {kind} {name!r}: the worker ran another version of it "
+                    f"(source hash {h}; the campaign's is {want or 'none'}): make the workers "
+                    "import the plugin this campaign was started with, then --resume"
+                )
+    if not why:
+        return table
+    rows = table.to_pylist()
+    for row in rows:
+        if row["controller"] in why:
+            row.update(status="error", diverged_at=None, message=why[row["controller"]])
+            row.update(dict.fromkeys(metric_columns(spec.metrics)))
+    return pa.Table.from_pylist(rows, schema=table.schema)
+
+
 @dataclass
 class CampaignRun:
     """What :func:`run_campaign` did: runs done now and before, failures, wall time.
@@ -231,7 +304,7 @@ class _Progress:
 
 
 def _local_results(spec: CampaignSpec, tasks: list[Task], workers: int) -> Iterable:
-    """(task, table) as tasks finish, on ``workers`` spawned processes; a broken pool
+    """(task, :func:`_task_result`) as tasks finish, on ``workers`` spawned processes; a broken pool
     (a worker killed) is rebuilt and its unfinished tasks run again."""
     from concurrent.futures import FIRST_COMPLETED, wait
     from concurrent.futures.process import BrokenProcessPool
@@ -240,24 +313,24 @@ def _local_results(spec: CampaignSpec, tasks: list[Task], workers: int) -> Itera
 
     if workers == 1:  # no process to start: run here
         for t in tasks:
-            yield t, run_task(spec, t)
+            yield t, _task_result(spec, t)
         return
     todo = list(tasks)
     for attempt in range(_RETRIES + 1):
         pool = spawn_pool(workers)
         try:
-            futures = {pool.submit(run_task, spec, t): t for t in todo}
+            futures = {pool.submit(_task_result, spec, t): t for t in todo}
             pending = set(futures)
             while pending:
                 finished, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for f in finished:
                     task = futures[f]
                     try:
-                        table = f.result()
+                        result = f.result()
                     except BrokenProcessPool:
                         continue
                     todo.remove(task)
-                    yield task, table
+                    yield task, result
             if not todo:
                 return
         except BrokenProcessPool:
@@ -338,7 +411,7 @@ def _connect(address: str, seconds: float | None = None):
 
 
 def _dask_results(spec: CampaignSpec, tasks: list[Task], client, on_client=None) -> Iterable:
-    """(task, table) as tasks finish on the Dask cluster at ``address``.
+    """(task, :func:`_task_result`) as tasks finish on the Dask cluster at ``address``.
 
     A task lost with its worker is run again by the scheduler on another worker; the
     scheduler gives up on a task after it was on ``distributed.scheduler.allowed-failures``
@@ -354,7 +427,7 @@ def _dask_results(spec: CampaignSpec, tasks: list[Task], client, on_client=None)
         spec_f = client.scatter(spec, broadcast=True)
         futures = {
             client.submit(
-                run_task,
+                _task_result,
                 spec_f,
                 t,
                 key=f"pkmctl-{spec.digest}-task-{t.index}",
@@ -458,7 +531,8 @@ def _run(spec, out, client, scheduler, workers, resume, progress, on_client, sto
     if spec.base.fuzzy.fis is not None or spec.fis_files:  # the runs read the folder's
         spec = read_spec(out)  # copies of the .fis files: their content is the spec hash's
     tasks = spec.tasks(*task_grouping(out))  # the grouping the folder was started with
-    done = completed_tasks(runs_dir, spec.digest)  # another campaign's file is refused
+    # another campaign's file is refused, and one holding another task's runs
+    done = completed_tasks(runs_dir, spec.digest, tasks)
     # a task whose file holds an error record runs again (docs/campaigns.md, "Errors")
     erred = {i for i, c in stored_statuses(runs_dir, len(tasks)).items() if c.get("error")}
     todo = [t for t in tasks if t.index not in done or t.index in erred]
@@ -475,7 +549,8 @@ def _run(spec, out, client, scheduler, workers, resume, progress, on_client, sto
     else:
         stream = _local_results(spec, todo, min(workers, max(1, len(todo))))
     try:
-        for task, table in stream:
+        for task, (table, ran) in stream:
+            table = _same_sources(spec, table, ran, parts)  # the code the campaign records?
             write_task(runs_dir, task.index, table)
             n_tasks += 1
             now += table.num_rows

@@ -142,6 +142,14 @@ def _seed(*parts) -> int:
     return zlib.crc32(repr(parts).encode())
 
 
+def _difference_interval(d: np.ndarray, cell: int, a: str, b: str, m: str):
+    """The 95 % interval of the mean paired difference ``d`` = a - b of controllers ``a``
+    and ``b`` in the spec's order (a first), at ``cell`` on metric ``m``: the one
+    computation, and seed, that paired.csv and comparison.csv both report (a comparison
+    of b against a negates it): the same difference gets the same interval in both."""
+    return bootstrap_interval(d, seed=_seed(cell, a, b, m))
+
+
 def headline_metrics(spec: CampaignSpec, table: pa.Table) -> list[str]:
     """The task-space metrics a report leads with: RMSE of z, alpha, beta after the first
     second if the runs of every cell go past 1 s, else over the whole run (else the
@@ -276,7 +284,7 @@ def paired_differences(spec: CampaignSpec, table: pa.Table, metrics: list[str]) 
                 lost[-1] = [sum(lost[k][i] for k in range(len(spec.cells))) for i in range(4)]
                 for cell in [*range(len(spec.cells)), -1]:
                     d = np.asarray(per_cell[cell], dtype=float)
-                    lo, hi = bootstrap_interval(d, seed=_seed(cell, a, b, m))
+                    lo, hi = _difference_interval(d, cell, a, b, m)
                     rows.append(
                         {
                             "cell": cell,
@@ -352,13 +360,22 @@ def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: s
 
     Returns rows ``{"cell", "metric", "pairs", "baseline_mean", "controller_mean",
     "gain", "lo", "hi", "ratio", "ratio_lo", "ratio_hi", "win_rate", "ties", "better",
-    "controller_failed", "baseline_failed"}`` (``ties``: pairs where both are equal):
-    ``gain`` is the mean of baseline - controller (> 0: the controller's error is lower)
-    with its 95 % interval, ``ratio`` the controller's mean error over the baseline's
-    (< 1: lower; its interval resamples the pairs), ``win_rate`` the share of pairs the
-    controller wins, ``better`` one of ``"controller"``, ``"baseline"``, ``"unclear"``
-    (as :func:`paired_differences`), ``*_failed`` the runs of the cell that did not
-    end ok, and ``undefined`` the seeds where both did but the metric is not finite.
+    "controller_failed", "baseline_failed", "undefined", "controller_mean_all",
+    "controller_runs_all", "baseline_mean_all", "baseline_runs_all"}``:
+    ``controller_mean`` and ``baseline_mean`` are the means over the pairs only (a
+    cell where one of them has no run that ended ok adds nothing to either);
+    ``gain`` is the mean of baseline - controller over the pairs (> 0: the controller's
+    error is lower) with its 95 % interval, the interval of the same paired difference
+    in :func:`paired_differences` (one computation, in the spec's order of the two,
+    negated when the controller comes first); ``ratio`` the controller's mean error over
+    the baseline's on the pairs (< 1: lower; its interval resamples the pairs),
+    ``win_rate`` the share of pairs the controller wins, ``ties`` the pairs where both
+    are equal, ``better`` one of ``"controller"``, ``"baseline"``, ``"unclear"`` (as
+    :func:`paired_differences`), ``*_failed`` the runs of the cell(s) that did not end
+    ok, ``undefined`` the seeds where both did but the metric is not finite, and
+    ``*_mean_all`` / ``*_runs_all`` each one's mean over all its runs of the cell(s)
+    that ended ok with a finite value, paired or not, and how many those are (the mean
+    ``summary.csv`` gives per cell).
     """
     c = _columns(table, ["cell", "controller", "seed", "status", *metrics])
     ok = {}
@@ -370,16 +387,24 @@ def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: s
             ok[(int(cell), ctrl, int(seed))] = i
         else:
             failed[(int(cell), ctrl)] = failed.get((int(cell), ctrl), 0) + 1
+    # the difference in the spec's order, as paired.csv has it: first - second
+    order = {k: i for i, k in enumerate(spec.controllers)}
+    first, second = sorted((controller, baseline), key=lambda k: order.get(k, len(order)))
+    sign = -1.0 if first == controller else 1.0  # gain = baseline - controller
     rows = []
     for m in metrics:
         base_v: dict[int, list[float]] = {}
         ctrl_v: dict[int, list[float]] = {}
+        own: dict[tuple[int, str], list[float]] = {}
         undefined: dict[int, int] = {}
         for cell in range(len(spec.cells)):
             bs, cs = [], []
             undefined[cell] = 0
             for s in spec.seeds:
                 i, j = ok.get((cell, controller, s)), ok.get((cell, baseline, s))
+                for who, k in ((controller, i), (baseline, j)):
+                    if k is not None and math.isfinite(c[m][k]):
+                        own.setdefault((cell, who), []).append(c[m][k])
                 if i is not None and j is not None:
                     vc, vb = c[m][i], c[m][j]
                     if math.isfinite(vc) and math.isfinite(vb):
@@ -391,12 +416,16 @@ def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: s
         base_v[-1] = [x for cell in range(len(spec.cells)) for x in base_v[cell]]
         ctrl_v[-1] = [x for cell in range(len(spec.cells)) for x in ctrl_v[cell]]
         for cell in [*range(len(spec.cells)), -1]:
-            b, x = np.asarray(base_v[cell]), np.asarray(ctrl_v[cell])
-            d = b - x
-            lo, hi = bootstrap_interval(d, seed=_seed(cell, controller, baseline, m))
-            rlo, rhi = bootstrap_ratio_interval(x, b, seed=_seed(cell, controller, baseline, m))
+            b, x = np.asarray(base_v[cell], dtype=float), np.asarray(ctrl_v[cell], dtype=float)
+            canonical = (x - b) if first == controller else (b - x)  # first - second
+            lo_c, hi_c = _difference_interval(canonical, cell, first, second, m)
+            d = sign * canonical  # baseline - controller
+            lo, hi = (-hi_c, -lo_c) if sign < 0 else (lo_c, hi_c)
+            rlo, rhi = bootstrap_ratio_interval(x, b, seed=_seed(cell, first, second, m))
             verdict = _verdict(-hi, -lo, d.size)  # "a" (the controller) if the gain > 0
             cells = range(len(spec.cells)) if cell < 0 else [cell]
+            mine = [v for k in cells for v in own.get((k, controller), [])]
+            theirs = [v for k in cells for v in own.get((k, baseline), [])]
             rows.append(
                 {
                     "cell": cell,
@@ -404,7 +433,7 @@ def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: s
                     "pairs": int(d.size),
                     "baseline_mean": float(b.mean()) if d.size else math.nan,
                     "controller_mean": float(x.mean()) if d.size else math.nan,
-                    "gain": float(d.mean()) if d.size else math.nan,
+                    "gain": float(sign * canonical.mean()) if d.size else math.nan,
                     "lo": lo,
                     "hi": hi,
                     "ratio": float(x.mean() / b.mean()) if d.size else math.nan,
@@ -416,6 +445,10 @@ def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: s
                     "controller_failed": sum(failed.get((k, controller), 0) for k in cells),
                     "baseline_failed": sum(failed.get((k, baseline), 0) for k in cells),
                     "undefined": sum(undefined[k] for k in cells),
+                    "controller_mean_all": float(np.mean(mine)) if mine else math.nan,
+                    "controller_runs_all": len(mine),
+                    "baseline_mean_all": float(np.mean(theirs)) if theirs else math.nan,
+                    "baseline_runs_all": len(theirs),
                 }
             )
     return rows

@@ -52,6 +52,7 @@ __all__ = [
     "factor_column",
     "metric_columns",
     "open_store",
+    "part_digest",
     "query",
     "read_records",
     "read_spec",
@@ -205,27 +206,32 @@ def user_parts(spec: CampaignSpec) -> dict[str, dict]:
     their compiled code freezes in (:func:`pkmctl.parts.global_values`), and ``files``,
     where they were read. Part of what a campaign is: a resume with another version of a
     part is refused (:func:`open_store`), else its records would mix two versions."""
-    import hashlib
-
-    from pkmctl.parts import global_values
-
     parts = {}
     for combo in cell_parts(spec).values():
         for part in combo.values():
             if not part.builtin:
                 parts[f"{part.kind} {part.name}"] = part
-    out = {}
-    for key, part in sorted(parts.items()):
-        files = _part_files(part)
-        digests = []
-        for f in files:
-            try:
-                digests.append(hashlib.sha256(Path(f).read_bytes()).hexdigest())
-            except OSError:
-                digests.append("unreadable:" + Path(f).name)
-        h = hashlib.sha256("\0".join([*sorted(digests), global_values([part])]).encode())
-        out[key] = {"sha256": h.hexdigest()[:16], "files": files}
-    return out
+    return {key: part_digest(part) for key, part in sorted(parts.items())}
+
+
+def part_digest(part) -> dict:
+    """One user part's entry of :func:`user_parts`: ``sha256`` (16 hex digits) of its
+    source files' content, as they are now, and of the values its compiled code freezes
+    in, and ``files``. A campaign's workers report it for the parts they ran
+    (:func:`pkmctl.campaign.execute.run_task`'s caller), checked against this process's."""
+    import hashlib
+
+    from pkmctl.parts import global_values
+
+    files = _part_files(part)
+    digests = []
+    for f in files:
+        try:
+            digests.append(hashlib.sha256(Path(f).read_bytes()).hexdigest())
+        except OSError:
+            digests.append("unreadable:" + Path(f).name)
+    h = hashlib.sha256("\0".join([*sorted(digests), global_values([part])]).encode())
+    return {"sha256": h.hexdigest()[:16], "files": files}
 
 
 def _check_parts(out: Path, old: dict, parts: dict[str, dict]) -> None:
@@ -522,19 +528,45 @@ def _own_files(runs: Path, n_tasks: int | None = None) -> dict[int, Path]:
     return dict(sorted(own.items()))
 
 
-def completed_tasks(runs: Path, digest: str | None = None) -> set[int]:
+def completed_tasks(runs: Path, digest: str | None = None, tasks=None) -> set[int]:
     """Indices of the tasks whose file exists (a file is whole, or absent); only files
     named as the campaign's task files count (:func:`_own_files`). With ``digest``, a
     file holding records of another campaign (another spec hash) is a
-    :class:`SpecError` naming it: it would count as done and mix into the report."""
+    :class:`SpecError` naming it: it would count as done and mix into the report. With
+    ``tasks`` (the campaign's :class:`~pkmctl.campaign.spec.Task` list), so is a file
+    that does not hold exactly the runs of its task (another task's file copied to its
+    name): its task would count as done, never run."""
     done = set()
+    by_index = {t.index: t for t in tasks or ()}
     for index, p in _own_files(runs).items():
-        if digest is not None:
-            hashes = _read(p, columns=["spec_hash"]).column("spec_hash").unique()
-            if set(hashes.to_pylist()) != {digest}:
+        if digest is not None or tasks is not None:
+            t = _read(p, columns=["spec_hash", "cell", "controller", "seed"])
+            hashes = t.column("spec_hash").unique()
+            if digest is not None and set(hashes.to_pylist()) != {digest}:
                 raise _foreign(p, hashes.to_pylist(), digest)
+            if index in by_index:
+                _check_runs(p, by_index[index], t)
         done.add(index)
     return done
+
+
+def _check_runs(path: Path, task, table: pa.Table) -> None:
+    """Refuse, in one line naming it, a task file whose records are not exactly the runs
+    of its ``task`` (each once), as an unreadable one is refused (:func:`_read`)."""
+    held = list(zip(*(table.column(k).to_pylist() for k in ("cell", "controller", "seed")),
+                    strict=True))  # fmt: skip
+    want = [(r.cell, r.controller, r.seed) for r in task.runs]
+    if sorted(held, key=repr) == sorted(want, key=repr):
+        return
+    stray = [k for k in held if k not in set(want)]
+    if stray:
+        why = (f"it holds run (cell {stray[0][0]}, {stray[0][1]}, seed {stray[0][2]}), not "
+               f"one of task {task.index}'s: another task's file copied to its name?")  # fmt: skip
+    else:
+        why = f"it holds {len(held)} records of the {len(want)} runs of task {task.index}"
+    raise SpecError(
+        f"{path}: not this task's records ({why}); delete it, and --resume runs its task again"
+    )
 
 
 def stored_statuses(runs: Path, n_tasks: int | None = None) -> dict[int, dict[str, int]]:

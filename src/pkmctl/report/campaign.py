@@ -130,6 +130,33 @@ def comparison_lines(spec: CampaignSpec, rows: list[dict], q, metrics: list[str]
 _LIST = 4
 
 
+def _partial(r: dict) -> bool:
+    """Whether a comparison row's pairs leave out runs that ended ok (the other side's
+    run of the seed failed, or has no value)."""
+    return r["controller_runs_all"] != r["pairs"] or r["baseline_runs_all"] != r["pairs"]
+
+
+def _means(r: dict, q) -> str:
+    """Both means of a comparison row: the pairs' (every run that ended ok, when no seed
+    failed on one side only); else the pairs' means said to be so, then each one's mean
+    over all its runs that ended ok (``summary.csv``'s), which the pairs do not show."""
+    pairs = (f": {q.controller} {_g(r['controller_mean'])}, {q.baseline} "
+             f"{_g(r['baseline_mean'])}")  # fmt: skip
+    if not _partial(r):  # every run that ended ok is in a pair: the means say it all
+        return pairs
+    if not r["pairs"]:
+        pairs = ": no pair"
+    else:
+        pairs = f", over the {r['pairs']} pairs where both ended ok" + pairs
+    each = "; ".join(
+        f"{who} {_g(r[f'{side}_mean_all'])} over {r[f'{side}_runs_all']} runs"
+        if r[f"{side}_runs_all"]
+        else f"{who} none"
+        for who, side in ((q.controller, "controller"), (q.baseline, "baseline"))
+    )
+    return pairs + f" (over all their runs that ended ok: {each})"
+
+
 def short_answer(spec: CampaignSpec, rows: list[dict], q, metrics: list[str]) -> list[str]:
     """One line per metric: in how many cells ``q.controller`` is better, worse, or the
     data cannot tell; for each verdict its cells (up to :data:`_LIST`) or the range of
@@ -163,8 +190,12 @@ def short_answer(spec: CampaignSpec, rows: list[dict], q, metrics: list[str]) ->
         if 0 < len(unclear) <= _LIST:
             line += "; cannot tell at " + "; ".join(_cell_name(spec, r["cell"]) for r in unclear)
         line += (
-            f". At {_cell_name(spec, ref)}: {q.controller} {_g(c0['controller_mean'])}, "
-            f"{q.baseline} {_g(c0['baseline_mean'])}; over all cells {_ratio(pooled)}."
+            f". At {_cell_name(spec, ref)}"
+            + _means(c0, q)
+            + (
+                f"; over all cells {_ratio(pooled)}"
+                + (f" ({pooled['pairs']} pairs)." if _partial(pooled) else ".")
+            )
         )
         out.append(line)
     failed = [

@@ -1,0 +1,149 @@
+"""A ``[[compare]]`` question's numbers against the records they come from (report items
+5 and 6 of the campaign test report): made-up records, no run."""
+
+import math
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from pkmctl.campaign import CampaignSpec, stats
+from pkmctl.campaign.store import schema
+
+SPEC = """
+name = "compare"
+scenario = "paper"
+controllers = ["pd", "smc"]
+seeds = 8
+duration = 0.05
+metrics = ["rmse"]
+
+[factors."payload.mass"]
+values = [0.0, 5.0]
+
+[[compare]]
+name = "smc-vs-pd"
+controller = "smc"
+baseline = "pd"
+"""
+
+METRIC = "rmse_z_mm"
+
+
+def _records(spec: CampaignSpec, value, status=lambda cell, ctrl, seed: "ok") -> pa.Table:
+    """A record per run: ``value(cell, controller, seed)`` for every metric column, the
+    status ``status(...)`` (no metrics unless "ok")."""
+    sch = schema(spec)
+    metric_cols = [n for n in sch.names if n.startswith("rmse_")]
+    rows = []
+    for cell in range(len(spec.cells)):
+        for ctrl in spec.controllers:
+            for seed in spec.seeds:
+                st = status(cell, ctrl, seed)
+                v = value(cell, ctrl, seed) if st == "ok" else None
+                rows.append({"spec_hash": spec.digest, "cell": cell, "controller": ctrl,
+                             "seed": seed, "task": 0, "f.payload.mass": spec.cells[cell][
+                                 "payload.mass"], "status": st, "diverged_at": None,
+                             "message": "" if st == "ok" else "ValueError: no",
+                             **dict.fromkeys(metric_cols, v), "wall_s": 0.0, "kernel_s": 0.0,
+                             "worker": "w"})  # fmt: skip
+    return pa.Table.from_pylist(rows, schema=sch)
+
+
+def _values(seed: int):
+    rng = np.random.default_rng(seed)
+    table = {}
+
+    def value(cell, ctrl, s):
+        key = (cell, ctrl, s)
+        if key not in table:
+            table[key] = float(rng.lognormal(-1.0 + cell + 0.1 * (ctrl == "smc"), 0.4))
+        return table[key]
+
+    return value
+
+
+@pytest.mark.parametrize("order", [["pd", "smc"], ["smc", "pd"]])
+def test_paired_and_comparison_give_the_same_interval_to_the_same_difference(order):
+    """paired.csv (a - b, a before b in ``controllers``) and comparison.csv (baseline -
+    controller) seeded their bootstraps differently when the question named its two in the
+    other order: two intervals for one difference, and verdicts that could disagree."""
+    text = SPEC.replace('controllers = ["pd", "smc"]', f"controllers = {order!r}".replace("'", '"'))
+    spec = CampaignSpec.from_toml(text)
+    table = _records(spec, _values(3))
+    paired = {r["cell"]: r for r in stats.paired_differences(spec, table, [METRIC])}
+    rows = stats.comparison(spec, table, "smc", "pd", [METRIC])
+    assert len(rows) == len(spec.cells) + 1
+    for r in rows:
+        p = paired[r["cell"]]
+        assert (p["a"], p["b"]) == tuple(order)
+        # the gain is pd - smc; paired.csv has a - b
+        flip = 1.0 if p["a"] == "pd" else -1.0
+        assert r["gain"] == flip * p["mean"]
+        lo, hi = (p["lo"], p["hi"]) if flip > 0 else (-p["hi"], -p["lo"])
+        assert (r["lo"], r["hi"]) == (lo, hi), (order, r["cell"])
+        verdict = {"a": "pd", "b": "smc", "unclear": "unclear"}[p["better"]]
+        assert {"controller": "smc", "baseline": "pd", "unclear": "unclear"}[r["better"]] == (
+            verdict if p["a"] == "pd" else {"pd": "smc", "smc": "pd"}.get(verdict, verdict)
+        )  # the winner named by the same difference
+        assert r["pairs"] == p["pairs"] == (8 if r["cell"] >= 0 else 16)
+
+
+def test_a_comparison_says_each_mean_over_what_when_one_side_failed():
+    """smc failed every run at payload.mass = 5: the pooled row's means are over the
+    pairs (cell 0 only), and the means over all of each one's runs are apart, equal to
+    the records' own means (pd's over both cells)."""
+    spec = CampaignSpec.from_toml(SPEC)
+    value = _values(5)
+    table = _records(spec, value, lambda cell, ctrl, s: "error" if (cell, ctrl) == (1, "smc")
+                     else "ok")  # fmt: skip
+    rows = {r["cell"]: r for r in stats.comparison(spec, table, "smc", "pd", [METRIC])}
+    pooled = rows[-1]
+    pd0 = [value(0, "pd", s) for s in spec.seeds]
+    pd_all = pd0 + [value(1, "pd", s) for s in spec.seeds]
+    smc0 = [value(0, "smc", s) for s in spec.seeds]
+    assert pooled["pairs"] == 8 and pooled["controller_failed"] == 8
+    assert pooled["baseline_mean"] == pytest.approx(np.mean(pd0), rel=1e-15)
+    assert pooled["controller_mean"] == pytest.approx(np.mean(smc0), rel=1e-15)
+    assert pooled["baseline_mean_all"] == pytest.approx(np.mean(pd_all), rel=1e-15)
+    assert pooled["baseline_runs_all"] == 16
+    assert pooled["controller_mean_all"] == pytest.approx(np.mean(smc0), rel=1e-15)
+    assert pooled["controller_runs_all"] == 8
+    assert pooled["baseline_mean_all"] > 1.5 * pooled["baseline_mean"]  # the gap of the report
+    # per cell, the means over all runs are summary.csv's
+    summary = {(r["cell"], r["controller"]): r for r in stats.cell_stats(spec, table, [METRIC])}
+    for cell in (0, 1):
+        r = rows[cell]
+        assert r["baseline_mean_all"] == pytest.approx(summary[(cell, "pd")]["mean"], rel=1e-15)
+        smc = summary[(cell, "smc")]["mean"]
+        assert (math.isnan(r["controller_mean_all"]) and math.isnan(smc)) or (
+            r["controller_mean_all"] == pytest.approx(smc, rel=1e-15)
+        )
+    assert rows[1]["pairs"] == 0 and rows[1]["controller_runs_all"] == 0
+
+
+def test_the_short_answer_says_what_each_mean_is_over_when_one_side_failed():
+    """answer.md said "At all cells: flaky 0.413, pd 0.413" where pd's mean over all its
+    runs was 0.884: the pooled means were the pairs' (cell 0 only), unsaid."""
+    from pkmctl.report.campaign import short_answer
+
+    spec = CampaignSpec.from_toml(SPEC)
+    value = _values(5)
+    failing = _records(spec, value, lambda cell, ctrl, s: "error" if (cell, ctrl) == (1, "smc")
+                       else "ok")  # fmt: skip
+    q = spec.compare[0]
+    rows = stats.comparison(spec, failing, "smc", "pd", [METRIC])
+    line = short_answer(spec, rows, q, [METRIC])[1]  # (then the runs that failed)
+    pd_all = np.mean([value(c, "pd", s) for c in (0, 1) for s in spec.seeds])
+    smc0 = np.mean([value(0, "smc", s) for s in spec.seeds])
+    pd0 = np.mean([value(0, "pd", s) for s in spec.seeds])
+    assert (
+        f"At all cells, over the 8 pairs where both ended ok: smc {smc0:.4g}, pd {pd0:.4g} "
+        f"(over all their runs that ended ok: smc {smc0:.4g} over 8 runs; pd {pd_all:.4g} "
+        "over 16 runs); over all cells "
+    ) in line, line
+    assert line.endswith(" (8 pairs).")
+    # no run failed: the line is as before, the means the pairs' (which are every run)
+    rows = stats.comparison(spec, _records(spec, value), "smc", "pd", [METRIC])
+    (line,) = short_answer(spec, rows, q, [METRIC])[1:]
+    assert "pairs" not in line and f", pd {pd_all:.4g}; over all cells " in line, line
