@@ -318,6 +318,40 @@ def test_killing_a_worker_mid_campaign_loses_and_duplicates_nothing(tmp_path):
     assert sum(w.endswith(":" + killed["pid"]) for w in by) <= killed["done"]
 
 
+@pytest.mark.cluster
+def test_a_cluster_that_loses_every_worker_stops_in_one_line_and_resumes(tmp_path):
+    """Every worker lost at once takes the campaign's scattered spec with it: the client
+    raised 'FutureCancelledError: ... already forgotten. (an internal error ...)', exit 1,
+    with no word of --resume. Now a WorkStopped (one line, exit 2 with the resume command
+    in the CLI); a resume on a new cluster completes the campaign, as an uninterrupted
+    run would have."""
+    from pkmctl.campaign.execute import WorkStopped
+
+    spec = CampaignSpec.from_toml(KILL)
+    out = tmp_path / "camp"
+    with _cluster(2) as (address, workers):
+        killed = []
+
+        def progress(done, failures, total, rate):
+            if done and not killed:  # the first result is on disk: lose every worker
+                for w in workers:
+                    w.kill()
+                for w in workers:
+                    w.wait(10)
+                killed.append(done)
+
+        with pytest.raises(WorkStopped) as info:
+            run_campaign(spec, out, scheduler=address, progress=progress)
+    assert killed and killed[0] < spec.n_runs
+    msg = str(info.value)
+    assert msg.startswith("the Dask cluster stopped the campaign's work (") and "\n" not in msg
+    assert msg.endswith("every worker holding the campaign's spec did; the runs done are kept")
+    done = run_campaign(spec, out, workers=1, resume=True)
+    assert done.complete and done.done_before >= killed[0]
+    run_campaign(spec, tmp_path / "local", workers=1)
+    assert read_records(out, timing=False).equals(read_records(tmp_path / "local", timing=False))
+
+
 def test_report_states_in_words_what_the_numbers_say(reference, tmp_path):
     import shutil
 
@@ -414,11 +448,11 @@ def test_a_logged_campaign_says_the_time_left(spec_file, tmp_path):
                               "--workers", "1"])  # fmt: skip
     assert res.exit_code == 0, res.output
     lines = [ln for ln in res.stderr.splitlines() if re.match(r"\d+/16 runs, ", ln)]
-    assert lines and lines[-1].startswith("16/16 runs, 0 failed, "), res.stderr
+    assert lines and lines[-1].startswith("16/16 runs, 0 not ok, "), res.stderr
     assert not lines[-1].endswith(" left")  # done: nothing left to say
     before = [ln for ln in lines if not ln.startswith("16/16")]
     assert before and all(
-        re.fullmatch(r"\d+/16 runs, 0 failed, [\d.]+ runs/s, about [\d.]+ (s|min) left", ln)
+        re.fullmatch(r"\d+/16 runs, 0 not ok, [\d.]+ runs/s, about [\d.]+ (s|min) left", ln)
         for ln in before
     ), before
 

@@ -194,6 +194,36 @@ def test_a_run_that_errs_says_why_in_the_command_and_the_report(tmp_path, monkey
     assert f"at payload.mass = 5; 1 error: {why}" in md, md
 
 
+EXITS = LAW.replace(
+    "        return cls(GAIN)",
+    "        if ctx.scenario.payload.mass > 0:\n"
+    "            import os\n"
+    "            os._exit(3)\n"
+    "        return cls(GAIN)",
+)
+
+
+def test_a_worker_that_keeps_dying_names_its_task_and_the_resume(tmp_path, monkeypatch):
+    """A run that ends its process (a plugin's os._exit) broke the pool four times and
+    ended in 'RuntimeError: a worker process died 4 times; 1 tasks left (an internal
+    error ...)', exit 1, naming no task and no way on."""
+    monkeypatch.setenv(ENV, "")
+    plugin, name = _plugin(tmp_path, EXITS)
+    spec_file = _spec(tmp_path, [name], seeds=1)
+    spec_file.write_text(spec_file.read_text() + '[factors."payload.mass"]\nvalues = [0.0, 5.0]\n')
+    out = tmp_path / "c"
+    res = runner.invoke(app, ["--plugin", str(plugin), "campaign", "run", str(spec_file),
+                              "--out", str(out), "--workers", "2"])  # fmt: skip
+    assert res.exit_code == 2, res.output
+    (line,) = [ln for ln in res.stderr.splitlines() if ln.startswith("error: ")]
+    assert line.startswith("error: a worker process died 4 times, running task 1 (cell 1: "
+                           f"payload.mass = 5.0; controller {name}): a run there ends its "
+                           "process"), line  # fmt: skip
+    assert line.endswith("--workers 2 --resume completes the campaign"), line
+    assert "(1 of 2 in " in line and "internal error" not in line
+    assert [r["status"] for r in read_records(out).to_pylist()] == ["ok"]  # the one done
+
+
 def _mismatch(name: str, ran: str, recorded: str) -> str:
     return (
         f"PluginMismatch: controller {name!r}: the worker ran another version of it (source "

@@ -848,7 +848,7 @@ def campaign_run(
     Records go to OUT/runs as tasks finish, so an interrupted campaign keeps what it did
     and --resume completes it.
     """
-    from pkmctl.campaign.execute import run_campaign
+    from pkmctl.campaign.execute import WorkStopped, run_campaign
     from pkmctl.campaign.spec import CampaignSpec
     from pkmctl.io.atomic import check_output_folder
 
@@ -897,7 +897,7 @@ def campaign_run(
         TextColumn("{task.description}"),
         BarColumn(),
         TextColumn("{task.completed}/{task.total} runs"),
-        TextColumn("{task.fields[failures]} failed"),
+        TextColumn("{task.fields[failures]} not ok"),
         TextColumn("{task.fields[rate]:.1f} runs/s"),
         TimeElapsedColumn(),
         TextColumn("{task.fields[left]}"),
@@ -915,7 +915,7 @@ def campaign_run(
             )
             step = max(1, total // 10)  # a log (not a terminal) gets a line every 10 %
             if not err_console.is_terminal and done // step > state["done"] // step:
-                _say(f"{done}/{total} runs, {failures} failed, {rate:.1f} runs/s"
+                _say(f"{done}/{total} runs, {failures} not ok, {rate:.1f} runs/s"
                      + (f", {left}" if left else ""))  # fmt: skip
             state["done"] = done
             bar.update(task, completed=done, failures=failures, rate=rate, left=left)
@@ -926,21 +926,24 @@ def campaign_run(
             link = dashboard_link(client)
             _say(f"dashboard: {link}" if link else "the cluster's scheduler runs no dashboard")
 
-        def interrupted() -> str:
+        def resume_command() -> str:
             import shlex
 
-            bar.stop()
-            if not (out / "campaign.json").exists():  # stopped before the folder was made
-                return "nothing written"
             args = ["pkmctl", *_plugin_args(ctx), "campaign", "run", spec_file, "--out", str(out)]
             if scheduler:
                 args += ["--scheduler", scheduler]
             elif workers is not None:
                 args += ["--workers", str(workers)]
+            return shlex.join([*args, "--resume"])
+
+        def interrupted() -> str:
+            bar.stop()
+            if not (out / "campaign.json").exists():  # stopped before the folder was made
+                return "nothing written"
             kept = f"{state['done']} of {spec.n_runs} runs kept in {out}"
             if not existed and state["done"] == 0:
                 kept = f"no run done yet; the campaign folder {out} is made"
-            return f"{kept}; {shlex.join([*args, '--resume'])} completes it"
+            return f"{kept}; {resume_command()} completes it"
 
         try:
             with compiles.listen():
@@ -956,6 +959,12 @@ def campaign_run(
                     ),
                     interrupted,
                 )
+        except WorkStopped as exc:  # the runs done are kept
+            bar.stop()
+            if _debug(ctx):
+                raise
+            _fail(f"{exc} ({state['done']} of {spec.n_runs} in {out}); {resume_command()} "
+                  "completes the campaign")  # fmt: skip
         except Exception as exc:
             bar.stop()
             _campaign_handle(

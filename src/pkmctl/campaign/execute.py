@@ -338,9 +338,33 @@ def _local_results(spec: CampaignSpec, tasks: list[Task], workers: int) -> Itera
         finally:
             pool.shutdown(wait=False, cancel_futures=True)
         if attempt == _RETRIES:
-            raise RuntimeError(
-                f"a worker process died {_RETRIES + 1} times; {len(todo)} tasks left"
+            raise WorkStopped(
+                f"a worker process died {_RETRIES + 1} times, running {_tasks_named(spec, todo)}: "
+                "a run there ends its process (a plugin that exits, a crash in compiled "
+                "code, the system's out-of-memory killer); the runs done are kept"
             )
+
+
+class WorkStopped(PkmctlError, RuntimeError):
+    """The campaign's workers cannot go on: a local worker process that keeps dying, a
+    Dask cluster that lost its scheduler or the workers holding the campaign (one line;
+    the runs done are kept and ``--resume`` completes the campaign)."""
+
+
+def _tasks_named(spec: CampaignSpec, tasks: list[Task], most: int = 3) -> str:
+    """``task 3 (cell 1: payload.mass = 5, controller crasher)``, up to ``most`` of them."""
+
+    def one(t: Task) -> str:
+        cells = sorted({r.cell for r in t.runs})
+        ctrl = ", ".join(dict.fromkeys(r.controller for r in t.runs))
+        where = ", ".join(f"{k} = {v}" for k, v in spec.cells[cells[0]].items())
+        cell = f"cell {cells[0]}" + (f": {where}" if where else "")
+        if len(cells) > 1:
+            cell = f"cells {cells[0]}-{cells[-1]}"
+        return f"task {t.index} ({cell}; controller {ctrl})"
+
+    more = f" and {len(tasks) - most} more" if len(tasks) > most else ""
+    return "; ".join(one(t) for t in tasks[:most]) + more
 
 
 def dashboard_link(client) -> str | None:
@@ -419,8 +443,43 @@ def _dask_results(spec: CampaignSpec, tasks: list[Task], client, on_client=None)
     records a run's own errors, so that is the worker's trouble: memory, a broken
     import). Keys are the spec hash and task number, so a task is never run twice for
     one client, and its table is written once, as it arrives."""
+    import logging
+    from concurrent.futures import CancelledError
+
     from distributed import as_completed
 
+    # its own traceback of a lost scheduler; the one line is ours (WorkStopped)
+    log = logging.getLogger("distributed.client")
+    level = log.level
+    log.setLevel(logging.CRITICAL)
+    try:
+        yield from _dask_stream(spec, tasks, client, on_client, as_completed)
+    except (CancelledError, OSError) as exc:
+        # (a lost scheduler cancels every future; Dask's CommClosedError, an OSError, may
+        # come first; a task's own error is raised as it was)
+        if isinstance(exc, OSError) and not _comm_closed(exc):
+            raise
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise WorkStopped(
+            f"the Dask cluster stopped the campaign's work ({type(exc).__name__}: {_clip(why)}): "
+            "its scheduler went away, or every worker holding the campaign's spec did; "
+            "the runs done are kept"
+        ) from None
+    finally:
+        log.setLevel(level)
+
+
+def _comm_closed(exc: BaseException) -> bool:
+    from distributed.comm.core import CommClosedError
+
+    return isinstance(exc, CommClosedError | ConnectionRefusedError | ConnectionResetError)
+
+
+def _clip(text: str, limit: int = 160) -> str:
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _dask_stream(spec, tasks, client, on_client, as_completed) -> Iterable:
     with client:
         if on_client is not None:
             on_client(client)
