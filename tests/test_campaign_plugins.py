@@ -174,16 +174,23 @@ NO_PAYLOAD = LAW.replace(
 )
 
 
-def test_a_run_that_errs_says_why_in_the_command_and_the_report(tmp_path, monkeypatch):
-    """A run that raises is a record with status "error": `campaign run` prints its message
-    and exits 1 (an error is not a result), the report names it at its cell."""
-    monkeypatch.setenv(ENV, "")
-    plugin, name = _plugin(tmp_path, NO_PAYLOAD)
+def _with_payload(tmp_path: Path, source: str, workers: int):
+    """``campaign run`` of a plugin controller over payload.mass 0 and 5, one seed: (the
+    result, the campaign folder, the plugin file, the controller's name)."""
+    plugin, name = _plugin(tmp_path, source)
     spec_file = _spec(tmp_path, [name], seeds=1)
     spec_file.write_text(spec_file.read_text() + '[factors."payload.mass"]\nvalues = [0.0, 5.0]\n')
     out = tmp_path / "c"
     res = runner.invoke(app, ["--plugin", str(plugin), "campaign", "run", str(spec_file),
-                              "--out", str(out), "--workers", "1"])  # fmt: skip
+                              "--out", str(out), "--workers", str(workers)])  # fmt: skip
+    return res, out, plugin, name
+
+
+def test_a_run_that_errs_says_why_in_the_command_and_the_report(tmp_path, monkeypatch):
+    """A run that raises is a record with status "error": `campaign run` prints its message
+    and exits 1 (an error is not a result), the report names it at its cell."""
+    monkeypatch.setenv(ENV, "")
+    res, out, plugin, name = _with_payload(tmp_path, NO_PAYLOAD, workers=1)
     assert res.exit_code == 1, res.output  # a run that failed with an error: not a result
     why = f"PartError: controller {name!r}: build failed: ValueError: no payload, please"
     assert f"1 run failed: {why}" in res.stderr, res.stderr
@@ -208,12 +215,7 @@ def test_a_worker_that_keeps_dying_names_its_task_and_the_resume(tmp_path, monke
     ended in 'RuntimeError: a worker process died 4 times; 1 tasks left (an internal
     error ...)', exit 1, naming no task and no way on."""
     monkeypatch.setenv(ENV, "")
-    plugin, name = _plugin(tmp_path, EXITS)
-    spec_file = _spec(tmp_path, [name], seeds=1)
-    spec_file.write_text(spec_file.read_text() + '[factors."payload.mass"]\nvalues = [0.0, 5.0]\n')
-    out = tmp_path / "c"
-    res = runner.invoke(app, ["--plugin", str(plugin), "campaign", "run", str(spec_file),
-                              "--out", str(out), "--workers", "2"])  # fmt: skip
+    res, out, _, name = _with_payload(tmp_path, EXITS, workers=2)
     assert res.exit_code == 2, res.output
     (line,) = [ln for ln in res.stderr.splitlines() if ln.startswith("error: ")]
     assert line.startswith("error: a worker process died 4 times, running task 1 (cell 1: "

@@ -8,25 +8,7 @@ import uuid
 import pytest
 
 from pkmctl.parts import PartError, get_part
-
-LAW = """
-from typing import NamedTuple
-import pkmctl
-
-GAIN = 1.0e4
-
-class P(NamedTuple):
-    k: float
-
-    @classmethod
-    def from_context(cls, ctx):
-        return cls(GAIN)
-
-@pkmctl.register_controller("NAME", params=P)
-def law(p, state, work, y, ref, F):
-    for i in range(3):
-        F[i] = p.k * (ref[i] - y[i])
-"""
+from tests.test_campaign_plugins import LAW  # a controller named NAME
 
 
 def _module(folder, module, name, source=LAW):
