@@ -147,6 +147,9 @@ def test_interrupted_then_resumed_equals_uninterrupted(spec_file, reference, tmp
     )
     assert res.exit_code == 0, res.output
     assert "16 runs" in res.stderr and "runs in" in res.stdout
+    # the estimate is of the runs left (it was of all 16, as if none were stored)
+    left = spec.n_runs - sum(len(t.runs) for t in spec.tasks()[:3])
+    assert f"; {left} runs left, estimated " in res.stderr, res.stderr
     table = read_records(out, timing=False)
     assert table.equals(expected)  # bit for bit, every column but the timing ones
     import json

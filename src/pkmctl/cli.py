@@ -801,6 +801,20 @@ def _campaign_handle(ctx: typer.Context, exc: BaseException, doing: str) -> NoRe
     _handle(ctx, exc)
 
 
+def _runs_left(spec, out: Path) -> int:
+    """The runs a ``--resume`` of the campaign in ``out`` will run: those of its tasks
+    without a file or with an error record (for the estimate only: a damaged folder is
+    refused by the run itself, and counts every run here)."""
+    from pkmctl.campaign.store import stored_statuses, task_grouping
+
+    try:
+        tasks = spec.tasks(*task_grouping(out))
+        stored = stored_statuses(out / "runs", len(tasks))
+    except Exception:  # noqa: BLE001 - the run says what is wrong, in its own words
+        return spec.n_runs
+    return sum(len(t.runs) for t in tasks if t.index not in stored or stored[t.index].get("error"))
+
+
 def _n(count: int, noun: str) -> str:
     """``1 cell``, ``2 cells``."""
     return f"{count} {noun}" + "s" * (count != 1)
@@ -879,7 +893,8 @@ def campaign_run(
         if scheduler
         else f"{n_workers} local worker" + "s" * (n_workers > 1)
     )
-    work = spec.n_runs * spec.run_seconds()
+    left = _runs_left(spec, out) if resume and existed else spec.n_runs
+    work = left * spec.run_seconds()
     estimate = (
         f"{_seconds(work)} of runs on one core (divide by the cluster's cores)"
         if scheduler
@@ -890,7 +905,8 @@ def campaign_run(
         f"campaign {spec.name!r} ({spec.digest}): {_n(spec.n_runs, 'run')} = "
         f"{_n(len(spec.cells), 'cell')} x {_n(len(spec.controllers), 'controller')} x "
         f"{_n(len(spec.seeds), 'seed')}, in {_n(len(tasks), 'task')} on {where}; "
-        f"estimated {estimate}"
+        + (f"{_n(left, 'run')} left, " if left != spec.n_runs else "")
+        + f"estimated {estimate}"
     )
     with Progress(
         SpinnerColumn(),
