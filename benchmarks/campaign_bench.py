@@ -173,7 +173,10 @@ def bench_campaign(quick: bool = False) -> dict:
                     threads_per_worker=1,
                     processes=True,
                     host="127.0.0.1",
-                    dashboard_address=None,
+                    # loopback only: with None the scheduler still serves HTTP on
+                    # 0.0.0.0:8787, and each worker on 0.0.0.0 at a random port
+                    dashboard_address="127.0.0.1:0",
+                    worker_dashboard_address="127.0.0.1:0",
                 ) as cluster,
             ):
                 res["dask"] = _timed_campaign(

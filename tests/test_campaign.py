@@ -188,10 +188,12 @@ def _cluster(n_workers: int, *, deadline_s: float = 180.0, dashboard: bool = Fal
     env["PYTHONPATH"] = os.pathsep.join([*pythonpath, src, env.get("PYTHONPATH", "")])
     env["DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES"] = "3"  # a task outlives 3 lost workers
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": env}
-    board = ["--dashboard-address", f"127.0.0.1:{_free_port()}"] if dashboard else []
+    # loopback only: --no-dashboard alone still serves HTTP on 0.0.0.0:8787 (scheduler)
+    # and 0.0.0.0 at a random port (each worker)
+    board = ["--dashboard-address", f"127.0.0.1:{_free_port()}"]
     scheduler = subprocess.Popen(
         [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
-         "--port", str(port), *(board or ["--no-dashboard"])], **quiet,
+         "--port", str(port), *board, *([] if dashboard else ["--no-dashboard"])], **quiet,
     )  # fmt: skip
     workers = []
     procs = [scheduler]
@@ -216,6 +218,8 @@ def _cluster(n_workers: int, *, deadline_s: float = 180.0, dashboard: bool = Fal
                         "1",
                         "--no-nanny",
                         "--no-dashboard",
+                        "--dashboard-address",
+                        "127.0.0.1:0",
                         "--host",
                         "127.0.0.1",
                         *worker_args,
@@ -260,6 +264,19 @@ def test_dask_cluster_of_worker_processes_gives_the_same_records(spec_file, refe
         workers = set(read_records(out).column("worker").to_pylist())
         assert len(workers) >= 1 and all(":" in w for w in workers)
         assert "dashboard: http://127.0.0.1:" in res.stderr, res.output
+
+
+@pytest.mark.cluster
+def test_a_scheduler_without_a_dashboard_gets_no_link():
+    """``dask scheduler --no-dashboard`` still serves HTTP at the dashboard's port (8787 by
+    default) and lists it among its services; the link printed was a 404."""
+    from distributed import Client
+
+    from pkmctl.campaign.execute import dashboard_link
+
+    with _cluster(1) as (address, _), Client(address, timeout="10s") as client:
+        assert "dashboard" in client.scheduler_info()["services"]  # listed all the same
+        assert dashboard_link(client) is None
 
 
 #: Many short tasks (16 of 2 runs), so that when the first result is back the worker we

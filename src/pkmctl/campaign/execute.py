@@ -368,13 +368,19 @@ def _tasks_named(spec: CampaignSpec, tasks: list[Task], most: int = 3) -> str:
 
 
 def dashboard_link(client) -> str | None:
-    """The dashboard's address of a Dask client's scheduler, or None if it runs none
-    (``dask scheduler --no-dashboard``, where ``Client.dashboard_link`` raises)."""
+    """The dashboard's address of a Dask client's scheduler, or None if it runs none or
+    it does not answer from here within 1 s. (``dask scheduler --no-dashboard`` still
+    serves HTTP at the dashboard's port, 8787 by default, where the link's page is a 404:
+    a tester was given that link.)"""
+    import urllib.request
+
     try:
         info = client.scheduler_info()
         if "dashboard" not in info.get("services", {}):
             return None
-        return client.dashboard_link
+        link = client.dashboard_link
+        with urllib.request.urlopen(link, timeout=1.0) as page:  # noqa: S310 - http(s) only
+            return link if page.status == 200 and link.startswith(("http:", "https:")) else None
     except Exception:  # noqa: BLE001 - a link is a courtesy; the campaign goes on
         return None
 
