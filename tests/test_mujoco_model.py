@@ -54,6 +54,30 @@ def model(robot):
     return mj.build_model(robot)
 
 
+def test_the_machine_is_assembled_on_its_own_branch_at_large_tilts(robot, model):
+    """From home, Gauss-Newton closed the chains at X = [0.45, 0.3, 0.9] with limb 4
+    turned through its base joint (length -0.3807 m, the closure exact): the MuJoCo run
+    diverged where the rigid one did not, or ran on another machine without a word. Every
+    pose of a sample with |alpha|, |beta| <= 1.1 rad now has the closed form's lengths."""
+    X = np.array([0.45, 0.3, 0.9])
+    direct, res = mj._closed(model, model.qpos0, X, 1e-13, 50)  # the solve from home alone
+    assert res < 1e-13 and mj.limb_lengths(model, direct)[3] < 0  # the case is the flip
+    rng = np.random.default_rng(3)
+    poses = [X]
+    while len(poses) < 60:
+        Y = np.array([rng.uniform(0.3, 0.95), *rng.uniform(-1.1, 1.1, 2)])
+        try:
+            robot.check_pose(Y)
+        except InvalidPoseError:
+            continue
+        poses.append(Y)
+    for Y in poses:
+        qpos = mj.initial_qpos(model, robot, Y)
+        want = robot.inverse_kinematics(Y)  # the closed form's lengths, all > 0
+        np.testing.assert_allclose(mj.limb_lengths(model, qpos), want, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(mj.platform_pose(model, qpos), Y, rtol=0, atol=1e-12)
+
+
 def test_limb_lengths_and_rates_from_the_mujoco_state(robot, model):
     data = mujoco.MjData(model)
     for X, Xdot, tau in _states(robot, N_STATES, seed=1):

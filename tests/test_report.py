@@ -270,6 +270,21 @@ def test_render_report_gives_a_drives_force_limit() -> None:
     assert "applied through the `drive` actuator's own dynamics" in text
 
 
+def test_render_report_names_the_fis_file_fsmc_and_afsmc_ran_on(tmp_path) -> None:
+    """A scenario whose [fuzzy] fis is another file ran FSMC and AFSMC on it, and the
+    report set them beside the paper's Table 4 without a word of it (a tester's)."""
+    from importlib import resources
+
+    fis = tmp_path / "mine.fis"
+    fis.write_text((resources.files("pkmctl") / "fuzzy" / "data" / "paper_flc.fis").read_text())
+    sc = pkmctl.Scenario.builtin("paper").replace(**{"fuzzy.fis": str(fis)})
+    runs = {c: pkmctl.simulate(sc, controller=c, duration=0.02) for c in ("smc", "fsmc")}
+    text = " ".join(render_report(runs, figures=[], scenario_name="mine").split())
+    assert f"FSMC and AFSMC's fuzzy term: the `.fis` file `{fis}` (inputs clip), in place" in text
+    plain = {"smc": pkmctl.simulate("paper", controller="smc", duration=0.02)}
+    assert ".fis" not in render_report(plain, figures=[], scenario_name="paper")
+
+
 def test_render_report_says_when_the_drives_saturate_and_overspeed() -> None:
     """A prototype start saturates limbs 2 and 4 for milliseconds and drives the limbs
     past the drives' 0.833 m/s; the report gave the instant of one rounding's maximum

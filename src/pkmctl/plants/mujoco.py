@@ -457,7 +457,10 @@ def initial_qpos(
     The platform's free joint is set from X (p and R of DESIGN.md §1). The limb joints are
     then solved from the home configuration by Gauss-Newton on MuJoCo's own equality
     residual and Jacobian (``efc_pos``, ``efc_J``) over the limb dofs only, so the limb
-    lengths come from the MuJoCo geometry, not from the closed form.
+    lengths come from the MuJoCo geometry, not from the closed form; they must equal the
+    closed form's within 1 um (the machine's assembly branch). If they do not (a limb
+    through its base joint closes the chain too), the poses from home to X are followed
+    in steps of at most 0.02 (m or rad), each solved from the last.
 
     Parameters
     ----------
@@ -485,9 +488,48 @@ def initial_qpos(
     """
     X = np.asarray(X, dtype=float)
     robot.check_pose(X)
+    want = _limb_geometry(robot, X)["q"]  # the closed form's limb lengths, all > 0
+    qpos, res = _closed(model, model.qpos0, X, tol, max_iter)
+    if res < tol and _assembled_as(model, qpos, want):
+        return qpos
+    # The solve from home closed the chains on another branch (a limb turned through its
+    # base joint, its length negative: a tester found 72 of 720 poses with |alpha|,
+    # |beta| <= 1.1 rad), or did not close: follow the poses from home to X instead,
+    # each step from the last, which stays on the machine's branch.
+    qpos = model.qpos0.copy()
+    X0 = platform_pose(model, qpos)
+    steps = max(1, math.ceil(float(np.max(np.abs(X - X0))) / _STEP))
+    for s in np.linspace(0.0, 1.0, steps + 1)[1:]:
+        qpos, res = _closed(model, qpos, X0 + s * (X - X0), tol, max_iter)
+        if res >= tol:
+            break
+    if res < tol and _assembled_as(model, qpos, want):
+        return qpos
+    raise RuntimeError(
+        f"closure not reached for X = {X.tolist()} on the machine's branch: residual "
+        f"{res:.3e} m, limb lengths {limb_lengths(model, qpos).tolist()} against "
+        f"{want.tolist()}"
+    )
+
+
+#: The largest change of z (m) or an angle (rad) between two poses of the path that
+#: :func:`initial_qpos` follows from home when the direct solve lands on another branch.
+_STEP = 0.02
+
+
+def _assembled_as(model: mujoco.MjModel, qpos: np.ndarray, want: np.ndarray) -> bool:
+    """Whether the limb lengths of ``qpos`` are the closed form's (within 1 um): a chain
+    closed with a limb through its base joint has the same end points, another length."""
+    return bool(np.max(np.abs(limb_lengths(model, qpos) - want)) < 1e-6)
+
+
+def _closed(model: mujoco.MjModel, start: np.ndarray, X: np.ndarray, tol: float,
+            max_iter: int) -> tuple[np.ndarray, float]:  # fmt: skip
+    """``start`` with the platform at X and its limb joints solved by Gauss-Newton on
+    MuJoCo's own equality residual and Jacobian over the limb dofs; (qpos, residual)."""
     qadr, dadr = _platform_adr(model)
     p, R = _platform_frame(X)
-    qpos = model.qpos0.copy()
+    qpos = np.array(start, dtype=float)
     qpos[qadr : qadr + 3] = p
     quat = np.empty(4)
     mujoco.mju_mat2Quat(quat, R.ravel())
@@ -500,11 +542,11 @@ def initial_qpos(
         r, J = _equality_rows(model, data)
         res = float(np.max(np.abs(r)))
         if res < tol:
-            return qpos
+            return qpos, res
         dq = np.zeros(model.nv)
         dq[limb] = -np.linalg.lstsq(J[:, limb], r, rcond=None)[0]
         mujoco.mj_integratePos(model, qpos, dq, 1.0)
-    raise RuntimeError(f"closure not reached for X = {X.tolist()}: residual {res:.3e} m")
+    return qpos, res
 
 
 def _platform_qvel(X: np.ndarray, Xdot: np.ndarray) -> np.ndarray:

@@ -532,6 +532,16 @@ def render_report(
             f" Plant `{used['plant']}`: {get_part('plant', used['plant']).description}; "
             f"sensor `{used.get('sensor', 'ideal')}`, actuator `{used.get('actuator', 'ideal')}`."
         )
+    fuzzy = sc.fuzzy
+    if fuzzy.fis is not None and any(c in ("fsmc", "afsmc") for c, _ in pairs):
+        # FSMC and AFSMC ran on another fuzzy system than the paper's: Table 4 compares
+        # them with the paper's all the same (a tester found no word of it)
+        run += (
+            f" FSMC and AFSMC's fuzzy term: the `.fis` file `{fuzzy.fis}` "
+            f"(inputs {fuzzy.input_range}"
+            + (f", tabulated at {fuzzy.samples} points an input" if fuzzy.samples else "")
+            + "), in place of the built-in FLC of the paper."
+        )
     if wall_time_s is not None:
         run += f" Wall time {wall_time_s:.1f} s."
     lines += [run, ""]
