@@ -1025,7 +1025,7 @@ def identify(
         max_fk_residual=fk_limit(scenario),
         machine=label,
         max_residual=max_residual,
-        excited=lambda W: check_excitation(log.where, base, W),
+        excited=lambda W: check_excitation(log.where, base, base.reduce(W).reshape(-1, base.count)),
     )
     n, r = obs.t.size, base.count
     where = log.where
@@ -1036,7 +1036,7 @@ def identify(
         )
     A = base.reduce(obs.W).reshape(3 * n, r)
     y = obs.y.reshape(3 * n)
-    cond = check_excitation(where, base, obs.W)
+    cond = check_excitation(where, base, A)  # (A reduced once, here)
     # blocks at least 2 / cutoff long (the filtered residuals' correlation), at most 40
     span = 2.0 / obs.cutoff * obs.sample_rate / obs.decimation
     blocks = int(min(JACKKNIFE_BLOCKS, n // max(1.0, span)))
@@ -1122,11 +1122,10 @@ def lead_note(obs: Observation) -> str:
     )
 
 
-def check_excitation(where: str, base, W: np.ndarray) -> float:
-    """cond of the base observation matrix of W (n, 3, 48); refused if its rank is short
-    of ``base.count`` (the trajectory does not move some base parameters: named)."""
+def check_excitation(where: str, base: BaseParameters, A: np.ndarray) -> float:
+    """cond of the base observation matrix A (3n, base.count); refused if its rank is
+    short of ``base.count`` (the trajectory does not move some base parameters: named)."""
     r = base.count
-    A = base.reduce(W).reshape(-1, r)
     sv = np.linalg.svd(A / np.linalg.norm(A, axis=0).clip(1e-300), compute_uv=False)
     rank = int(np.sum(sv > 1e-9 * sv[0]))
     cond = float(np.linalg.cond(A))
