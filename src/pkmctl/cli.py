@@ -802,17 +802,15 @@ def _campaign_handle(ctx: typer.Context, exc: BaseException, doing: str) -> NoRe
 
 
 def _runs_left(spec, out: Path) -> int:
-    """The runs a ``--resume`` of the campaign in ``out`` will run: those of its tasks
-    without a file or with an error record (for the estimate only: a damaged folder is
-    refused by the run itself, and counts every run here)."""
-    from pkmctl.campaign.store import stored_statuses, task_grouping
+    """The runs a ``--resume`` of the campaign in ``out`` will run (for the estimate only:
+    a folder the run refuses counts every run here; the run says why)."""
+    from pkmctl.campaign.execute import task_states
 
     try:
-        tasks = spec.tasks(*task_grouping(out))
-        stored = stored_statuses(out / "runs", len(tasks))
+        tasks, done, erred = task_states(spec, out)
     except Exception:  # noqa: BLE001 - the run says what is wrong, in its own words
         return spec.n_runs
-    return sum(len(t.runs) for t in tasks if t.index not in stored or stored[t.index].get("error"))
+    return sum(len(t.runs) for t in tasks if t.index not in done or t.index in erred)
 
 
 def _n(count: int, noun: str) -> str:

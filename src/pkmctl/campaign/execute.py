@@ -505,6 +505,18 @@ def _dask_stream(spec, tasks, client, on_client, as_completed) -> Iterable:
             yield futures[f], f.result()
 
 
+def task_states(spec: CampaignSpec, out: str | Path) -> tuple[list[Task], set[int], set[int]]:
+    """The tasks of the campaign folder ``out`` (in the grouping it was started with), the
+    indices of those with a file, and of those whose file holds an error record (a resume
+    runs the tasks without a file and those: docs/campaigns.md, "Errors"). A file of
+    another campaign, or holding another task's runs, is a SpecError naming it."""
+    runs_dir = Path(out) / "runs"
+    tasks = spec.tasks(*task_grouping(out))
+    done = completed_tasks(runs_dir, spec.digest, tasks)
+    erred = {i for i, c in stored_statuses(runs_dir, len(tasks)).items() if c.get("error")}
+    return tasks, done, erred
+
+
 def run_campaign(
     spec: CampaignSpec,
     out: str | Path,
@@ -595,11 +607,7 @@ def _run(spec, out, client, scheduler, workers, resume, progress, on_client, sto
     runs_dir = open_store(out, spec, resume=resume, parts=parts)
     if spec.base.fuzzy.fis is not None or spec.fis_files:  # the runs read the folder's
         spec = read_spec(out)  # copies of the .fis files: their content is the spec hash's
-    tasks = spec.tasks(*task_grouping(out))  # the grouping the folder was started with
-    # another campaign's file is refused, and one holding another task's runs
-    done = completed_tasks(runs_dir, spec.digest, tasks)
-    # a task whose file holds an error record runs again (docs/campaigns.md, "Errors")
-    erred = {i for i, c in stored_statuses(runs_dir, len(tasks)).items() if c.get("error")}
+    tasks, done, erred = task_states(spec, out)
     todo = [t for t in tasks if t.index not in done or t.index in erred]
     before = sum(len(t.runs) for t in tasks if t.index in done and t.index not in erred)
     rerun = sum(len(t.runs) for t in tasks if t.index in erred)
