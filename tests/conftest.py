@@ -1,4 +1,5 @@
 import os
+from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen, before anything imports MuJoCo
 
@@ -6,6 +7,11 @@ import numpy as np
 import pytest
 
 import pkmctl
+
+#: The 30 real .fis files (../shared/fis-corpus; test data, not in the repository).
+CORPUS = Path(__file__).resolve().parents[2] / "shared" / "fis-corpus"
+if not CORPUS.is_dir():
+    CORPUS = Path("/work/shared/fis-corpus")
 
 
 @pytest.fixture(scope="session", autouse=True)

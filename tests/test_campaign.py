@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
+from conftest import CORPUS
 from typer.testing import CliRunner
 
 import pkmctl
@@ -1531,3 +1532,17 @@ def test_a_resume_refuses_a_task_file_holding_another_tasks_runs(tmp_path):
     res = runner.invoke(app, resume)
     assert res.exit_code == 0, res.output
     assert len(read_records(out)) == spec.n_runs
+
+
+def test_a_fis_factor_off_zero_at_rest_gets_one_note_if_a_fuzzy_controller_runs(tmp_path):
+    corpus = CORPUS / "matlab_tipper.fis"
+    if not corpus.is_file():
+        pytest.skip("no .fis corpus")
+    (tmp_path / "tip.fis").write_bytes(corpus.read_bytes())
+    _paper_fis(tmp_path).rename(tmp_path / "flc.fis")
+    factor = '[factors."fuzzy.fis"]\nvalues = ["tip.fis", "flc.fis", "none"]\n'
+    for controllers, count in (('["fsmc", "smc"]', 1), ('["smc", "pd"]', 0)):
+        spec = tmp_path / "spec.toml"
+        spec.write_text(HEAD.replace('["smc"]', controllers) + factor)
+        notes = CampaignSpec.from_toml(spec).fuzzy_offset_notes()
+        assert len(notes) == count and all("tip.fis" in n for n in notes), notes

@@ -148,6 +148,22 @@ def test_console_script_installed():
     assert res.returncode == 0 and 'name = "paper"' in res.stdout
 
 
+def test_no_color_means_no_escape_codes_at_all():
+    """NO_COLOR (no-color.org) dropped rich's colours but still sent bold: "error:" came
+    as ESC[1m. FORCE_COLOR makes rich style a pipe as it would a terminal."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "NO_COLOR"} | {"FORCE_COLOR": "1"}
+
+    def stderr(env: dict) -> str:
+        args = [sys.executable, "-m", "pkmctl", "simulate", "no-such"]
+        return subprocess.run(args, capture_output=True, text=True, timeout=120, env=env).stderr
+
+    assert "\x1b[" in stderr(env)  # styled without it
+    plain = stderr(env | {"NO_COLOR": "1"})
+    assert plain.startswith("error: ") and "\x1b" not in plain, repr(plain)
+
+
 @pytest.mark.parametrize("args", [["scenario", "paper"], ["campaign", "show", "paper-claims"]])
 def test_printing_to_a_closed_or_full_stdout_is_one_line(args):
     """stdout closed (``>&-``) was an internal AttributeError, and for ``campaign show`` a

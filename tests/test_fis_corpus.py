@@ -23,17 +23,14 @@ import logging
 import os
 import warnings
 import zlib
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import CORPUS
 
 from pkmctl.fuzzy import fis
 from pkmctl.fuzzy.system import FuzzySystem, FuzzyWarning
 
-CORPUS = Path(__file__).resolve().parents[2] / "shared" / "fis-corpus"
-if not CORPUS.is_dir():
-    CORPUS = Path("/work/shared/fis-corpus")
 FILES = sorted(CORPUS.glob("*.fis")) if CORPUS.is_dir() else []
 pytestmark = pytest.mark.skipif(not FILES, reason="no .fis corpus next to the repository")
 FULL = os.environ.get("PKMCTL_FULL") == "1"

@@ -11,6 +11,7 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 import tomli_w
+from conftest import CORPUS
 from typer.testing import CliRunner
 
 import pkmctl
@@ -25,9 +26,6 @@ from pkmctl.model.dynamics import gravity_kernel, make_work
 from pkmctl.parts import names
 from pkmctl.sim.scenario import Scenario, ScenarioError
 
-CORPUS = Path(__file__).resolve().parents[2] / "shared" / "fis-corpus"
-if not CORPUS.is_dir():
-    CORPUS = Path("/work/shared/fis-corpus")
 needs_corpus = pytest.mark.skipif(not CORPUS.is_dir(), reason="no .fis corpus")
 PAPER_FIS = str(resources.files("pkmctl") / "fuzzy" / "data" / "paper_flc.fis")
 # 2 inputs on [-1, 1], 1 output on [-1, 1], 25 rules, bisector: the general engine
@@ -314,3 +312,35 @@ def test_each_kernel_refuses_the_other_engines_tables_at_compile_time():
         mamdani_eval(general, np.array([0.3, -2.0]))
     with pytest.raises(TypingError, match="these kernels take SystemTables, not FISTables"):
         fis_eval2(fast, new_work(general.ints), 0.3, -2.0)
+
+
+# ------------------------------------------------------------------ (c) a term off 0 at rest
+@needs_corpus
+def test_a_fis_file_off_zero_at_rest_is_named_with_the_force_it_adds():
+    """u_f = -Ku FLC(0, 0) when s = sdot = 0: a file whose output range is [0, 30] pushes
+    even on the trajectory. The note gives FLC(0, 0) and that force; a file symmetric
+    about 0, the paper's FLC and its .fis copy give none."""
+    sc = paper(0.5).replace(**{"fuzzy.fis": str(CORPUS / "matlab_tipper.fis")})
+    rest = float(sc.fuzzy_system()(0.0, 0.0))
+    assert rest > 1.0  # tipper's output range is [0, 30]: its middle is far from 0
+    note = sc.fuzzy_offset_note()
+    assert note is not None and f"FLC(0, 0) = {rest:.4g}, not 0" in note
+    push = [-k * rest for k in sc.gains.Ku]
+    assert "[" + ", ".join(f"{f:.4g}" for f in push) + "]" in note, note
+    assert paper(0.5).fuzzy_offset_note() is None
+    for fis in (PAPER_FIS, str(CORPUS / "bicopter_trimf.fis")):
+        s = paper(0.5).replace(**{"fuzzy.fis": fis})
+        assert abs(float(s.fuzzy_system()(0.0, 0.0))) < 1e-12
+        assert s.fuzzy_offset_note() is None
+
+
+@needs_corpus
+def test_cli_warns_of_an_offset_fis_for_fsmc_only(tmp_path):
+    scenario = tmp_path / "s.toml"
+    scenario.write_text(scenario_toml(str(CORPUS / "matlab_tipper.fis")))
+    for controller, warned in (("fsmc", True), ("smc", False)):
+        res = CliRunner().invoke(app, ["simulate", str(scenario), "--controller", controller,
+                                       "--out", str(tmp_path / controller)])  # fmt: skip
+        assert res.exit_code == 0, res.output
+        lines = [ln for ln in res.output.splitlines() if ln.startswith("warning: fuzzy.fis")]
+        assert len(lines) == (1 if warned else 0), res.output

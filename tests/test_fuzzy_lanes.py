@@ -2,10 +2,9 @@
 fast kernel bit for bit, lane by lane, whatever the other lanes hold; the general engine's
 lane path is its scalar path."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from conftest import CORPUS
 
 from pkmctl._jit import kernel
 from pkmctl.fuzzy import FLC, MamdaniSystem
@@ -15,10 +14,6 @@ from pkmctl.fuzzy.general import new_work
 from pkmctl.fuzzy.kernels import grid_eval_batch
 from pkmctl.fuzzy.lanes import MAX_TERMS, grid_eval_lanes
 from pkmctl.fuzzy.term import term_eval, term_eval_lanes
-
-CORPUS = Path(__file__).resolve().parents[2] / "shared" / "fis-corpus"
-if not CORPUS.is_dir():
-    CORPUS = Path("/work/shared/fis-corpus")
 
 
 def _names(n: int) -> tuple[str, ...]:

@@ -106,8 +106,11 @@ app = typer.Typer(
 )
 # Tables need ~100 columns; a pipe or a CI log would otherwise get rich's 80. Lines of
 # text are not wrapped (soft_wrap): a command to copy or a line to grep stays whole.
-console = Console(width=max(Console().width, 110), soft_wrap=True)
-err_console = Console(stderr=True)
+# NO_COLOR (no-color.org): rich drops the colours but keeps bold and underline; no
+# escape codes at all is what a user who sets it wants.
+_PLAIN = {"color_system": None} if os.environ.get("NO_COLOR") else {}
+console = Console(width=max(Console().width, 110), soft_wrap=True, **_PLAIN)
+err_console = Console(stderr=True, **_PLAIN)
 
 
 def _print_error(message: str) -> None:
@@ -292,18 +295,22 @@ def _overrides(seed: int | None, duration: float | None) -> dict:
     return changes
 
 
-def _scenario(ctx: typer.Context, spec: str, seed, duration, kept: str):
+def _scenario(ctx: typer.Context, spec: str, seed, duration, kept: str, *, fuzzy: bool):
     """The scenario, validated; interruptible, since validating the trajectory calls the
-    kinematics kernels, which a first run compiles."""
+    kinematics kernels, which a first run compiles. ``fuzzy``: a run of FSMC or AFSMC
+    follows, so a ``.fis`` file off 0 at rest is worth a warning."""
     compiles = _Compiles()
     try:
         with compiles.listen():
-            return _interruptible(
+            sc = _interruptible(
                 lambda: _load_scenario(spec, _overrides(seed, duration)),
                 lambda: kept + compiles.kept(),
             )
     except Exception as exc:
         _handle(ctx, _as_typed(exc, seed, duration))
+    if fuzzy and (note := sc.fuzzy_offset_note()):
+        _say(f"warning: {note}")
+    return sc
 
 
 def _as_typed(exc: Exception, seed, duration) -> Exception:
@@ -467,7 +474,7 @@ def reproduce(
         _handle(ctx, exc)
     existed = out.is_dir()
     _KEPT["note"] = _untouched(out, existed)
-    sc = _scenario(ctx, scenario, seed, duration, _untouched(out, existed))
+    sc = _scenario(ctx, scenario, seed, duration, _untouched(out, existed), fuzzy=True)
     try:
         check_samples(sc)  # before the compile and the runs, not in the figures after them
     except Exception as exc:
@@ -590,7 +597,8 @@ def simulate(
         _handle(ctx, exc)
     existed = out.is_dir()
     _KEPT["note"] = _untouched(out, existed)
-    sc = _scenario(ctx, scenario_file, seed, duration, _untouched(out, existed))
+    fuzzy = controller in ("fsmc", "afsmc")
+    sc = _scenario(ctx, scenario_file, seed, duration, _untouched(out, existed), fuzzy=fuzzy)
     doing = f"simulating {controller} on {sc.name!r}"
     stage = None
     try:
@@ -880,6 +888,8 @@ def campaign_run(
             )
     except Exception as exc:
         _campaign_handle(ctx, exc, "reading the spec: nothing run")
+    for note in spec.fuzzy_offset_notes():
+        _say(f"warning: {note}")
     existed = (out / "campaign.json").exists()
     if resume and not existed:  # a mistyped --out would start the whole campaign again
         _say(f"--resume: {str(out)!r} holds no campaign yet: starting it there")

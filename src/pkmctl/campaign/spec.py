@@ -611,6 +611,17 @@ class CampaignSpec:
         """The validated scenario of cell ``cell``."""
         return _cell_scenario(self.base, _with_fis(self.cells[cell], self.fis_files or {}))
 
+    def fuzzy_offset_notes(self) -> list[str]:
+        """One :meth:`Scenario.fuzzy_offset_note` per ``.fis`` file the cells run whose
+        output at rest is not 0, if FSMC or AFSMC is among the controllers."""
+        if not {"fsmc", "afsmc"} & set(self.controllers):
+            return []
+        first: dict = {}  # each .fis value (None: the base's) -> its first cell
+        for i, cell in enumerate(self.cells):
+            first.setdefault(cell.get(FIS_FIELD), i)
+        notes = (self.scenario(i).fuzzy_offset_note() for i in first.values())
+        return [n for n in notes if n]
+
     def durations(self) -> list[float]:
         """Each cell's run duration, s (the spec's ``duration``, or a ``timing.duration``
         factor's value)."""

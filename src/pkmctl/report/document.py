@@ -542,6 +542,8 @@ def render_report(
             + (f", tabulated at {fuzzy.samples} points an input" if fuzzy.samples else "")
             + "), in place of the built-in FLC of the paper."
         )
+        if note := sc.fuzzy_offset_note():
+            run += f" **Warning**: {note}."
     if wall_time_s is not None:
         run += f" Wall time {wall_time_s:.1f} s."
     lines += [run, ""]

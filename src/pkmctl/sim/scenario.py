@@ -20,6 +20,7 @@ import tomllib
 import types
 import typing
 import unicodedata
+import warnings
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -41,6 +42,7 @@ from pydantic.fields import FieldInfo
 from pkmctl.control.gains import BASELINE_GAINS, TABLE3, Gains
 from pkmctl.errors import InvalidPoseError, PkmctlError
 from pkmctl.fuzzy import FLC, FuzzySystem, MamdaniSystem
+from pkmctl.fuzzy.engine import FuzzyWarning
 from pkmctl.fuzzy.fis import FISError, read_fis
 from pkmctl.fuzzy.term import term_system
 from pkmctl.model.mechanism import PAPER_TABLE2, Mechanism
@@ -50,6 +52,8 @@ __all__ = ["BUILTINS", "Scenario", "ScenarioError", "reference_outside"]
 
 #: A trajectory whose J has a condition number above this is "near a singularity".
 MAX_TRAJECTORY_CONDITION = 100.0
+#: A .fis output at s* = sdot* = 0 beyond this fraction of its range gets a warning.
+FUZZY_OFFSET_TOLERANCE = 1e-9
 
 
 class ScenarioError(PkmctlError, ValueError):
@@ -895,6 +899,27 @@ class Scenario(_Model):
     def fuzzy_system(self) -> MamdaniSystem | FuzzySystem:
         """The fuzzy term's system of FSMC/AFSMC, as the loop runs it (``[fuzzy]``)."""
         return self.fuzzy.build()
+
+    def fuzzy_offset_note(self) -> str | None:
+        """A warning when the ``.fis`` file's output at s* = sdot* = 0 is not 0 (else
+        None): FSMC and AFSMC then push with -K_u FLC(0, 0) when tracking is exact. The
+        paper's FLC, and any file symmetric about 0, give 0."""
+        if self.fuzzy.fis is None:
+            return None
+        system = self.fuzzy_system()
+        out = system.output if isinstance(system, MamdaniSystem) else system.outputs[0]
+        lo, hi = out.universe
+        with warnings.catch_warnings():  # a zero-area aggregate is not this note's concern
+            warnings.simplefilter("ignore", FuzzyWarning)
+            rest = float(system(0.0, 0.0))
+        if abs(rest) <= FUZZY_OFFSET_TOLERANCE * (hi - lo):
+            return None
+        push = ", ".join(f"{-k * rest:.4g}" for k in self.gains.Ku)
+        return (
+            f"fuzzy.fis {self.fuzzy.fis!r}: FLC(0, 0) = {rest:.4g}, not 0 (output range "
+            f"[{lo:g}, {hi:g}]): FSMC and AFSMC add -Ku FLC(0, 0) = [{push}] (N, N m, N m on "
+            "z, alpha, beta) even when tracking is exact"
+        )
 
 
 _AXES = ("z", "alpha", "beta")
