@@ -188,8 +188,8 @@ def test_printing_to_a_closed_or_full_stdout_is_one_line(args):
 
 @pytest.mark.parametrize(
     ("command", "text"),
-    [(["identify"], "scenario [controller_model] block"), (["mujoco-model"], "The [plant] options"),
-     ([], "(Parquet by default, or CSV)")],
+    [(["identify"], "scenario [controller_model] block"),
+     (["mujoco-model"], "viscous friction ([plant]) become"), ([], "(Parquet by default, or CSV)")],
 )  # fmt: skip
 def test_help_shows_its_text_verbatim(command, text):
     """Help is Markdown, not rich markup (which took "[plant]" for a style and dropped

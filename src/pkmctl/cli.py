@@ -743,10 +743,10 @@ def mujoco_model(
 ) -> None:
     """Write the scenario's machine as a MuJoCo model (MJCF), e.g. for MuJoCo's viewer.
 
-    The [plant] options of the scenario (rotor inertia, viscous and Coulomb friction) are
-    mapped to MuJoCo's armature and damping, its payload to the platform's mass and
-    inertia; an option given here overrides the scenario's. Coulomb friction is refused:
-    MuJoCo's is a constraint, not the tanh law.
+    The scenario's rotor inertia and viscous friction ([plant]) become MuJoCo's armature
+    and damping, its payload the platform's mass and inertia; an option given here
+    overrides the scenario's. Coulomb friction must be 0: MuJoCo's is a constraint, not
+    the tanh law, so a scenario or option with it is refused.
     """
     from pkmctl.errors import PkmctlError
     from pkmctl.io.atomic import atomic_write, check_output_file
