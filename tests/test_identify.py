@@ -809,3 +809,24 @@ def test_the_compile_clock_counts_overlapping_compilations_once():
     time.sleep(0.05)
     clock("end", "b", 0.05)
     assert clock.seconds == pytest.approx(0.1, abs=0.02)
+
+
+@pytest.mark.parametrize("q_noise", [0.0, 2e-6, 5e-6])
+def test_the_lengths_noise_and_the_rate_cutoff_it_allows_are_reported(exciting, q_noise):
+    """What the pose filter removes from smooth lengths is their noise: the white noise put
+    in, and the quantisation's step/sqrt(12). The Coulomb columns' rates are filtered as
+    high as 0.4 fs with quantisation alone, lower with 2 um of noise, and no lower than the
+    pose filter with 5 um (docs/identification.md, step 2)."""
+    from pkmctl.ident.identify import observe
+
+    _, sc = exciting
+    log = synthetic_log(sc, duration=10.0, quantise=True, q_noise=q_noise, seed=11)
+    obs = observe(log, sc.plant())
+    step = sc.plant_spec.screw_lead / sc.sensor.counts_per_rev
+    assert obs.length_noise == pytest.approx(np.hypot(q_noise, step / np.sqrt(12)), rel=0.05)
+    fs, fd = obs.sample_rate, obs.diff_cutoff
+    expected = {0.0: 0.4 * fs, 5e-6: fd}.get(q_noise)
+    if expected is None:
+        assert fd < obs.rate_cutoff < 0.4 * fs
+    else:
+        assert obs.rate_cutoff == pytest.approx(expected, rel=1e-12)

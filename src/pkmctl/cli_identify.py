@@ -385,6 +385,11 @@ def identify(
         f"{obs.samples_in} samples: {used} used; "
         + "; ".join(f"{k} discarded ({why})" for why, k in obs.discarded.items())
     )
+    _say(
+        f"length noise <= {1e6 * obs.length_noise:.3g} um rms (what the {obs.diff_cutoff:g} Hz "
+        f"pose filter removes); the Coulomb columns' limb rates filtered at "
+        f"{obs.rate_cutoff:.4g} Hz"
+    )
     if lead is None:
         _say(f"force lead ({how}): {1e3 * obs.force_lead:+.4g} ms")
     elif note := lead_note(obs):

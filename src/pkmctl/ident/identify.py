@@ -454,6 +454,11 @@ class Observation:
     #: With a force lead given: (the best lead of the ±LEAD_SEARCH samples, the relative
     #: misfit of least squares at it, at the given lead); None when the lead was searched.
     lead_check: tuple[float, float, float] | None = None
+    #: What the pose filter removes from the lengths, rms (m): their noise, or more (it
+    #: also takes any motion above ``diff_cutoff``); and the cutoff (Hz) of the limb
+    #: rates in the Coulomb columns that this noise allows (:func:`_rate_cutoff`).
+    length_noise: float = math.nan
+    rate_cutoff: float = math.nan
 
 
 def _forward_kinematics(
@@ -552,20 +557,21 @@ RATE_CUTOFF_RATIO = 0.4
 RATE_NOISE = 0.5
 
 
-def _rate_cutoff(q: np.ndarray, fs: float, fd: float, vs: float) -> float:
+def _rate_cutoff(q: np.ndarray, fs: float, fd: float, vs: float) -> tuple[float, float]:
     """Cutoff (Hz) of the limb rates for the Coulomb columns: the highest, up to
     :data:`RATE_CUTOFF_RATIO` x fs, at which white noise of the lengths (its std estimated
     from what the pose filter at ``fd`` removes from them) leaves rates of at most
     :data:`RATE_NOISE` x v_s; never below ``fd`` unless ``fd`` is above that cap. (Rate
-    noise of a zero-phase filter at f on noise of std s: s 2 pi sqrt(2 f^3 / (3 fs)).)"""
+    noise of a zero-phase filter at f on noise of std s: s 2 pi sqrt(2 f^3 / (3 fs)).)
+    Also returns that std (m)."""
     sos = scipy.signal.butter(4, fd, fs=fs, output="sos")
     removed = q - scipy.signal.sosfiltfilt(sos, q, axis=0)
     s2 = float(np.median(np.mean(removed * removed, axis=0))) / max(1e-9, 1.0 - 2.0 * fd / fs)
     top = RATE_CUTOFF_RATIO * fs
     if s2 <= 0.0:
-        return top
+        return top, 0.0
     f = (3.0 * fs * (RATE_NOISE * vs) ** 2 / (2.0 * (2.0 * math.pi) ** 2 * s2)) ** (1.0 / 3.0)
-    return float(min(top, max(fd, f)))
+    return float(min(top, max(fd, f))), math.sqrt(s2)
 
 
 def _check_rate(log: Log, cutoff: float, diff_cutoff: float | None) -> tuple[float, float, float]:
@@ -670,7 +676,7 @@ def observe(
     # The rates are filtered only as much as the lengths' noise needs (:func:`_rate_cutoff`:
     # quantisation alone, 0.4 fs; noisier encoders down to the pose filter's fd, as before).
     q = np.asarray(log.q, dtype=float)
-    fq = _rate_cutoff(q, fs, fd, friction_velocity)
+    fq, noise = _rate_cutoff(q, fs, fd, friction_velocity)
     qf = scipy.signal.sosfiltfilt(scipy.signal.butter(4, fq, fs=fs, output="sos"), q, axis=0)
     qd = np.ascontiguousarray(_d1(qf, h)[inner])
     W[:, :, N_THETA_EXT - 8 : N_THETA_EXT - 4] = np.einsum(
@@ -761,7 +767,7 @@ def observe(
     Xk, Xdk, Xddk = Xf[inner][keep], Xd[inner][keep], Xdd[inner][keep]
     return Observation(
         t_in[keep], Xk, Xdk, Xddk, y, W, fs, cutoff, dec, n, discarded, fk_res, force_lead,
-        fd, h_fir.size, lead_check,
+        fd, h_fir.size, lead_check, noise, fq,
     )  # fmt: skip
 
 

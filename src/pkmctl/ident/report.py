@@ -151,7 +151,10 @@ def _markdown(idn: Identification, validation: dict | None, source: str) -> str:
         "",
         f"Pose by least-squares forward kinematics (largest residual "
         f"{obs.fk_residual:.3g} m); filters: the pose by a zero-phase Butterworth low-pass, "
-        f"order 4, at {obs.diff_cutoff:g} Hz, before differentiation; J^T tau and the "
+        f"order 4, at {obs.diff_cutoff:g} Hz, before differentiation (it removes "
+        f"{1e6 * obs.length_noise:.3g} um rms from each length, a bound on their noise; "
+        f"the Coulomb columns take the limb rates filtered at {obs.rate_cutoff:.4g} Hz, "
+        "as high as that noise allows); J^T tau and the "
         f"regressor by the same zero-phase FIR low-pass (Hamming window, {obs.fir_taps} "
         f"taps) at {obs.cutoff:g} Hz (parallel filtering), decimated by {obs.decimation}; "
         f"force timing: the force acting at t is the logged "
@@ -289,6 +292,8 @@ def write_identification(
         "cutoff": idn.observation.cutoff,
         "diff_cutoff": idn.observation.diff_cutoff,
         "fk_residual": idn.observation.fk_residual,
+        "length_noise": idn.observation.length_noise,
+        "rate_cutoff": idn.observation.rate_cutoff,
         "active_bounds": list(idn.active_bounds),
         "theta_ext_physical": None if idn.physical is None else idn.physical.tolist(),
         "validation_log": None if validation is None else validation["source"],
