@@ -52,6 +52,9 @@ __all__ = ["BUILTINS", "Scenario", "ScenarioError", "reference_outside"]
 
 #: A trajectory whose J has a condition number above this is "near a singularity".
 MAX_TRAJECTORY_CONDITION = 100.0
+#: The most h r for the plant's friction near rest (rate r, RK4 sub-step h): RK4 decays
+#: a mode only below 2.785 (Scenario._check_friction_step).
+MAX_FRICTION_STEP = 2.5
 #: A .fis output at s* = sdot* = 0 beyond this fraction of its range gets a warning.
 FUZZY_OFFSET_TOLERANCE = 1e-9
 
@@ -753,6 +756,7 @@ class Scenario(_Model):
                     f" s can be followed ({MAX_SUBSTEPS} sub-steps at most)"
                 )
             )
+        self._check_friction_step(plant, h)
         every = self.logging.every
         if not (isinstance(every, int) and not isinstance(every, bool) and 1 <= every <= t.periods):
             raise ValueError(
@@ -777,6 +781,61 @@ class Scenario(_Model):
                 f"allowed <= {MAX_TRAJECTORY_CONDITION:g})"
             )
         return self
+
+    def _check_friction_step(self, plant: Mechanism, h: float) -> None:
+        """Refuse friction too stiff for the plant's RK4 sub-step ``h``.
+
+        Near rest the friction F_c tanh(qdot / v_s) + F_v qdot of each limb is a damper of
+        c = F_c / v_s + F_v (N s/m), which decays the pose rates at up to c k, k the
+        largest eigenvalue of (M + m_r J^T J)^-1 J^T J (1/kg; over the initial pose and
+        the trajectory's). RK4 decays a mode of rate r only for h r < 2.785; above, the
+        run goes on with exit 0 and limbs creeping 200 x too fast (F_c = 1e4 N: 48 mm/s
+        for 0.23) or never coming to rest (v_s = 1e-5). Refused above h r = 2.5, with the
+        largest value allowed and the sub-steps that would integrate it.
+        """
+        ps = self.plant_spec
+        c = ps.friction_coulomb / ps.friction_velocity + ps.friction_viscous
+        if c == 0.0:
+            return
+        t = self.timing
+        ts = np.linspace(0.0, t.duration, 25)
+        X = np.vstack(
+            [np.asarray(self.initial.X, dtype=float), self.trajectory.build().evaluate(ts)[0]]
+        )
+        from pkmctl.model.machine import reflected_inertia
+
+        m_r = reflected_inertia(ps.rotor_inertia, ps.screw_lead)
+        try:
+            J, M = plant.jacobian(X), plant.mass_matrix(X)
+        except InvalidPoseError:  # the pose checks that follow name it
+            return
+        JtJ = np.einsum("nia,nib->nab", J, J)
+        k = float(np.max(np.linalg.eigvals(np.linalg.solve(M + m_r * JtJ, JtJ)).real))
+        if h * c * k <= MAX_FRICTION_STEP:
+            return
+        need = math.ceil(t.control_period * c * k / MAX_FRICTION_STEP)
+        how = (
+            f"or raise timing.substeps to >= {need}"
+            if need <= MAX_SUBSTEPS
+            else f"{MAX_SUBSTEPS} sub-steps at most cannot at this control period"
+        )
+        top = MAX_FRICTION_STEP / (h * k)  # the largest c
+        step = (
+            f"too stiff for the plant's RK4 sub-step h = {h:g} s (timing.control_period / "
+            f"substeps): near rest it decays the rates at {c * k:.3g} /s, and h x that = "
+            f"{h * c * k:.3g} must be <= {MAX_FRICTION_STEP:g} (RK4 is unstable above 2.785)"
+        )
+        if ps.friction_viscous >= top:
+            raise ValueError(
+                f"plant.friction_viscous = {ps.friction_viscous:g}: must be < {top:.4g} N s/m "
+                f"here, {step}; {how}"
+            )
+        fc_max = ps.friction_velocity * (top - ps.friction_viscous)
+        raise ValueError(
+            f"plant.friction_coulomb = {ps.friction_coulomb:g}: must be <= {fc_max:.4g} N at "
+            f"friction_velocity = {ps.friction_velocity:g} m/s and friction_viscous = "
+            f"{ps.friction_viscous:g} N s/m (F_c / v_s + F_v <= {top:.4g} N s/m), {step}; {how}"
+        )
 
     # ------------------------------------------------------------------ constructors
     @classmethod
