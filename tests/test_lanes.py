@@ -184,6 +184,31 @@ def test_simulate_many_in_lanes_equals_one_at_a_time():
     assert set(_lane_loop_signatures().values()) == {1}
 
 
+@pytest.mark.parametrize("lanes", [1, 4])
+def test_simulate_many_names_the_seed_that_diverged_or_keeps_every_run(lanes):
+    """Of 12 seeds with a huge disturbance, only seed 7 diverges (a tester's scan). The
+    error said where but not which seed, and the 11 good runs were lost."""
+    from pkmctl.errors import SimulationDiverged
+
+    sc = S.Scenario.builtin("paper", 0.2).replace(**{"disturbance.amplitude": [2e5, 2e4, 2e4]})
+    seeds = list(range(12))
+    with pytest.raises(SimulationDiverged, match=r"^seed 7: simulation diverged at t = ") as err:
+        S.simulate_many(sc, "pd", seeds=seeds, lanes=lanes, workers=1)
+    assert err.value.seed == 7 and err.value.partial.scenario.disturbance.seed == 7
+    alone = [S.simulate(sc, "pd", seed=s) for s in seeds if s != 7]
+    kept = S.simulate_many(sc, "pd", seeds=seeds, lanes=lanes, workers=1, diverged="keep")
+    assert [r.success for r in kept] == [s != 7 for s in seeds]
+    assert 0 < err.value.time - kept[7].t[-1] < 1e-3  # the partial run: logged to there
+    for a, b in zip([r for r in kept if r.success], alone, strict=True):
+        _close(a.X, b.X)
+    rows = S.simulate_many(sc, "pd", seeds=seeds, lanes=lanes, workers=1, diverged="keep",
+                           keep="metrics")  # fmt: skip
+    assert rows[7]["diverged_at"] == err.value.time and rows[7]["message"].startswith("seed 7")
+    assert [r["seed"] for r in rows] == seeds and "rmse" in rows[6]
+    with pytest.raises(ValueError, match="^diverged = 'skip': must be 'raise' or 'keep'$"):
+        S.simulate_many(sc, "pd", seeds=seeds, diverged="skip")
+
+
 @pytest.mark.parametrize("lanes", [0, 65, 2.5])
 def test_simulate_many_refuses_bad_lane_counts(lanes):
     with pytest.raises(ValueError, match="lanes"):

@@ -671,6 +671,7 @@ def simulate_many(
     workers: int | None = None,
     keep: str = "results",
     lanes: int | None = None,
+    diverged: str = "raise",
 ) -> list:
     """Run one scenario for several disturbance seeds, in SIMD lanes and parallel threads.
 
@@ -681,7 +682,12 @@ def simulate_many(
     time, :func:`~pkmctl.sim.lanes.lane_batches`); the compiled loop releases the GIL, so
     ``workers`` threads (default: the number of cores) run batches side by side. Results
     come back in the order of ``seeds``, each what :func:`simulate` gives for its seed;
-    the first failing run's error is raised.
+    the first failing run's error is raised. A run that diverges stops alone (its lane),
+    and ``diverged`` says what then: ``"raise"`` raises its
+    :class:`~pkmctl.errors.SimulationDiverged`, which names the seed (``.seed``) and
+    holds the partial result; ``"keep"`` puts in its place the partial
+    :class:`Result` (``success`` False, ``message`` why), or with ``keep="metrics"``
+    ``{"seed": s, "diverged_at": t, "message": why}``, and returns every run.
 
     ``keep="results"`` returns the :class:`Result` of every run. ``keep="metrics"``
     returns ``{"seed": s, **metrics.summary(result, source="loop")}`` per run instead:
@@ -699,6 +705,8 @@ def simulate_many(
 
     if keep not in ("results", "metrics"):
         raise ValueError(f"keep = {keep!r}: must be 'results' or 'metrics'")
+    if diverged not in ("raise", "keep"):
+        raise ValueError(f"diverged = {diverged!r}: must be 'raise' or 'keep'")
     if isinstance(seeds, (int, np.integer, str, bytes)) or not hasattr(seeds, "__iter__"):
         raise TypeError(f"seeds = {seeds!r}: must be a list of integers, e.g. range(5)")
     seeds = list(seeds)
@@ -735,20 +743,39 @@ def simulate_many(
     def batch(chunk: list) -> list:
         bufs = buffers(len(chunk)) if keep == "metrics" else None
         if len(chunk) == 1:
-            out = [run_prepared(prep, parts, chunk[0], None if bufs is None else bufs[0])]
+            try:
+                out = [run_prepared(prep, parts, chunk[0], None if bufs is None else bufs[0])]
+            except SimulationDiverged as exc:
+                out = [exc]
         else:
             out = run_prepared_lanes(prep, parts, chunk, bufs)
-            for r in out:
-                if isinstance(r, Exception):
+        for i, (s, r) in enumerate(zip(chunk, out, strict=True)):
+            if isinstance(r, SimulationDiverged):
+                r = _seeded(r, int(s))
+                if diverged == "raise":
                     raise r
-        if keep == "results":
-            return out
-        return [
-            {"seed": int(s), **summary(r, source="loop")} for s, r in zip(chunk, out, strict=True)
-        ]
+                out[i] = (
+                    r.partial
+                    if keep == "results"
+                    else {"seed": int(s), "diverged_at": r.time, "message": str(r)}
+                )
+            elif isinstance(r, Exception):
+                raise r
+            elif keep == "metrics":
+                out[i] = {"seed": int(s), **summary(r, source="loop")}
+        return out
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
         return [r for rs in pool.map(batch, chunks) for r in rs]
+
+
+def _seeded(exc: SimulationDiverged, seed: int) -> SimulationDiverged:
+    """``exc`` saying which of simulate_many's seeds diverged (``.seed``)."""
+    out = SimulationDiverged(f"seed {seed}: {exc}", time=exc.time, state=exc.state,
+                             partial=exc.partial)  # fmt: skip
+    out.seed = seed
+    out.__cause__ = exc.__cause__
+    return out
 
 
 def _check_many(sc: Scenario, parts: dict[str, Part], keep: str, runs: int, live: int) -> None:
