@@ -97,6 +97,66 @@ def test_registration_errors_are_one_line():
         pkmctl.simulate("paper", controller="nope", duration=0.01)
 
 
+class _Zero(NamedTuple):
+    k: float
+
+
+def test_a_refused_registration_registers_nothing():
+    """A typo in ``lanes=`` was refused, but the part stayed registered and ran, and the
+    corrected registration was then refused as "already registered"."""
+    from pkmctl.parts import names
+
+    def zero(p, state, work, y, ref, F):
+        for i in range(3):
+            F[i] = 0.0
+
+    def zero_lanes(p, state, work, y, ref, F):
+        for i in range(3):
+            for lane in range(F.shape[1]):
+                F[i, lane] = 0.0
+
+    def register(**lanes):
+        return pkmctl.register_controller("x-zero", params=_Zero, build=lambda c: _Zero(1.0),
+                                          **lanes)(zero)  # fmt: skip
+
+    before = names("controller")
+    with pytest.raises(PartError, match="'stepp'"):
+        register(lanes={"stepp": zero_lanes}, lane_work=lambda p, n: ())
+    with pytest.raises(PartError, match="lane_work"):
+        register(lanes={"step": zero_lanes})
+    assert names("controller") == before
+    with pytest.raises(PartError, match="controller = 'x-zero': must be one of"):
+        pkmctl.simulate("paper", controller="x-zero", duration=0.01)
+    register(lanes={"step": zero_lanes}, lane_work=lambda p, n: ())  # the corrected one
+    assert "x-zero" in names("controller")
+
+
+class _Log(NamedTuple):
+    k: float
+
+
+def test_wiring_mistakes_are_refused_at_registration():
+    """``log`` without ``log_size`` was never called; ``log_size`` without ``log`` gave an
+    all-zero array in ``result.logs`` that looked like data; an initial state given as an
+    array failed only at run time."""
+
+    def law(p, state, work, y, ref, F):
+        pass
+
+    def log(p, state, row):
+        row[0] = 1.0
+
+    for options, message in (
+        ({"log": log}, "a log function needs log_size = m"),
+        ({"log_size": 3}, "log_size = 3 needs a log function"),
+        ({"state_size": 2, "initial_state": np.ones(2)},  # failed at run time: not callable
+         r"initial_state = array\(\[1., 1.\]\): must be a function of the bundle"),
+    ):  # fmt: skip
+        with pytest.raises(PartError, match=f"^controller 'x-log': {message}"):
+            pkmctl.register_controller("x-log", params=_Log, build=lambda c: _Log(1.0),
+                                       **options)(law)  # fmt: skip
+
+
 @pytest.mark.parametrize("controller", ["smc", "fsmc", "afsmc", "afsmc-ext", "pd", "ctc"])
 def test_the_limb_jacobian_a_controller_leaves_is_the_actuators(controller):
     """The contract behind sharing it (parts.py): after each step, the work entry the

@@ -349,7 +349,23 @@ def _source_stamp(functions: dict[str, Callable]) -> tuple | None:
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
 
-def _register(
+def _register(kind: str, name: str, functions: dict[str, Callable], **options) -> Part:
+    """:func:`_register_part`, all or nothing: a registration refused (a PartError of its
+    lane form, say, checked after the part itself) leaves the registries as they were,
+    where it had left the part registered and runnable, and a corrected registration
+    refused as "already registered"."""
+    saved = [(r, dict(r)) for r in (*_REGISTRY.values(), _BY_TYPE, _STAMPS, _LANE_CLASSES,
+                                    _BY_LANE_TYPE)]  # fmt: skip
+    try:
+        return _register_part(kind, name, functions, **options)
+    except BaseException:
+        for registry, before in saved:
+            registry.clear()
+            registry.update(before)
+        raise
+
+
+def _register_part(
     kind: str,
     name: str,
     functions: dict[str, Callable],
@@ -408,6 +424,11 @@ def _register(
         raise PartError(
             f"{kind} {name!r}: give build=... or a classmethod {params.__name__}.from_context(ctx)"
         )
+    if initial_state is not None and not callable(initial_state):
+        raise PartError(
+            f"{kind} {name!r}: initial_state = {initial_state!r:.60}: must be a function of "
+            "the bundle giving the state array (e.g. lambda p: np.zeros(n))"
+        )
     if stepper is not None and kind != "plant":
         raise PartError(f"{kind} {name!r}: only a plant can have a stepper")
     if limits is not None and (kind != "actuator" or not callable(limits)):
@@ -456,6 +477,17 @@ def _register(
     sources.discard("")
     if continuous and "derivative" not in functions:
         raise PartError(f"{kind} {name!r}: continuous = {continuous} needs a derivative function")
+    if ("log" in functions) != (log_size != 0):
+        # a log function without log_size was never called; log_size without one logged
+        # zeros that looked like data
+        raise PartError(
+            f"{kind} {name!r}: "
+            + (
+                "a log function needs log_size = m (the columns it writes per row)"
+                if "log" in functions
+                else f"log_size = {log_size!r} needs a log function (log=..., (p, state, row))"
+            )
+        )
     part = Part(
         kind=kind,
         name=name,
@@ -783,7 +815,7 @@ def _others(kind: str, main_role: str) -> str:
 def _decorator(kind: str, main_role: str):
     def register(name: str, *, params: type, build: Callable | None = None, **options):
         extra = {r: options.pop(r) for r in list(options) if r in ROLES[kind]}
-        allowed = set(inspect.signature(_register).parameters) - {"kind", "name", "functions"}
+        allowed = set(inspect.signature(_register_part).parameters) - {"kind", "name", "functions"}
         unknown = sorted(set(options) - allowed)
         if unknown:  # (a TypeError naming _register, an internal function, before)
             raise PartError(
