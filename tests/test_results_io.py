@@ -182,3 +182,41 @@ def test_a_csv_loads_in_about_its_own_size_of_memory(runs, tmp_path):
     finally:
         tracemalloc.stop()
     assert peak < 3 * size, (peak, size)
+
+
+def test_a_wrong_file_or_stem_is_one_line_naming_it(runs, tmp_path):
+    """The table's path in place of the JSON's was a UnicodeDecodeError; a stem with a
+    folder wrote outside the folder given; an object not a Result an AttributeError."""
+    r = next(iter(runs.values()))
+    table, meta = save_result(r, tmp_path)
+    with pytest.raises(ValueError) as err:
+        load_result(table)
+    assert str(err.value) == (
+        f"{table}: not the JSON file save_result writes beside a result's table: give "
+        f"{meta}, written beside it"
+    )
+    for stem in ("../escaped", "sub/x", ".."):
+        with pytest.raises(ValueError, match=f"^stem = {stem!r}: must be a file name"):
+            save_result(r, tmp_path / "in", stem)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([table.name, meta.name])
+    with pytest.raises(TypeError, match="^result = 'pd': must be a pkmctl Result"):
+        save_result("pd", tmp_path)
+
+
+def test_a_result_of_a_part_not_imported_names_its_file_and_the_import(runs, tmp_path):
+    """In a new process that has not imported the module of a part the run used, the
+    error named neither the file nor what to do from Python."""
+    from pkmctl.sim.scenario import ScenarioError
+
+    r = next(iter(runs.values()))
+    _, meta = save_result(r, tmp_path)
+    data = json.loads(meta.read_text())
+    data["scenario_toml"] = data["scenario_toml"].replace(
+        '[sensor]\nkind = "ideal"', '[sensor]\nkind = "quantised-pose"', 1
+    )
+    assert "quantised-pose" in data["scenario_toml"]
+    meta.write_text(json.dumps(data))
+    with pytest.raises(ScenarioError) as err:
+        load_result(meta)
+    msg = str(err.value)
+    assert msg.startswith(f"{meta}: its scenario: sensor.kind") and "in Python, import it" in msg

@@ -43,7 +43,7 @@ import numpy as np
 from pkmctl.io.atomic import atomic_files, atomic_write
 from pkmctl.sim import metrics
 from pkmctl.sim.result import Result
-from pkmctl.sim.scenario import Scenario
+from pkmctl.sim.scenario import Scenario, ScenarioError
 
 __all__ = ["atomic_write", "load_result", "save_result"]
 
@@ -109,6 +109,12 @@ def save_result(
     """
     if fmt not in FORMATS:
         raise ValueError(f"fmt = {fmt!r}: must be one of {', '.join(FORMATS)}")
+    if not isinstance(result, Result):
+        raise TypeError(f"result = {result!r:.60}: must be a pkmctl Result (of simulate)")
+    if stem is not None and (
+        not isinstance(stem, str) or stem in (".", "..") or Path(stem).name != stem or "\\" in stem
+    ):  # "../x" wrote outside ``directory``
+        raise ValueError(f"stem = {stem!r}: must be a file name, without a folder")
     directory = Path(directory)
     stem = stem or result.controller
     names, columns = _columns(result)
@@ -232,7 +238,20 @@ def _scenario(meta: dict) -> Scenario:
 def load_result(json_path: Path) -> Result:
     """Read a result written by :func:`save_result` (give the ``.json`` path)."""
     json_path = Path(json_path)
-    meta = json.loads(json_path.read_text(encoding="utf-8"))
+    try:
+        meta = json.loads(json_path.read_text(encoding="utf-8"))
+        if not isinstance(meta, dict):
+            raise ValueError
+    except (UnicodeDecodeError, ValueError):  # (json.JSONDecodeError is a ValueError)
+        beside = json_path.with_suffix(".json")
+        hint = (
+            f": give {beside}, written beside it"
+            if beside != json_path and beside.is_file()
+            else ""
+        )
+        raise ValueError(
+            f"{json_path}: not the JSON file save_result writes beside a result's table{hint}"
+        ) from None
     if meta.get("format_version") != FORMAT_VERSION:
         raise ValueError(f"{json_path}: unsupported format_version {meta.get('format_version')}")
     names = meta["columns"]
@@ -276,9 +295,13 @@ def load_result(json_path: Path) -> Result:
             col += 3
     theta = data[:, col:] if col < data.shape[1] else None
     lm = meta.get("loop_metrics")
+    try:
+        scenario = _scenario(meta)
+    except ScenarioError as exc:  # which file: a part not imported, or an edited JSON
+        raise ScenarioError(f"{json_path}: its scenario: {exc}") from None
     return Result(
         loop_metrics=None if lm is None else metrics.LoopMetrics.from_dict(lm),
-        scenario=_scenario(meta),
+        scenario=scenario,
         controller=meta["controller"],
         theta_hat=theta,
         success=meta["success"],

@@ -433,7 +433,8 @@ def _check_kind(kind: str, name: str) -> str:
     if name not in known:
         raise ValueError(
             f"{name!r}: unknown {kind} (registered: {', '.join(known)}; a part of your own "
-            "is registered by importing its module: pkmctl --plugin FILE.py COMMAND)"
+            "is registered by importing its module: in Python, import it first; on the "
+            "command line, pkmctl --plugin FILE.py COMMAND)"
         )
     return name
 
