@@ -215,6 +215,21 @@ def test_simulate_many_refuses_bad_lane_counts(lanes):
         S.simulate_many("paper", "pd", seeds=[1], duration=DURATION, lanes=lanes)
 
 
+def test_arguments_are_checked_alike():
+    """NumPy integers are taken for lanes and workers as for seeds; workers=2.5 and
+    duration="0.1" (which the scenario itself refuses) were taken; progress=5 was a bare
+    TypeError from inside the run."""
+    one = S.simulate_many("paper", "pd", seeds=[1, 2], duration=0.01, lanes=np.int64(2),
+                          workers=np.int64(1))  # fmt: skip
+    assert len(one) == 2
+    with pytest.raises(ValueError, match=r"^workers = 2.5: must be an integer >= 1$"):
+        S.simulate_many("paper", "pd", seeds=[1], duration=0.01, workers=2.5)
+    with pytest.raises(TypeError, match=r"^duration = '0.1': must be a number of seconds$"):
+        S.simulate_many("paper", "pd", seeds=[1], duration="0.1")
+    with pytest.raises(TypeError, match=r"^progress = 5: must be a function"):
+        S.simulate("paper", "pd", duration=0.01, progress=5)
+
+
 CAMPAIGN = """
 name = "lanes"
 scenario = "paper"

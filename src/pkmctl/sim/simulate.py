@@ -307,6 +307,11 @@ def _chunk(scenario: Scenario, plant: Mechanism, k0: int, k1: int):
 
 def _resolve(scenario: Scenario | str, duration: float | None) -> Scenario:
     """The scenario (a built-in's name or a Scenario) with ``duration`` if given."""
+    if duration is not None and (
+        isinstance(duration, bool)
+        or not isinstance(duration, int | float | np.integer | np.floating)
+    ):  # float("0.1") took a string the scenario itself refuses
+        raise TypeError(f"duration = {duration!r}: must be a number of seconds")
     if isinstance(scenario, str):
         return Scenario.builtin(scenario, None if duration is None else float(duration))
     if not isinstance(scenario, Scenario):
@@ -419,6 +424,8 @@ def simulate(
     ``logging.every`` > 1 periods), or every :data:`pkmctl.sim.stepped.PROGRESS_PERIODS`
     for a plant stepped from Python (MuJoCo's).
     """
+    if progress is not None and not callable(progress):
+        raise TypeError(f"progress = {progress!r:.60}: must be a function (done, total) or None")
     scenario = _resolve(scenario, duration)
     parts = resolve_parts(scenario, controller)
     prep = prepare(scenario, None, log_columns(scenario, parts))
@@ -711,12 +718,12 @@ def simulate_many(
         raise TypeError(f"seeds = {seeds!r}: must be a list of integers, e.g. range(5)")
     seeds = list(seeds)
     workers = (os.cpu_count() or 1) if workers is None else workers
-    if workers < 1:
-        raise ValueError(f"workers = {workers}: must be >= 1")
-    if lanes is not None and not (
-        isinstance(lanes, int) and not isinstance(lanes, bool) and 1 <= lanes <= 64
-    ):
+    if not (_is_int(workers) and workers >= 1):
+        raise ValueError(f"workers = {workers!r}: must be an integer >= 1")
+    if lanes is not None and not (_is_int(lanes) and 1 <= lanes <= 64):
         raise ValueError(f"lanes = {lanes!r}: must be an integer in [1, 64]")
+    lanes = None if lanes is None else int(lanes)
+    workers = int(workers)
     sc = _resolve(scenario, duration)
     if keep == "metrics":  # the metrics alone: no log
         sc = metrics_only(sc)
@@ -767,6 +774,11 @@ def simulate_many(
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
         return [r for rs in pool.map(batch, chunks) for r in rs]
+
+
+def _is_int(v) -> bool:
+    """An integer, Python's or NumPy's (as seeds may be), not a bool."""
+    return isinstance(v, int | np.integer) and not isinstance(v, bool)
 
 
 def _seeded(exc: SimulationDiverged, seed: int) -> SimulationDiverged:
