@@ -135,6 +135,24 @@ class _Log(NamedTuple):
     k: float
 
 
+class _Listed(NamedTuple):
+    gains: list
+
+
+def test_a_bundle_field_compiled_code_cannot_take_is_named():
+    """A list in the bundle failed to compile the loop with Numba's "NRT required but not
+    enabled", naming no field."""
+
+    @pkmctl.register_controller("x-listed", params=_Listed, build=lambda c: _Listed([1.0, 2.0]))
+    def listed(p, state, work, y, ref, F):
+        for i in range(3):
+            F[i] = p.gains[0]
+
+    with pytest.raises(PartError, match=r"^controller 'x-listed': its bundle's field 'gains' "
+                                        r"is a list; compiled code takes numbers"):  # fmt: skip
+        pkmctl.simulate("paper", controller="x-listed", duration=0.01)
+
+
 def test_wiring_mistakes_are_refused_at_registration():
     """``log`` without ``log_size`` was never called; ``log_size`` without ``log`` gave an
     all-zero array in ``result.logs`` that looked like data; an initial state given as an

@@ -213,6 +213,15 @@ class Part:
                 f"{self.kind} {self.name!r}: build returned {type(p).__name__}, "
                 f"expected {self.params.__name__}"
             )
+        for name, value in zip(p._fields, p, strict=True):
+            if not self.builtin and isinstance(value, list | dict | set | str | bytes):
+                # Numba took a list for a reflected list and failed to compile the loop
+                # with "NRT required but not enabled", naming no field
+                raise PartError(
+                    f"{self.kind} {self.name!r}: its bundle's field {name!r} is a "
+                    f"{type(value).__name__}; compiled code takes numbers, NumPy arrays "
+                    "and tuples (np.asarray(...) for a list)"
+                )
         return p
 
     def make(self, ctx: PartContext) -> tuple[Any, np.ndarray, np.ndarray]:
