@@ -212,9 +212,9 @@ def test_a_result_of_a_part_not_imported_names_its_file_and_the_import(runs, tmp
     _, meta = save_result(r, tmp_path)
     data = json.loads(meta.read_text())
     data["scenario_toml"] = data["scenario_toml"].replace(
-        '[sensor]\nkind = "ideal"', '[sensor]\nkind = "quantised-pose"', 1
+        '[sensor]\nkind = "ideal"', '[sensor]\nkind = "x-not-imported"', 1
     )
-    assert "quantised-pose" in data["scenario_toml"]
+    assert "x-not-imported" in data["scenario_toml"]
     meta.write_text(json.dumps(data))
     with pytest.raises(ScenarioError) as err:
         load_result(meta)
