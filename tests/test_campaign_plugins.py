@@ -201,6 +201,32 @@ def test_a_run_that_errs_says_why_in_the_command_and_the_report(tmp_path, monkey
     assert f"at payload.mass = 5; 1 error: {why}" in md, md
 
 
+SEED_ZERO = LAW.replace(
+    "        return cls(GAIN)",
+    "        if ctx.scenario.disturbance.seed == 0:\n"
+    "            raise ValueError('not seed 0')\n"
+    "        return cls(GAIN)",
+)
+
+
+def test_a_build_that_refuses_one_seed_is_that_runs_error_alone(tmp_path, monkeypatch):
+    """A task's first run whose build raised made every run of the task an error record
+    with its message (a tester: 8 of 8 for a build refusing seed 0), and --resume failed
+    them all again."""
+    monkeypatch.setenv(ENV, "")
+    plugin, name = _plugin(tmp_path, SEED_ZERO)
+    spec_file = _spec(tmp_path, [name], seeds=4)  # seeds 0-3, one task
+    out = tmp_path / "c"
+    res = runner.invoke(app, ["--plugin", str(plugin), "campaign", "run", str(spec_file),
+                              "--out", str(out), "--workers", "1"])  # fmt: skip
+    assert res.exit_code == 1, res.output
+    rows = sorted(read_records(out).to_pylist(), key=lambda r: r["seed"])
+    assert [r["status"] for r in rows] == ["error", "ok", "ok", "ok"]
+    assert "not seed 0" in rows[0]["message"]
+    alone = pkmctl.simulate(CampaignSpec.from_toml(spec_file).scenario(0), name, seed=2)
+    assert rows[2]["rmse_z_mm"] == pytest.approx(alone.rmse()["z_mm"], rel=1e-12)
+
+
 EXITS = LAW.replace(
     "        return cls(GAIN)",
     "        if ctx.scenario.payload.mass > 0:\n"

@@ -215,6 +215,27 @@ def test_simulate_many_refuses_bad_lane_counts(lanes):
         S.simulate_many("paper", "pd", seeds=[1], duration=DURATION, lanes=lanes)
 
 
+def test_a_lane_whose_parts_refuse_to_build_is_that_runs_error_alone(monkeypatch):
+    """A build that raised for one seed of a lane batch made every run of the batch an
+    error (a campaign stored all of them with its message); now that lane alone."""
+    from pkmctl.parts import PartError
+
+    set_up = S._set_up
+
+    def refusing(prep, parts, seed, *args):
+        if seed == 5:
+            raise PartError("controller 'pd': build failed: ValueError: not seed 5")
+        return set_up(prep, parts, seed, *args)
+
+    monkeypatch.setattr(S, "_set_up", refusing)
+    sc = S.Scenario.builtin("paper", DURATION)
+    prep, parts = S.prepare(sc, None), S.resolve_parts(sc, "pd")
+    out = S.run_prepared_lanes(prep, parts, [4, 5, 6, 7])
+    assert isinstance(out[1], PartError) and "not seed 5" in str(out[1])
+    for r, seed in zip([out[0], *out[2:]], [4, 6, 7], strict=True):
+        _close(r.X, S.simulate(sc, "pd", seed=seed).X)
+
+
 def test_arguments_are_checked_alike():
     """NumPy integers are taken for lanes and workers as for seeds; workers=2.5 and
     duration="0.1" (which the scenario itself refuses) were taken; progress=5 was a bare

@@ -73,18 +73,37 @@ def _metric_values(spec: CampaignSpec, summary: dict | None) -> dict:
     return out
 
 
-def _log_buffers(prep, parts, lanes: int):
+def _log_buffers(prep, parts, lanes: int, seeds: list):
     """Log arrays the runs of a task share (one cell, one controller), as the lanes of one
     stack: each batch overwrites the last one's logs, already measured, so only the first
-    batch touches fresh memory (as ``simulate_many(keep="metrics")``)."""
+    batch touches fresh memory (as ``simulate_many(keep="metrics")``). The controller's
+    log size is its bundle's for the first of ``seeds`` whose build does not raise; if
+    every one raises, a dict of each seed's exception is raised in a ``_Refused``."""
     from pkmctl.parts import PartContext
     from pkmctl.sim.loop import LogBuffers
+    from pkmctl.sim.simulate import _with_seed
 
-    sc = prep.scenario
-    ctx = PartContext(prep.plant, prep.model, prep.gains, sc.timing.control_period,
-                      prep.flc, sc)  # fmt: skip
     ctrl = parts["controller"]
-    return LogBuffers.stacked(lanes, prep.t.size, int(ctrl.log_size(ctrl.bundle(ctx))))
+    refused = {}
+    for seed in seeds:  # a build may refuse some seeds only: its runs record that alone
+        sc = _with_seed(prep.scenario, seed)
+        ctx = PartContext(prep.plant, prep.model, prep.gains, sc.timing.control_period,
+                          prep.flc, sc)  # fmt: skip
+        try:
+            n_log = int(ctrl.log_size(ctrl.bundle(ctx)))
+        except Exception as exc:  # noqa: BLE001 - that seed's run records it
+            refused[seed] = exc
+            continue
+        return LogBuffers.stacked(lanes, prep.t.size, n_log)
+    raise _Refused(refused)
+
+
+class _Refused(Exception):
+    """Every seed's build raised: ``errors`` maps each seed to its exception."""
+
+    def __init__(self, errors: dict) -> None:
+        super().__init__(next(iter(errors.values())) if errors else "no seeds")
+        self.errors = errors
 
 
 #: The last cells' prepared scenarios of this process, by (spec digest, cell).
@@ -162,7 +181,11 @@ def run_task(spec: CampaignSpec, task: Task, lanes: int | None = None) -> pa.Tab
             widest = max(len(c) for c in chunks)
             # builds the controller's bundle: a user's build that refuses this cell is
             # every run's error record, not the campaign's end
-            buffers = _log_buffers(prep, parts, padded_lanes(widest) if widest > 1 else 1)
+            buffers = _log_buffers(prep, parts, padded_lanes(widest) if widest > 1 else 1,
+                                   [r.seed for r in runs])  # fmt: skip
+        except _Refused as exc:  # every run's build raised: each records its own error
+            batches.append((runs, [(exc.errors[r.seed], math.nan) for r in runs]))
+            continue
         except Exception as exc:  # noqa: BLE001 - recorded; the campaign goes on
             batches.append((runs, [(exc, math.nan)] * len(runs)))
             continue

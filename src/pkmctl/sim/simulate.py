@@ -576,22 +576,30 @@ def run_prepared_lanes(
             except SimulationDiverged as exc:
                 out.append(exc)
         return out
-    runs = [_set_up(prep, parts, s, buffers is None) for s in seeds]
-    sc = runs[0].scenario
+    results: list[Result | Exception] = []
+    runs = []  # (index in seeds, its run): those whose parts built
+    for i, s in enumerate(seeds):
+        try:
+            runs.append((i, _set_up(prep, parts, s, buffers is None)))
+            results.append(None)
+        except PartError as exc:  # a build that refuses this seed: its own error, the
+            results.append(exc)  # others run (a campaign stored all with the first's)
+    if not runs:
+        return results
+    sc = runs[0][1].scenario
     outs = run_lanes(
         parts,
-        [r.bundles for r in runs],
+        [r.bundles for _, r in runs],
         period=sc.timing.control_period,
         substeps=sc.timing.substeps,
-        inputs=[r.inputs for r in runs],
+        inputs=[r.inputs for _, r in runs],
         buffers=buffers,
     )
-    results: list[Result | Exception] = []
-    for run, out in zip(runs, outs, strict=True):
+    for (i, run), out in zip(runs, outs, strict=True):
         try:
-            results.append(_result(prep, parts, run, out))
+            results[i] = _result(prep, parts, run, out)
         except SimulationDiverged as exc:
-            results.append(exc)
+            results[i] = exc
     return results
 
 
