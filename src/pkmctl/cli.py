@@ -938,7 +938,8 @@ def campaign_run(
                 f"about {_seconds((total - done) / rate)} left" if rate > 0 and done < total else ""
             )
             step = max(1, total // 10)  # a log (not a terminal) gets a line every 10 %
-            if not err_console.is_terminal and done // step > state["done"] // step:
+            # (not before a run of this session: a resume's start said "0.0 runs/s")
+            if not err_console.is_terminal and rate > 0 and done // step > state["done"] // step:
                 _say(f"{done}/{total} runs, {failures} not ok, {rate:.1f} runs/s"
                      + (f", {left}" if left else ""))  # fmt: skip
             state["done"] = done

@@ -365,7 +365,8 @@ def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: s
 
     Returns rows ``{"cell", "metric", "pairs", "baseline_mean", "controller_mean",
     "gain", "lo", "hi", "ratio", "ratio_lo", "ratio_hi", "win_rate", "ties", "better",
-    "controller_failed", "baseline_failed", "undefined", "controller_mean_all",
+    "controller_failed", "baseline_failed", "controller_diverged", "baseline_diverged",
+    "undefined", "not_run", "controller_mean_all",
     "controller_runs_all", "baseline_mean_all", "baseline_runs_all"}``:
     ``controller_mean`` and ``baseline_mean`` are the means over the pairs only (a
     cell where one of them has no run that ended ok adds nothing to either);
@@ -377,7 +378,9 @@ def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: s
     ``win_rate`` the share of pairs the controller wins, ``ties`` the pairs where both
     are equal, ``better`` one of ``"controller"``, ``"baseline"``, ``"unclear"`` (as
     :func:`paired_differences`), ``*_failed`` the runs of the cell(s) that did not end
-    ok, ``undefined`` the seeds where both did but the metric is not finite, and
+    ok, ``*_diverged`` those of them that diverged (the rest failed with an error),
+    ``undefined`` the seeds where both did but the metric is not finite, ``not_run``
+    the seeds where either has no record yet (an interrupted campaign), and
     ``*_mean_all`` / ``*_runs_all`` each one's mean over all its runs of the cell(s)
     that ended ok with a finite value, paired or not, and how many those are (the mean
     ``summary.csv`` gives per cell).
@@ -385,13 +388,18 @@ def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: s
     c = _columns(table, ["cell", "controller", "seed", "status", *metrics])
     ok = {}
     failed: dict[tuple[int, str], int] = {}
+    diverged: dict[tuple[int, str], int] = {}
+    seen = set()  # (cell, controller, seed) of every record: the others are not run yet
     for i, (cell, ctrl, seed, st) in enumerate(
         zip(c["cell"], c["controller"], c["seed"], c["status"], strict=True)
     ):
+        seen.add((int(cell), ctrl, int(seed)))
         if st == "ok":
             ok[(int(cell), ctrl, int(seed))] = i
         else:
             failed[(int(cell), ctrl)] = failed.get((int(cell), ctrl), 0) + 1
+            if st == "diverged":
+                diverged[(int(cell), ctrl)] = diverged.get((int(cell), ctrl), 0) + 1
     # the difference in the spec's order, as paired.csv has it: first - second
     order = {k: i for i, k in enumerate(spec.controllers)}
     first, second = sorted((controller, baseline), key=lambda k: order.get(k, len(order)))
@@ -438,7 +446,7 @@ def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: s
                     "pairs": int(d.size),
                     "baseline_mean": float(b.mean()) if d.size else math.nan,
                     "controller_mean": float(x.mean()) if d.size else math.nan,
-                    "gain": float(sign * canonical.mean()) if d.size else math.nan,
+                    "gain": float(sign * canonical.mean()) + 0.0 if d.size else math.nan,
                     "lo": lo,
                     "hi": hi,
                     "ratio": float(x.mean() / b.mean()) if d.size else math.nan,
@@ -449,7 +457,14 @@ def comparison(spec: CampaignSpec, table: pa.Table, controller: str, baseline: s
                     "better": {"a": "controller", "b": "baseline"}.get(verdict, "unclear"),
                     "controller_failed": sum(failed.get((k, controller), 0) for k in cells),
                     "baseline_failed": sum(failed.get((k, baseline), 0) for k in cells),
+                    "controller_diverged": sum(diverged.get((k, controller), 0) for k in cells),
+                    "baseline_diverged": sum(diverged.get((k, baseline), 0) for k in cells),
                     "undefined": sum(undefined[k] for k in cells),
+                    "not_run": sum(
+                        (k, controller, q) not in seen or (k, baseline, q) not in seen
+                        for k in cells
+                        for q in spec.seeds
+                    ),
                     "controller_mean_all": float(np.mean(mine)) if mine else math.nan,
                     "controller_runs_all": len(mine),
                     "baseline_mean_all": float(np.mean(theirs)) if theirs else math.nan,

@@ -58,11 +58,13 @@ def _level(x) -> str:
 
 
 def _full(x) -> str:
-    """A number for a CSV: every digit (the shortest text that reads back to it)."""
+    """A number for a CSV: every digit (the shortest text that reads back to it); an empty
+    field where there is none, so that a reader types the column as numbers ("n/a" made
+    DuckDB read it as text)."""
     if x is None:
-        return "none"
+        return ""
     if isinstance(x, float):
-        return "n/a" if not math.isfinite(x) else repr(x)
+        return "" if not math.isfinite(x) else repr(x)
     return str(x)
 
 
@@ -88,7 +90,13 @@ def _ratio(r: dict) -> str:
     fmt = "{:.3f}" if 0.9 < v < 1.1 else "{:.2g}"
     if not math.isfinite(r["ratio_lo"]):
         return fmt.format(v) + "×"
-    return f"{fmt.format(v)}× [{fmt.format(r['ratio_lo'])}, {fmt.format(r['ratio_hi'])}]"
+    lo, hi = r["ratio_lo"], r["ratio_hi"]
+    if fmt == "{:.3f}" and (lo > 1 or hi < 1):  # an interval off 1 must not read [1.000, ...]
+        for d in range(3, 10):
+            fmt = f"{{:.{d}f}}"
+            if (float(fmt.format(lo)) > 1) if lo > 1 else (float(fmt.format(hi)) < 1):
+                break
+    return f"{fmt.format(v)}× [{fmt.format(lo)}, {fmt.format(hi)}]"
 
 
 _MARK = {"controller": "better", "baseline": "worse", "unclear": "cannot tell"}
@@ -115,12 +123,14 @@ def comparison_lines(spec: CampaignSpec, rows: list[dict], q, metrics: list[str]
         for m in metrics:
             r = mine[m]
             fail = ""
-            if r["controller_failed"] or r["baseline_failed"]:
-                fail = f"; failed {r['controller_failed']}/{r['baseline_failed']}"
+            if r["controller_failed"] or r["baseline_failed"]:  # ("failed 16/16" read as
+                # 16 of 16, and took divergences, a result, for failures)
+                fail = (f"; runs not ok: {q.controller} {r['controller_failed']}, "
+                        f"{q.baseline} {r['baseline_failed']}")  # fmt: skip
             mark = _MARK[r["better"]]
             if r["better"] == "unclear" and r["pairs"] < stats.MIN_PAIRS:
                 # a tight interval beside "cannot tell" reads as a contradiction
-                mark = f"no verdict ({r['pairs']} pairs < {stats.MIN_PAIRS})"
+                mark = f"no verdict ({_n(r['pairs'], 'pair')} < {stats.MIN_PAIRS})"
             entries.append(f"{_ratio(r)} {mark}{fail}")
         out.append(f"| {_cell_name(spec, cell)} | " + " | ".join(entries) + " |")
     return [*short_answer(spec, rows, q, metrics), "", *out]
@@ -204,10 +214,29 @@ def short_answer(spec: CampaignSpec, rows: list[dict], q, metrics: list[str]) ->
     ]  # fmt: skip
     for r in failed:
         out.append(
-            f"- at {_cell_name(spec, r['cell'])}: {r['controller_failed']} {q.controller} and "
-            f"{r['baseline_failed']} {q.baseline} runs did not end ok (not in the pairs)."
+            f"- at {_cell_name(spec, r['cell'])}: "
+            f"{_not_ok(r, 'controller', q.controller)}; {_not_ok(r, 'baseline', q.baseline)}"
+            " (not in the pairs)."
         )
     return out
+
+
+def _not_ok(r: dict, side: str, who: str) -> str:
+    """How ``who``'s runs of a comparison row that did not end ok did not: diverged (a
+    result: the controller's) or failed with an error (not a result)."""
+    n, div = r[f"{side}_failed"], r.get(f"{side}_diverged", 0)
+    if not n:
+        return f"every {who} run ended ok"
+    if div == n:
+        return f"{_n(n, f'{who} run')} diverged"
+    if not div:
+        return f"{_n(n, f'{who} run')} failed with an error"
+    return f"{_n(n, f'{who} run')} did not end ok ({div} diverged, {n - div} failed with an error)"
+
+
+def _n(count: int, noun: str) -> str:
+    """``1 seed``, ``2 seeds``."""
+    return f"{count} {noun}{'s' * (count != 1)}"
 
 
 def _write_csv(path: Path, rows: list[dict]) -> None:
@@ -328,9 +357,15 @@ def _few(unclear: list[dict]) -> str:
         return ""
     many = "all" if len(short) == len(unclear) else f"{len(short)} of them"
     why = []
-    failed = sum(_failed(r) > 0 for r in short)
-    if failed:
-        why.append(f"in {failed} of them, runs that did not end ok took pairs away, listed below")
+    lost = [r for r in short if _failed(r) > 0]
+    if lost:
+        div = sum(r.get("controller_diverged", 0) + r.get("baseline_diverged", 0) for r in lost)
+        how = (
+            "that diverged" if div == sum(map(_failed, lost))
+            else "that failed with an error" if "controller_diverged" in lost[0] and not div
+            else "that did not end ok"
+        )  # fmt: skip
+        why.append(f"in {len(lost)} of them, runs {how} took pairs away, listed below")
     undefined = sum(r.get("undefined", 0) > 0 for r in short)
     if undefined:
         why.append(f"in {undefined} of them, the metric is not finite in runs that ended ok")
@@ -428,7 +463,7 @@ def _answer_header(spec: CampaignSpec, table) -> str:
     return (
         f"Campaign {spec.name!r} ({spec.digest}): {table.num_rows} of {spec.n_runs} runs "
         f"recorded, {ok} ended ok; {len(spec.cells)} cells ({spec.design}{centre}), "
-        f"{len(spec.seeds)} seeds, {_each(spec)}.\n\n"
+        f"{_n(len(spec.seeds), 'seed')}, {_each(spec)}.\n\n"
     )
 
 
@@ -466,7 +501,7 @@ def write_report(out: str | Path, cancel=None) -> list[Path]:
         "",
         f"{table.num_rows} of {spec.n_runs} runs recorded: {len(spec.cells)} cells x "
         f"{len(spec.controllers)} controllers ({', '.join(spec.controllers)}) x "
-        f"{len(spec.seeds)} seeds, {_each(spec)}, base scenario "
+        f"{_n(len(spec.seeds), 'seed')}, {_each(spec)}, base scenario "
         f"{spec.base.name!r}. Factors: "
         + (", ".join(spec.factors) if spec.factors else "none")
         + ".",
