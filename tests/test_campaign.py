@@ -1546,3 +1546,21 @@ def test_a_fis_factor_off_zero_at_rest_gets_one_note_if_a_fuzzy_controller_runs(
         spec.write_text(HEAD.replace('["smc"]', controllers) + factor)
         notes = CampaignSpec.from_toml(spec).fuzzy_offset_notes()
         assert len(notes) == count and all("tip.fis" in n for n in notes), notes
+
+
+def test_the_time_estimate_counts_each_runs_loop():
+    """The estimate took the task size's 5 us a period for every run: paper-claims read
+    5.0 min on 2 workers and took 55 s. Now a run in lanes, alone, or on a plant stepped
+    from Python (MuJoCo's) costs what ESTIMATE_PERIOD says for its loop."""
+    from pkmctl.campaign.spec import SECONDS_PER_RUN
+    from pkmctl.campaign.store import ESTIMATE_PERIOD, estimate_seconds
+    from pkmctl.sim.lanes import lane_count
+
+    kinds = '[factors."plant.kind"]\nvalues = ["rigid", "mujoco"]\n'
+    spec = CampaignSpec.from_toml(HEAD.replace('["smc"]', '["pd"]') + kinds)
+    periods = round(0.05 / spec.base.timing.control_period)
+    lanes = ESTIMATE_PERIOD["lanes"] * 8 / min(8, lane_count())
+    assert estimate_seconds(spec, [(0, "pd")]) == pytest.approx(periods * lanes + SECONDS_PER_RUN)
+    stepped = periods * ESTIMATE_PERIOD["stepped"] + SECONDS_PER_RUN
+    assert estimate_seconds(spec, [(1, "pd")] * 3) == pytest.approx(3 * stepped)
+    assert estimate_seconds(spec) == pytest.approx(estimate_seconds(spec, [(0, "pd"), (1, "pd")]))

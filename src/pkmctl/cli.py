@@ -809,16 +809,17 @@ def _campaign_handle(ctx: typer.Context, exc: BaseException, doing: str) -> NoRe
     _handle(ctx, exc)
 
 
-def _runs_left(spec, out: Path) -> int:
-    """The runs a ``--resume`` of the campaign in ``out`` will run (for the estimate only:
-    a folder the run refuses counts every run here; the run says why)."""
+def _runs_left(spec, out: Path) -> list[tuple[int, str]]:
+    """The runs (cell, controller) a ``--resume`` of the campaign in ``out`` will run (for
+    the estimate only: a folder the run refuses counts every run here; the run says why)."""
     from pkmctl.campaign.execute import task_states
 
     try:
         tasks, done, erred = task_states(spec, out)
     except Exception:  # noqa: BLE001 - the run says what is wrong, in its own words
-        return spec.n_runs
-    return sum(len(t.runs) for t in tasks if t.index not in done or t.index in erred)
+        tasks, done, erred = spec.tasks(), set(), set()
+    return [(r.cell, r.controller) for t in tasks if t.index not in done or t.index in erred
+            for r in t.runs]  # fmt: skip
 
 
 def _n(count: int, noun: str) -> str:
@@ -901,8 +902,11 @@ def campaign_run(
         if scheduler
         else f"{n_workers} local worker" + "s" * (n_workers > 1)
     )
-    left = _runs_left(spec, out) if resume and existed else spec.n_runs
-    work = left * spec.run_seconds()
+    from pkmctl.campaign.store import estimate_seconds
+
+    runs = _runs_left(spec, out) if resume and existed else None
+    left = spec.n_runs if runs is None else len(runs)
+    work = estimate_seconds(spec, runs)
     estimate = (
         f"{_seconds(work)} of runs on one core (divide by the cluster's cores)"
         if scheduler
@@ -1057,7 +1061,9 @@ def campaign_show(
         _to_stdout(spec.text if spec.text.endswith("\n") else spec.text + "\n", "the spec")
     except OSError as exc:
         _handle(ctx, exc)
-    work = spec.n_runs * spec.run_seconds()
+    from pkmctl.campaign.store import estimate_seconds
+
+    work = estimate_seconds(spec)
     cores = os.cpu_count() or 1
     _say(
         f"campaign {spec.name!r} ({spec.digest}): {_n(spec.n_runs, 'run')} = "

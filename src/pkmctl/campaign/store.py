@@ -37,6 +37,7 @@ import pyarrow.parquet as pq
 from pkmctl.campaign.spec import (
     LEGACY_TASK_MULTIPLE,
     LEGACY_TASK_SECONDS,
+    SECONDS_PER_RUN,
     TASK_MULTIPLE,
     TASK_SECONDS,
     CampaignSpec,
@@ -161,8 +162,7 @@ def cell_parts(spec: CampaignSpec) -> dict[tuple[int, str], dict]:
 
     first: dict[str, int] = {}
     for i, cell in enumerate(spec.cells):
-        machine = {f: v for f, v in cell.items() if f.split(".")[0] in _MACHINE}
-        first.setdefault(json.dumps(machine, sort_keys=True, default=str), i)
+        first.setdefault(machine_key(cell), i)
     out = {}
     for i in first.values():
         sc = spec.scenario(i)
@@ -173,6 +173,47 @@ def cell_parts(spec: CampaignSpec) -> dict[tuple[int, str], dict]:
 
 #: The scenario sections that choose a run's plant, sensor and actuator.
 _MACHINE = ("plant", "sensor", "actuators")
+
+
+def machine_key(cell: dict) -> str:
+    """What of a cell chooses its parts: cells of one key run the same parts."""
+    machine = {f: v for f, v in cell.items() if f.split(".")[0] in _MACHINE}
+    return json.dumps(machine, sort_keys=True, default=str)
+
+
+#: The time estimate's cost of one control period of one run (s), measured on the shared
+#: 2-core Zen 4 development machine (2026-12-07, `paper`): in SIMD lanes (8 there: 0.38-0.59
+#: us by controller; fewer lanes cost more, 8 / L times), one run alone (PD 1.2, SMC 1.3,
+#: AFSMC 1.7 us) and with a plant stepped from Python (MuJoCo's: 64-73 us). The estimate
+#: alone: the tasks' size keeps spec.SECONDS_PER_PERIOD, which a resume must find again.
+ESTIMATE_PERIOD = {"lanes": 0.6e-6, "single": 2e-6, "stepped": 70e-6}
+
+
+def estimate_seconds(spec: CampaignSpec, runs=None) -> float:
+    """Estimated seconds of work of ``runs`` (default: all the campaign's) on one core of
+    a machine like ours, unloaded: each run's periods at :data:`ESTIMATE_PERIOD` of its
+    loop, plus :data:`SECONDS_PER_RUN`."""
+    from pkmctl.sim.lanes import lane_count, lanes_supported
+
+    parts = {(machine_key(spec.cells[i]), c): p for (i, c), p in cell_parts(spec).items()}
+    durations = spec.durations()
+    per = {}
+    for key, p in parts.items():
+        if p["plant"].stepper is not None:
+            per[key] = ESTIMATE_PERIOD["stepped"]
+        elif lanes_supported(p):
+            per[key] = ESTIMATE_PERIOD["lanes"] * 8 / max(1, min(8, lane_count()))
+        else:
+            per[key] = ESTIMATE_PERIOD["single"]
+    if runs is None:
+        runs = [(cell, c) for cell in range(len(spec.cells)) for c in spec.controllers
+                for _ in spec.seeds]  # fmt: skip
+    total = 0.0
+    for cell, c in runs:
+        period = float(spec.cells[cell].get("timing.control_period",
+                                            spec.base.timing.control_period))  # fmt: skip
+        total += per[(machine_key(spec.cells[cell]), c)] * durations[cell] / period
+    return total + SECONDS_PER_RUN * len(runs)
 
 
 def _part_files(part) -> list[str]:
