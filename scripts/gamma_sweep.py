@@ -51,6 +51,8 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--duration", type=float, default=10.0)
     args = ap.parse_args()
+    if not args.duration > 1.0:  # the table's errors are after 1 s (a traceback before)
+        ap.error(f"--duration = {args.duration:g}: must be > 1 s (the errors after 1 s)")
     rows = sweep(args.duration)
     print(
         "| gamma | z mm (t>1s) | alpha deg (t>1s) | beta deg (t>1s) | beta deg (all) "

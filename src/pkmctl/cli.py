@@ -864,7 +864,7 @@ def campaign_run(
         typer.Option(help="Complete the interrupted campaign in OUT (the same spec).", metavar=""),
     ] = False,
 ) -> None:
-    """Run a campaign: every cell x controller x seed of SPEC_FILE.
+    """Run a campaign: every cell x controller x seed of SPEC.
 
     Records go to OUT/runs as tasks finish, so an interrupted campaign keeps what it did
     and --resume completes it.
