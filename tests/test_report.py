@@ -446,3 +446,26 @@ def test_symlog_box_axes_put_no_decade_tick_inside_their_linear_part(reach, lin)
                            for t in outside)  # fmt: skip
     labels = [ax.yaxis.get_major_formatter()(t) for t in ticks]
     assert "0" in labels and not any("-" in s for s in labels)  # minus signs, not hyphens
+
+
+@pytest.mark.parametrize(
+    ("afsmc_scale", "verdict"),
+    [(1.0, "not smoother: the paper's finding"), (0.5, "smoother, as the paper finds")],
+)
+def test_the_report_says_who_chatters_and_whether_afsmc_is_smoother(
+    monkeypatch, afsmc_scale, verdict
+):
+    """The prototype's report ranked SMC first after 1 s without a word of its forces
+    ringing at 20 x FSMC's chattering index, and the paper's finding that AFSMC's forces
+    are smoother (its Figs. 24, 26) went unmentioned where ours were not (a tester)."""
+    from pkmctl.report import document
+
+    base = np.array([500.0, 3.6e3, 510.0, 3.7e3])
+    index = {"smc": np.array([500.0, 7.1e4, 500.0, 7.2e4]), "fsmc": base,
+             "afsmc": afsmc_scale * base, "pd": 1.1 * base, "ctc": 0.9 * base}  # fmt: skip
+    pairs = [(c, c) for c in index]  # the "result" is its name: the index is looked up
+    monkeypatch.setattr(document, "chattering_index", lambda r: index[r])
+    lines = document._chatter_sentences(pairs)
+    assert lines[0].startswith("- **SMC chatters**: its chattering index on τ2 7.1e+04 N/s "
+                               "and τ4 7.2e+04 N/s is 19.5 × the median")  # fmt: skip
+    assert len(lines) == 2 and verdict in lines[1]

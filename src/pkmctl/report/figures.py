@@ -240,7 +240,9 @@ def _plot_lines(
                 zorder=2.0 + 0.01 * z)  # fmt: skip
     if desired is not None:
         tw, yw = _thin(*_window(*desired, lo, hi))
-        ax.plot(tw, yw, **_DESIRED_STYLE)
+        # on top: dashed, it shows the curves under it (underneath, the force figures'
+        # bands hid it all but a stub)
+        ax.plot(tw, yw, **_DESIRED_STYLE, zorder=3.0)
     ax.grid(True, alpha=0.3)
 
 
