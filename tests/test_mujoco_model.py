@@ -265,3 +265,18 @@ def test_every_option_mujoco_models_is_the_closed_form_plants(robot):
         assert err <= 1e-9, err
     with pytest.raises(ValueError, match=r"payload_offset = .*: must be 3 finite numbers"):
         mj.build_mjcf(robot, payload_mass=1.0, payload_offset=(0.0, np.nan, 0.0))
+
+
+def test_each_limb_is_drawn_whole_over_the_workspace(robot, model):
+    """The drawn rod was 2 l2 long and the tube 2 l1: a limb longer than their 0.877 m sum,
+    as in half of the paper's run (up to 1.005 m), was drawn with a gap in it. Now the rod
+    reaches from the tip to 5 cm short of the far joint at home: whole up to 1.1 m, and
+    inside the limb at home."""
+    home = robot.inverse_kinematics(robot.home)
+    geoms = [model.geom(i) for i in range(model.ngeom)]
+    size = {t: sorted(2 * float(g.size[1]) for g in geoms if g.type[0] == t and g.size[1] > 0.1)
+            for t in (mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER)}  # fmt: skip
+    rods, tubes = size[mujoco.mjtGeom.mjGEOM_CAPSULE], size[mujoco.mjtGeom.mjGEOM_CYLINDER]
+    assert len(rods) == len(tubes) == 4
+    for rod, tube, q in zip(rods, tubes, home, strict=True):
+        assert rod + tube >= 1.1 and rod <= q - 0.049

@@ -185,6 +185,8 @@ def _rod(kind: str, length: float, radius: float) -> str:
 
 #: Geom attributes of a purely visual geom: no mass, no collision.
 _VISUAL = 'mass="0" contype="0" conaffinity="0" group="1"'
+#: How far short of the limb's far joint its drawn rod ends at home (m).
+ROD_SHORT = 0.05
 
 
 def build_mjcf(
@@ -286,6 +288,10 @@ def build_mjcf(
         n = i + 1
         lower, upper = theta[1 + i], theta[5 + i]
         l1, l2 = float(robot.l1[i]), float(robot.l2[i])
+        # the drawn rod reaches from the limb's tip to 5 cm short of its other joint at
+        # home: drawn 2 l2 long (its mass's extent), a limb longer than 2 (l1 + l2) =
+        # 0.877 m, as in half the paper's run, showed a gap between rod and tube
+        rod = max(2 * l2, float(q0[i]) - ROD_SHORT)
         actuators.append(f'<motor name="limb{n}" joint="slide{n}" gear="1"/>')
         if i in RPU_LIMBS:
             world += [
@@ -296,7 +302,7 @@ def build_mjcf(
                 f'  <body name="upper{n}" pos="0 0 {_f(q0[i])}">',
                 f'    <joint name="slide{n}" type="slide" axis="0 0 1"{slide_options}/>',
                 f"    {_inertial(upper, -l2)}",
-                f"    {_rod('capsule', -2 * l2, 0.012)}",
+                f"    {_rod('capsule', -rod, 0.012)}",
                 f'    <site name="tip{n}"/>',
                 "  </body>",
                 "</body>",
@@ -308,7 +314,7 @@ def build_mjcf(
                 f'<body name="upper{n}" pos="{_f(*a[i])}" quat="{_quat(R.T @ frames[i])}">',
                 f'  <joint name="top{n}" type="hinge" axis="1 0 0"/>',
                 f"  {_inertial(upper, -l2)}",
-                f"  {_rod('capsule', -2 * l2, 0.012)}",
+                f"  {_rod('capsule', -rod, 0.012)}",
                 f'  <body name="lower{n}" pos="0 0 {_f(-q0[i])}">',
                 f'    <joint name="slide{n}" type="slide" axis="0 0 -1"{slide_options}/>',
                 f"    {_inertial(lower, l1)}",
