@@ -246,6 +246,18 @@ def _plot_lines(
     ax.grid(True, alpha=0.3)
 
 
+def _legend_above(ax: Axes) -> None:
+    """The legend in one row over a band of headroom added above the curves: placed
+    "best" inside, it covered the last second of every curve (Figs. 10, 11, 17)."""
+    lo, hi = ax.get_ylim()
+    ax.set_ylim(lo, hi + _LEGEND_ROOM * (hi - lo))
+    ax.legend(loc="upper center", fontsize="small", ncols=len(ax.get_legend_handles_labels()[1]))
+
+
+#: Headroom for the legend, a fraction of the curves' y range.
+_LEGEND_ROOM = 0.3
+
+
 def _steady_limits(arrays: list[np.ndarray]) -> tuple[float, float] | None:
     """A y range holding the 0.1-99.9 % of the steady-part samples, with a margin."""
     data = np.concatenate([a for a in arrays if a.size]) if arrays else np.empty(0)
@@ -267,7 +279,7 @@ def _draw_tracking(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]
     top.set_ylabel(ylabel)
     top.set_xlabel("t (s)")
     top.set_title("whole run", **_TITLE)
-    top.legend(loc="best", fontsize="small", ncols=2)
+    _legend_above(top)
     hi = min(_T_ZOOM_START, float(ref.t[-1]))
     _plot_lines(bottom, curves, des, 0.0, hi)
     bottom.set_xlim(0.0, hi)
@@ -290,7 +302,7 @@ def _draw_error(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) 
     top.set_ylabel(ylabel)
     top.set_xlabel("t (s)")
     top.set_title("whole run", **_TITLE)
-    top.legend(loc="best", fontsize="small")
+    _legend_above(top)
     t_end = max(float(t[-1]) for _, t, _ in curves)
     if t_end > RMSE_AFTER_S:
         # |error| on a log axis: errors 1,000 times apart (SMC's and CTC's β) are all seen,
@@ -420,7 +432,7 @@ def _draw_force(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) 
     _plot_lines(top, curves, des, 0.0, split)
     top.set_xlim(0.0, split)
     top.set_title(f"first {split * 1e3:g} ms (full scale)", **_TITLE)
-    top.legend(loc="best", fontsize="small", ncols=2)
+    _legend_above(top)
     if t_end > _FORCE_SPLIT:
         _plot_lines(middle, curves, des, _FORCE_SPLIT)
         middle.set_xlim(_FORCE_SPLIT, t_end)
