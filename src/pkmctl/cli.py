@@ -263,6 +263,9 @@ def _main(
 
     if threading.current_thread() is threading.main_thread():  # the start-up's quiet handler
         signal.signal(signal.SIGINT, signal.default_int_handler)  # off (pkmctl/_start.py)
+        # SIGTERM (kill, a job scheduler) as Ctrl-C: the same clean-up, where it left the
+        # staging folder with all written so far and the figure processes behind
+        signal.signal(signal.SIGTERM, signal.default_int_handler)
     ctx.obj = {"debug": debug}
     if plugin:
         from pkmctl.plugins import load_plugins
@@ -515,7 +518,9 @@ def reproduce(
 
                 def interrupted() -> str:
                     from pkmctl.io.atomic import discard
+                    from pkmctl.report.figures import stop_drawing
 
+                    stop_drawing()  # before the folder they draw into goes
                     discard(stage)
                     bar.stop()
                     return _untouched(out, existed) + compiles.kept()

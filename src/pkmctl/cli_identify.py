@@ -196,12 +196,15 @@ def excite(
             sc = exc_.scenario(base)
     except Exception as exc:
         _handle(ctx, exc)
-    with atomic_write(out) as fh:
-        fh.write(
-            f"# pkmctl excite --scenario {scenario} --harmonics {harmonics} "
-            f"--base-frequency {base_frequency:g} --periods {periods} --seed {seed}\n"
-        )
-        fh.write(sc.to_toml())
+    try:  # (a write that failed after the design printed a 50-line traceback)
+        with atomic_write(out) as fh:
+            fh.write(
+                f"# pkmctl excite --scenario {scenario} --harmonics {harmonics} "
+                f"--base-frequency {base_frequency:g} --periods {periods} --seed {seed}\n"
+            )
+            fh.write(sc.to_toml())
+    except OSError as exc:
+        _handle(ctx, exc, suffix=f"; {out} not written")
     t = Table(title=f"Exciting trajectory for {base.name!r} ({exc_.seconds:.1f} s to design)")
     t.add_column("")
     t.add_column("this trajectory", justify="right")

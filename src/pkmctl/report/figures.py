@@ -35,7 +35,7 @@ from matplotlib.cbook import boxplot_stats
 from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, NullLocator
 
-from pkmctl.io.atomic import atomic_write
+from pkmctl.io.atomic import atomic_write, make_folder
 
 from .tables import CONTROLLER_ORDER, RMSE_AFTER_S, controller_label, ordered
 
@@ -506,6 +506,9 @@ def _child_start(parent: int) -> None:
     from pkmctl.sim.workers import die_with_parent
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    # forked: the parent's SIGTERM handler (Ctrl-C's, in the CLI) would make the signal
+    # die_with_parent sends a KeyboardInterrupt the pool's worker loop outlives
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     die_with_parent(parent)
 
 
@@ -522,6 +525,8 @@ class FigureJob:
 
     def __init__(self, pool, futures: list, paths: list[Path] | None = None):
         self._pool, self._futures, self._paths = pool, futures, paths
+        if pool is not None:
+            _ACTIVE.append(self)
 
     def wait(self) -> list[Path]:
         """Block until every figure is written; their paths, in figure order."""
@@ -541,6 +546,32 @@ class FigureJob:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+            _ACTIVE.remove(self)
+
+    def kill(self) -> None:
+        """End the drawing processes at once (an interrupt: a drawing must not write into
+        a folder being removed)."""
+        import os
+        import signal
+
+        pool = self._pool
+        for proc in list(getattr(pool, "_processes", {}).values()) if pool else []:
+            try:
+                os.kill(proc.pid, signal.SIGKILL)
+            except OSError:
+                pass
+            proc.join(1.0)
+
+
+#: The figure jobs drawing now (:func:`stop_drawing`).
+_ACTIVE: list[FigureJob] = []
+
+
+def stop_drawing() -> None:
+    """Kill the processes of every figure job still drawing (the CLI's interrupt path,
+    which leaves the run's thread as it is)."""
+    for job in list(_ACTIVE):
+        job.kill()
 
 
 def figure_workers() -> int:
@@ -572,7 +603,7 @@ def start_figures(
     global _FORKED_PAIRS
     pairs = _check(results, dpi)
     outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
+    make_folder(outdir)  # (not inside a staging folder an interrupt removed)
     workers = figure_workers() if workers is None else int(workers)
     if workers <= 1:
         return FigureJob(None, [], [_draw_one(spec, pairs, outdir, dpi) for spec in FIGURES])
