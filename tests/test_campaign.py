@@ -1564,3 +1564,18 @@ def test_the_time_estimate_counts_each_runs_loop():
     stepped = periods * ESTIMATE_PERIOD["stepped"] + SECONDS_PER_RUN
     assert estimate_seconds(spec, [(1, "pd")] * 3) == pytest.approx(3 * stepped)
     assert estimate_seconds(spec) == pytest.approx(estimate_seconds(spec, [(0, "pd"), (1, "pd")]))
+
+
+def test_a_resume_while_the_campaign_runs_is_refused(tmp_path):
+    """A `campaign run --resume` started while the campaign ran reran every task not yet
+    written (a tester: 72 runs twice). The running one holds the folder (an flock on
+    runs/); the other is refused in one line, and resumes once it is free."""
+    from pkmctl.campaign.execute import _folder_lock
+    from pkmctl.errors import OutputError
+
+    out = tmp_path / "c"
+    spec = _fake_campaign(out, HEAD)
+    with _folder_lock(out, out / "runs"):  # as the running campaign holds it
+        with pytest.raises(OutputError, match="another pkmctl campaign run is running into"):
+            run_campaign(spec, out, workers=1, resume=True)
+    assert run_campaign(spec, out, workers=1, resume=True).done_now == 0

@@ -19,6 +19,7 @@ pkmctl's disk cache once (or compiles them once) and keeps them for all its task
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import socket
@@ -628,6 +629,41 @@ def _run(spec, out, client, scheduler, workers, resume, progress, on_client, sto
     check_store(out, spec, resume=resume, parts=parts)  # refused before compiling
     compile_user_parts(spec)
     runs_dir = open_store(out, spec, resume=resume, parts=parts)
+    with _folder_lock(out, runs_dir):
+        return _run_locked(spec, out, runs_dir, client, scheduler, workers, progress,
+                           on_client, stop_after, parts)  # fmt: skip
+
+
+@contextlib.contextmanager
+def _folder_lock(out: Path, runs_dir: Path):
+    """Hold the campaign folder for this run: a second ``campaign run --resume`` into it
+    while one runs is refused, where it ran every task not yet written a second time (a
+    tester: 72 runs twice). An flock on ``runs/``, which no run replaces; the system
+    releases it when the process ends, however it ends."""
+    from pkmctl.errors import OutputError
+
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX: no lock
+        yield
+        return
+    fd = os.open(runs_dir, os.O_RDONLY)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise OutputError(
+                f"{str(out)!r}: another pkmctl campaign run is running into this folder; "
+                "wait for it to end (or stop it), then --resume"
+            ) from None
+        yield
+    finally:
+        os.close(fd)
+
+
+def _run_locked(spec, out, runs_dir, client, scheduler, workers, progress, on_client,
+                stop_after, parts):  # fmt: skip
+    """:func:`_run` once the store is open and held."""
     if spec.base.fuzzy.fis is not None or spec.fis_files:  # the runs read the folder's
         spec = read_spec(out)  # copies of the .fis files: their content is the spec hash's
     tasks, done, erred = task_states(spec, out)
