@@ -417,3 +417,22 @@ def test_a_part_typed_at_a_prompt_runs(tmp_path):
     # each run compiled its loop (seconds); kernel_seconds is the 40 periods' time alone
     # (it used to include the compilation)
     assert all(float(kernel) < 0.5 for _, kernel in runs)
+
+
+def test_reproduce_says_it_compiles_a_single_missing_loop(tmp_path, monkeypatch):
+    """precompile leaves a single missing loop to its run (no worker for one loop), and
+    reproduce then said "compiled loops found in the cache" and compiled it unsaid (a
+    minute on a cold machine; a tester, after an interrupted compile)."""
+    from pkmctl import experiment
+
+    real = experiment.is_compiled
+
+    def cached(parts) -> bool:  # as if fsmc's loop were not in the cache
+        return parts["controller"].name != "fsmc" and real(parts)
+
+    monkeypatch.setattr(experiment, "is_compiled", cached)
+    said = []
+    sc = pkmctl.Scenario.builtin("paper", 0.05)
+    experiment.reproduce(sc, tmp_path / "out", progress=said.append)
+    assert "compiling the control loop of fsmc as it runs (once per machine)…" in said, said
+    assert "compiled loops found in the cache" not in said
