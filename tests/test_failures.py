@@ -159,6 +159,18 @@ def test_unwritable_out_is_refused_whoever_runs(tmp_path, monkeypatch):
     monkeypatch.setattr(os, "access", lambda p, m: False if Path(p) == tmp_path else real(p, m))
     line = one_line(runner.invoke(app, ["reproduce", "--out", str(tmp_path / "out")]), 2)
     assert "is not writable" in line and str(tmp_path) in line
+    assert "read-only" not in line
+    # on a read-only mount it says so (a tester's: only "not writable", as for permissions)
+    flags = os.statvfs(tmp_path).f_flag | os.ST_RDONLY
+
+    class ReadOnly:
+        f_flag = flags
+
+    real_statvfs = os.statvfs
+    monkeypatch.setattr(os, "statvfs", lambda p: ReadOnly() if Path(p) == tmp_path
+                        else real_statvfs(p))  # fmt: skip
+    line = one_line(runner.invoke(app, ["reproduce", "--out", str(tmp_path / "out")]), 2)
+    assert line.endswith("is not writable (a read-only file system)"), line
 
 
 @pytest.mark.parametrize("target", ["", ".", "/proc/no/such/bench.json"])

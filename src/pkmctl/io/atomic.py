@@ -245,7 +245,7 @@ def check_output_folder(
     if not probe.is_dir():
         raise OutputError(f"{what} {shown}: {str(probe)!r} is a file, not a folder")
     if not os.access(probe, os.W_OK | os.X_OK):
-        raise OutputError(f"{what} {shown}: {str(probe)!r} is not writable")
+        raise OutputError(f"{what} {shown}: {str(probe)!r} is not writable{_read_only(probe)}")
     try:  # and try it: access() says yes to root, also where nothing can be made (/proc)
         os.rmdir(tempfile.mkdtemp(prefix=".pkmctl-probe-", dir=probe))
     except OSError as exc:
@@ -255,6 +255,15 @@ def check_output_folder(
             f"{why})"
         ) from None
     return path
+
+
+def _read_only(folder: Path) -> str:
+    """ " (a read-only file system)" where ``folder`` is on one (a tester's read-only mount
+    was only "not writable", which sends a user to the permissions), else ""."""
+    try:
+        return " (a read-only file system)" if os.statvfs(folder).f_flag & os.ST_RDONLY else ""
+    except (OSError, AttributeError):
+        return ""
 
 
 def _check_kind(dest: Path, rel: str) -> None:
