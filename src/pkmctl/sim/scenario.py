@@ -757,7 +757,6 @@ class Scenario(_Model):
                     f" s can be followed ({MAX_SUBSTEPS} sub-steps at most)"
                 )
             )
-        self._check_friction_step(plant, h)
         every = self.logging.every
         if not (isinstance(every, int) and not isinstance(every, bool) and 1 <= every <= t.periods):
             raise ValueError(
@@ -781,35 +780,32 @@ class Scenario(_Model):
                 f"(condition number of J {cond[worst]:.3g}, "
                 f"allowed <= {MAX_TRAJECTORY_CONDITION:g})"
             )
+        # on the poses just checked: 25 of them, and the initial pose
+        sample = Xd[np.linspace(0, len(Xd) - 1, min(25, len(Xd))).astype(int)]
+        self._check_friction_step(plant, h, np.vstack([np.asarray(self.initial.X), sample]))
         return self
 
-    def _check_friction_step(self, plant: Mechanism, h: float) -> None:
+    def _check_friction_step(self, plant: Mechanism, h: float, X: np.ndarray) -> None:
         """Refuse friction too stiff for the plant's RK4 sub-step ``h``.
 
         Near rest the friction F_c tanh(qdot / v_s) + F_v qdot of each limb is a damper of
         c = F_c / v_s + F_v (N s/m), which decays the pose rates at up to c k, k the
-        largest eigenvalue of (M + m_r J^T J)^-1 J^T J (1/kg; over the initial pose and
-        the trajectory's). RK4 decays a mode of rate r only for h r < 2.785; above, the
-        run goes on with exit 0 and limbs creeping 200 x too fast (F_c = 1e4 N: 48 mm/s
-        for 0.23) or never coming to rest (v_s = 1e-5). Refused above h r = 2.5, with the
-        largest value allowed and the sub-steps that would integrate it.
+        largest eigenvalue of (M + m_r J^T J)^-1 J^T J (1/kg; over the valid poses ``X``:
+        the initial pose and the trajectory's). RK4 decays a mode of rate r only for
+        h r < 2.785; above, the run goes on with exit 0 and limbs creeping 200 x too fast
+        (F_c = 1e4 N: 48 mm/s for 0.23) or never coming to rest (v_s = 1e-5). Refused
+        above h r = 2.5, with the largest value allowed and the sub-steps that would
+        integrate it.
         """
         ps = self.plant_spec
         c = ps.friction_coulomb / ps.friction_velocity + ps.friction_viscous
         if c == 0.0:
             return
         t = self.timing
-        ts = np.linspace(0.0, t.duration, 25)
-        X = np.vstack(
-            [np.asarray(self.initial.X, dtype=float), self.trajectory.build().evaluate(ts)[0]]
-        )
         from pkmctl.model.machine import reflected_inertia
 
         m_r = reflected_inertia(ps.rotor_inertia, ps.screw_lead)
-        try:
-            J, M = plant.jacobian(X), plant.mass_matrix(X)
-        except InvalidPoseError:  # the pose checks that follow name it
-            return
+        J, M = plant.jacobian(X), plant.mass_matrix(X)
         JtJ = np.einsum("nia,nib->nab", J, J)
         k = float(np.max(np.linalg.eigvals(np.linalg.solve(M + m_r * JtJ, JtJ)).real))
         if h * c * k <= MAX_FRICTION_STEP:
