@@ -703,7 +703,8 @@ def test_a_question_is_answered_with_ratios_and_intervals(reference, tmp_path):
     assert "**adaptation** (afsmc against fsmc)" in answer
     from pkmctl.report.campaign import _ratio
 
-    assert f"over all cells {_ratio(pooled)}." in answer
+    assert f"Over all cells: afsmc {pooled['controller_mean']:.4g}" in answer
+    assert f"; ratio {_ratio(pooled)}." in answer
     # 2 pairs per cell: every cell is "cannot tell", and the answer says why
     assert "cannot tell in 4 (all with fewer than the 5 pairs a verdict takes)" in answer
     # and each cell of the table says why, not "cannot tell" beside a tight interval

@@ -138,12 +138,15 @@ def test_the_short_answer_says_what_each_mean_is_over_when_one_side_failed():
     smc0 = np.mean([value(0, "smc", s) for s in spec.seeds])
     pd0 = np.mean([value(0, "pd", s) for s in spec.seeds])
     assert (
-        f"At all cells, over the 8 pairs where both ended ok: smc {smc0:.4g}, pd {pd0:.4g} "
+        f"Over all cells, in the 8 pairs where both ended ok: smc {smc0:.4g}, pd {pd0:.4g} "
         f"(over all their runs that ended ok: smc {smc0:.4g} over 8 runs; pd {pd_all:.4g} "
-        "over 16 runs); over all cells "
+        "over 16 runs); ratio "
     ) in line, line
-    assert line.endswith(" (8 pairs).")
+    # a grid's reference is the pooled row: named once ("At all cells: …; over all cells …"
+    # said it twice)
+    assert "At all cells" not in line and line.count("all cells") == 1, line
     # no run failed: the line is as before, the means the pairs' (which are every run)
     rows = stats.comparison(spec, _records(spec, value), "smc", "pd", [METRIC])
     (line,) = short_answer(spec, rows, q, [METRIC])[1:]
-    assert "pairs" not in line and f", pd {pd_all:.4g}; over all cells " in line, line
+    assert "pairs" not in line and f", pd {pd_all:.4g}; ratio " in line, line
+    assert "Over all cells: smc " in line and line.count("all cells") == 1, line

@@ -157,7 +157,7 @@ def _means(r: dict, q) -> str:
     if not r["pairs"]:
         pairs = ": no pair"
     else:
-        pairs = f", over the {r['pairs']} pairs where both ended ok" + pairs
+        pairs = f", in the {r['pairs']} pairs where both ended ok" + pairs
     each = "; ".join(
         f"{who} {_g(r[f'{side}_mean_all'])} over {r[f'{side}_runs_all']} runs"
         if r[f"{side}_runs_all"]
@@ -199,14 +199,15 @@ def short_answer(spec: CampaignSpec, rows: list[dict], q, metrics: list[str]) ->
                 )
         if 0 < len(unclear) <= _LIST:
             line += "; cannot tell at " + "; ".join(_cell_name(spec, r["cell"]) for r in unclear)
-        line += (
-            f". At {_cell_name(spec, ref)}"
-            + _means(c0, q)
-            + (
-                f"; over all cells {_ratio(pooled)}"
+        if ref < 0:  # a grid: its reference is the pooled row; one phrase, not two
+            line += f". Over all cells{_means(pooled, q)}; ratio {_ratio(pooled)}."
+        else:
+            line += (
+                f". At {_cell_name(spec, ref)}"
+                + _means(c0, q)
+                + f"; over all cells {_ratio(pooled)}"
                 + (f" ({pooled['pairs']} pairs)." if _partial(pooled) else ".")
             )
-        )
         out.append(line)
     failed = [
         r for r in rows if r["metric"] == metrics[0] and r["cell"] >= 0
