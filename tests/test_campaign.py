@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 import pkmctl
 from pkmctl.campaign import CampaignSpec
 from pkmctl.campaign.execute import run_campaign
-from pkmctl.campaign.store import query, read_records
+from pkmctl.campaign.store import query, read_records, read_spec
 from pkmctl.cli import app
 
 runner = CliRunner()
@@ -1542,11 +1542,36 @@ def test_a_fis_factor_off_zero_at_rest_gets_one_note_if_a_fuzzy_controller_runs(
     (tmp_path / "tip.fis").write_bytes(corpus.read_bytes())
     _paper_fis(tmp_path).rename(tmp_path / "flc.fis")
     factor = '[factors."fuzzy.fis"]\nvalues = ["tip.fis", "flc.fis", "none"]\n'
-    for controllers, count in (('["fsmc", "smc"]', 1), ('["smc", "pd"]', 0)):
+    for controllers, count in (('["fsmc", "smc"]', 1), ('["afsmc-ext"]', 1), ('["smc", "pd"]', 0)):
         spec = tmp_path / "spec.toml"
         spec.write_text(HEAD.replace('["smc"]', controllers) + factor)
         notes = CampaignSpec.from_toml(spec).fuzzy_offset_notes()
         assert len(notes) == count and all("tip.fis" in n for n in notes), notes
+
+
+def test_the_campaign_report_repeats_the_fis_offset_warning(tmp_path):
+    """docs/fuzzy.md says the report repeats the warning `campaign run` prints; the
+    campaign's report.md did not (a tester)."""
+    corpus = CORPUS / "matlab_tipper.fis"
+    if not corpus.is_file():
+        pytest.skip("no .fis corpus")
+    (tmp_path / "tip.fis").write_bytes(corpus.read_bytes())
+    spec_file = tmp_path / "spec.toml"
+    spec_file.write_text(
+        HEAD.replace('["smc"]', '["fsmc"]').replace("0.05", "0.01")
+        + 'metrics = ["rmse"]\n[factors."fuzzy.fis"]\nvalues = ["tip.fis", "none"]\n'
+    )
+    spec = CampaignSpec.from_toml(spec_file)
+    (note,) = spec.fuzzy_offset_notes()
+    out = tmp_path / "camp"
+    run_campaign(spec, out, workers=1)
+    res = runner.invoke(app, ["campaign", "report", str(out)])
+    assert res.exit_code == 0, res.output
+    report = (out / "report" / "report.md").read_text()
+    # the note names the file as the campaign folder keeps it
+    (kept,) = read_spec(out).fuzzy_offset_notes()
+    assert f"**Warning**: {kept}." in report and "FLC(0, 0) = 5.077" in kept, report[:2000]
+    assert kept.split(": ", 1)[1] == note.split(": ", 1)[1]
 
 
 def test_the_time_estimate_counts_each_runs_loop():

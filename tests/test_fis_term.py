@@ -338,9 +338,27 @@ def test_a_fis_file_off_zero_at_rest_is_named_with_the_force_it_adds():
 def test_cli_warns_of_an_offset_fis_for_fsmc_only(tmp_path):
     scenario = tmp_path / "s.toml"
     scenario.write_text(scenario_toml(str(CORPUS / "matlab_tipper.fis")))
-    for controller, warned in (("fsmc", True), ("smc", False)):
+    for controller, warned in (("fsmc", True), ("afsmc-ext", True), ("smc", False)):
         res = CliRunner().invoke(app, ["simulate", str(scenario), "--controller", controller,
                                        "--out", str(tmp_path / controller)])  # fmt: skip
         assert res.exit_code == 0, res.output
         lines = [ln for ln in res.output.splitlines() if ln.startswith("warning: fuzzy.fis")]
         assert len(lines) == (1 if warned else 0), res.output
+
+
+@needs_corpus
+def test_the_fuzzy_controllers_are_those_whose_forces_the_fis_changes():
+    """afsmc-ext ran the scenario's .fis with no offset warning: the warning asked
+    ``controller in ("fsmc", "afsmc")``. FUZZY_CONTROLLERS, which the warning now asks,
+    must be every built-in controller whose forces a .fis file changes, and only those."""
+    from pkmctl import simulate
+    from pkmctl.sim.scenario import FUZZY_CONTROLLERS
+
+    base = paper(0.01)
+    tipper = base.replace(**{"fuzzy.fis": str(CORPUS / "matlab_tipper.fis")})
+    changed = {
+        c
+        for c in names("controller")
+        if not np.array_equal(simulate(base, controller=c).tau, simulate(tipper, controller=c).tau)
+    }
+    assert changed == set(FUZZY_CONTROLLERS)

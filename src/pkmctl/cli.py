@@ -56,6 +56,7 @@ except ImportError:  # pragma: no cover - depends on the installed Typer
 
 from pkmctl.parts import names as _part_names
 from pkmctl.sim.scenario import BUILTINS as _SCENARIOS
+from pkmctl.sim.scenario import FUZZY_CONTROLLERS
 
 T = TypeVar("T")
 
@@ -602,7 +603,7 @@ def simulate(
         _handle(ctx, exc)
     existed = out.is_dir()
     _KEPT["note"] = _untouched(out, existed)
-    fuzzy = controller in ("fsmc", "afsmc")
+    fuzzy = controller in FUZZY_CONTROLLERS
     sc = _scenario(ctx, scenario_file, seed, duration, _untouched(out, existed), fuzzy=fuzzy)
     doing = f"simulating {controller} on {sc.name!r}"
     stage = None

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 from pkmctl.errors import PkmctlError
-from pkmctl.sim.scenario import BUILTINS, Scenario, ScenarioError
+from pkmctl.sim.scenario import BUILTINS, FUZZY_CONTROLLERS, Scenario, ScenarioError
 
 __all__ = [
     "BUILTIN_CAMPAIGNS",
@@ -613,8 +613,9 @@ class CampaignSpec:
 
     def fuzzy_offset_notes(self) -> list[str]:
         """One :meth:`Scenario.fuzzy_offset_note` per ``.fis`` file the cells run whose
-        output at rest is not 0, if FSMC or AFSMC is among the controllers."""
-        if not {"fsmc", "afsmc"} & set(self.controllers):
+        output at rest is not 0, if a controller with the fuzzy term is among the
+        controllers (:data:`~pkmctl.sim.scenario.FUZZY_CONTROLLERS`)."""
+        if not set(FUZZY_CONTROLLERS) & set(self.controllers):
             return []
         first: dict = {}  # each .fis value (None: the base's) -> its first cell
         for i, cell in enumerate(self.cells):

@@ -510,6 +510,7 @@ def write_report(out: str | Path, cancel=None) -> list[Path]:
         "Lower is better. Intervals are bootstrap 95 % intervals of the mean; a difference "
         f"counts only when its interval excludes zero, over at least {stats.MIN_PAIRS} pairs.",
         "",
+        *(line for note in spec.fuzzy_offset_notes() for line in (f"**Warning**: {note}.", "")),
         "## Which controller is better where",
         "",
     ]

@@ -27,6 +27,7 @@ from pkmctl.sim.metrics import (
     time_at_force_limit,
     time_over_speed_limit,
 )
+from pkmctl.sim.scenario import FUZZY_CONTROLLERS
 
 from .figures import FIGURES
 from .tables import (
@@ -583,7 +584,7 @@ def render_report(
             f"sensor `{used.get('sensor', 'ideal')}`, actuator `{used.get('actuator', 'ideal')}`."
         )
     fuzzy = sc.fuzzy
-    if fuzzy.fis is not None and any(c in ("fsmc", "afsmc") for c, _ in pairs):
+    if fuzzy.fis is not None and any(c in FUZZY_CONTROLLERS for c, _ in pairs):
         # FSMC and AFSMC ran on another fuzzy system than the paper's: Table 4 compares
         # them with the paper's all the same (a tester found no word of it)
         run += (

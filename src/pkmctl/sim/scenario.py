@@ -57,6 +57,9 @@ MAX_TRAJECTORY_CONDITION = 100.0
 MAX_FRICTION_STEP = 2.5
 #: A .fis output at s* = sdot* = 0 beyond this fraction of its range gets a warning.
 FUZZY_OFFSET_TOLERANCE = 1e-9
+#: The built-in controllers with the fuzzy term: they run the scenario's ``[fuzzy]``
+#: system (:meth:`Scenario.fuzzy_offset_note` concerns them).
+FUZZY_CONTROLLERS = ("fsmc", "afsmc", "afsmc-ext")
 
 
 class ScenarioError(PkmctlError, ValueError):
@@ -973,7 +976,8 @@ class Scenario(_Model):
         push = ", ".join(f"{-k * rest:.4g}" for k in self.gains.Ku)
         return (
             f"fuzzy.fis {self.fuzzy.fis!r}: FLC(0, 0) = {rest:.4g}, not 0 (output range "
-            f"[{lo:g}, {hi:g}]): FSMC and AFSMC add -Ku FLC(0, 0) = [{push}] (N, N m, N m on "
+            f"[{lo:g}, {hi:g}]): FSMC and AFSMC (and afsmc-ext) add -Ku FLC(0, 0) = [{push}] "
+            "(N, N m, N m on "
             "z, alpha, beta) even when tracking is exact"
         )
 
