@@ -204,6 +204,31 @@ def test_structural_errors_name_a_line():
             assert info.value.lineno == lineno, str(info.value)
 
 
+def test_a_cause_repeated_on_many_lines_is_one_problem():
+    """A wrong NumInputs gave one problem a rule (26 lines), and text before [System] one
+    a line (12 lines, then "missing section [System]"): each cause is said once, with
+    how many lines it covers."""
+    wrong = _replace(GENERAL, "NumInputs=3", "NumInputs=2")
+    with pytest.raises(fis.FISError) as info:
+        fis.read_fis(wrong)
+    rules = wrong.split("[Rules]")[1].strip().splitlines()
+    first = _lineno(wrong, rules[0])
+    arity = [p for p in info.value.problems if "antecedent(s)" in p[1]]
+    last = first + len(rules) - 1
+    said = (
+        f"expected 2 antecedent(s), 1 consequent(s), 1 weight; the same in {len(rules) - 1} more "
+        f"rules (lines {first + 1}-{last})"
+    )
+    assert arity == [(first, said, rules[0])]
+    headless = GENERAL.replace("[System]\n", "", 1)
+    with pytest.raises(fis.FISError) as info:
+        fis.read_fis(headless)
+    n_before = GENERAL.split("[System]")[1].split("[")[0].strip().count("\n") + 1
+    problems = info.value.problems
+    assert problems[0][:2] == (1, f"{n_before} lines of text before the first section")
+    assert [m for _, m, _ in problems[1:]] == ["missing section [System]"], problems
+
+
 def test_write_is_atomic(tmp_path, monkeypatch, flc):
     path = tmp_path / "flc.fis"
     path.write_text("old contents\n")

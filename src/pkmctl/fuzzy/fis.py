@@ -158,6 +158,7 @@ class _Reader:
         self.nlines = max(1, len(lines))
         current: _Section | None = None
         skipping = False
+        before = 0  # lines of text before the first section: one problem, not one a line
         for lineno, raw in enumerate(lines, start=1):
             line = raw.strip()
             if not line or line.startswith(("%", "#")):
@@ -182,7 +183,10 @@ class _Reader:
             elif skipping:
                 continue
             elif current is None:
-                self.note(lineno, "text before the first section", line)
+                if not before:
+                    at = len(self.problems)
+                    self.note(lineno, "text before the first section", line)
+                before += 1
             elif current.name == "Rules":
                 current.rules.append((lineno, line))
             else:
@@ -193,6 +197,9 @@ class _Reader:
                     self.note(lineno, f"duplicate key {key.strip()!r}", line)
                 else:
                     current.keys[key.strip()] = (value.strip(), lineno, line)
+        if before > 1:
+            n, _, text = self.problems[at]
+            self.problems[at] = (n, f"{before} lines of text before the first section", text)
 
     def note(self, lineno: int, message: str, line: str = "") -> None:
         self.problems.append((lineno, message, line))
@@ -374,7 +381,14 @@ class _Reader:
             self.note(
                 lineno, f"NumRules={n_rules} but [Rules] has {len(rules_sec.rules)} lines", line
             )
+        self._arity: list[int] = []  # rules with the wrong number of fields: said once
         rules = [self.rule(n, t, inputs, outputs, kind) for n, t in rules_sec.rules]
+        if len(self._arity) > 1:  # (a wrong NumInputs gave one line a rule)
+            at = next(i for i, p in enumerate(self.problems) if p[0] == self._arity[0])
+            n, message, text = self.problems[at]
+            more = len(self._arity) - 1
+            self.problems[at] = (n, f"{message}; the same in {_count(more, 'more rule')} "
+                                 f"(lines {self._arity[1]}-{self._arity[-1]})", text)  # fmt: skip
         name = self.string(sys_, "Name")
         if self.problems:
             return None
@@ -415,11 +429,13 @@ class _Reader:
             return None
         weight = self.numbers(m.group(3), lineno, line) or []
         if len(ant) != len(inputs) or len(cons) != len(outputs) or len(weight) != 1:
-            self.note(
-                lineno,
-                f"expected {len(inputs)} antecedent(s), {len(outputs)} consequent(s), 1 weight",
-                line,
-            )
+            if not self._arity:
+                self.note(
+                    lineno,
+                    f"expected {len(inputs)} antecedent(s), {len(outputs)} consequent(s), 1 weight",
+                    line,
+                )
+            self._arity.append(lineno)
             return None
         ok = True
         if connective not in (1, 2):
