@@ -275,7 +275,8 @@ def test_extended_regressor_is_the_plants_model(robot):
 @pytest.mark.parametrize(
     ("field", "value", "message"),
     [
-        ("plant.screw_lead", 0.0, "plant.screw_lead = 0.0: must be a finite number in (0, 1] (m)"),
+        ("plant.screw_lead", 0.0, "plant.screw_lead = 0.0: must be a finite number in [0.0001, 1]"),
+        ("plant.screw_lead", 1e-5, "plant.screw_lead = 1e-05: must be a finite number in [0.0001,"),
         ("plant.rotor_inertia", float("nan"), "plant.rotor_inertia = nan: must be a finite"),
         ("plant.friction_coulomb", -1.0, "plant.friction_coulomb = -1.0: must be a finite"),
         ("plant.friction_velocity", 0.0, "plant.friction_velocity = 0.0: must be a finite"),

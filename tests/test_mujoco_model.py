@@ -148,6 +148,13 @@ def test_coulomb_friction_is_refused_with_the_reason(robot):
         mj.build_mjcf(robot, friction_coulomb=30.0)
     with pytest.raises(ValueError, match="screw_lead"):
         mj.build_mjcf(robot, rotor_inertia=1e-5, screw_lead=0.0)
+    # the API's own checks (a timestep of 0, < 0 or NaN built a model; a lead of 1e-200
+    # overflowed to an armature of inf)
+    for step in (0.0, -1e-4, float("nan")):
+        with pytest.raises(ValueError, match=r"^timestep = .*: must be finite and > 0 \(s\)$"):
+            mj.build_mjcf(robot, timestep=step)
+    with pytest.raises(ValueError, match="an infinite armature"):
+        mj.build_mjcf(robot, rotor_inertia=1.0, screw_lead=1e-200)
 
 
 def test_pkmctl_imports_without_mujoco_and_says_how_to_get_it():
@@ -158,7 +165,10 @@ def test_pkmctl_imports_without_mujoco_and_says_how_to_get_it():
         "except ImportError as e:\n    print(e)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == 'pkmctl.plants.mujoco needs MuJoCo: pip install "pkmctl[mujoco]"'
+    assert out.stdout.strip() == (
+        'pkmctl.plants.mujoco needs MuJoCo: pip install "mujoco>=3.1" (or, in a checkout of '
+        'pkmctl, pip install ".[mujoco]")'
+    )
 
 
 def test_mujoco_model_command_writes_a_loadable_model(tmp_path):
@@ -182,6 +192,13 @@ def test_mujoco_model_command_writes_a_loadable_model(tmp_path):
         (["--out", str(out), "--friction-coulomb", "30"], "--friction-coulomb = 30.0: MuJoCo"),
         (["--out", str(out), "--rotor-inertia", "-1"], "--rotor-inertia = -1.0: must be"),
         (["--out", str(out), "--screw-lead", "inf"], "--screw-lead = inf: must be a finite"),
+        # a floor: 1e-200 overflowed into a traceback, 1e-6 reflected 3.9e13 kg a limb
+        (
+            ["--out", str(out), "--screw-lead", "1e-200", "--rotor-inertia", "1"],
+            "--screw-lead = 1e-200: must be a finite number in [0.0001, 1] (m)",
+        ),
+        # a name over 255 bytes: Path.is_dir raised, a traceback
+        (["--out", str(tmp_path / ("a" * 300 + ".xml"))], "the name is too long"),
         # the scenario's ranges, not only build_mjcf's signs (it wrote armature = 3.9e28)
         (
             ["--out", str(out), "--rotor-inertia", "1e9"],
@@ -212,6 +229,9 @@ def test_mujoco_model_takes_the_scenarios_plant_options(tmp_path):
     m_r = plant.rotor_inertia * (2 * np.pi / plant.screw_lead) ** 2
     assert m_r > 0 and np.isclose(model.dof_armature.max(), m_r)
     assert np.isclose(model.dof_damping.max(), plant.friction_viscous)
+    # the loop's RK4 sub-step, 1 ms / 10 (it wrote the paper's 5e-5 for every scenario)
+    timing = pkmctl.Scenario.builtin("prototype").timing
+    assert model.opt.timestep == timing.control_period / timing.substeps == 1e-4
 
 
 def test_render_poses_draws_the_machine(robot):

@@ -750,8 +750,9 @@ def mujoco_model(
     """Write the scenario's machine as a MuJoCo model (MJCF), e.g. for MuJoCo's viewer.
 
     The scenario's rotor inertia and viscous friction ([plant]) become MuJoCo's armature
-    and damping, its payload the platform's mass and inertia; an option given here
-    overrides the scenario's. Coulomb friction must be 0: MuJoCo's is a constraint, not
+    and damping, its payload the platform's mass and inertia, its RK4 sub-step (control
+    period / sub-steps) the model's timestep; an option given here overrides the
+    scenario's. Coulomb friction must be 0: MuJoCo's is a constraint, not
     the tanh law, so a scenario or option with it is refused.
     """
     from pkmctl.errors import PkmctlError
@@ -761,7 +762,11 @@ def mujoco_model(
         from pkmctl.plants.mujoco import build_mjcf, scenario_error, scenario_options
     except ImportError as exc:
         _fail(str(exc))
-    if Path(out).is_dir() and out.strip():
+    try:  # (a name over 255 bytes raises here: check_output_file says so below)
+        folder = Path(out).is_dir() and out.strip()
+    except OSError:
+        folder = False
+    if folder:
         _fail(f"--out {out}: is a folder, give a file name (FILE.xml)")
     given = {
         k: v
@@ -774,7 +779,8 @@ def mujoco_model(
         out = check_output_file(out, what="--out")
         # the options as scenario fields, so the scenario's ranges check them too
         sc = _load_scenario(scenario, {f"plant.{k}": v for k, v in given.items()})
-        text = build_mjcf(sc.plant(), **scenario_options(sc))
+        step = sc.timing.control_period / sc.timing.substeps  # the loop's RK4 sub-step
+        text = build_mjcf(sc.plant(), timestep=step, **scenario_options(sc))
     except (PkmctlError, ValueError) as exc:
         flags = {k: "--" + k.replace("_", "-") for k in given}
         msg = scenario_error(str(exc), flags)

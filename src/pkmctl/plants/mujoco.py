@@ -1,6 +1,7 @@
 """The 2RPU-2SPR manipulator as a MuJoCo model (DESIGN.md §10): an independent plant.
 
-Needs MuJoCo (``pip install "pkmctl[mujoco]"``); ``import pkmctl`` does not.
+Needs MuJoCo (``pip install "mujoco>=3.1"``, or ``pip install ".[mujoco]"`` in a checkout of
+pkmctl); ``import pkmctl`` does not.
 
 :func:`build_mjcf` writes an MJCF model of a :class:`~pkmctl.Mechanism` from the
 Mechanism's own data (radii, centre-of-mass distances, the 36 inertial parameters, g, home
@@ -65,7 +66,10 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 try:
     import mujoco
 except ImportError:  # one line, the fix in it
-    raise ImportError('pkmctl.plants.mujoco needs MuJoCo: pip install "pkmctl[mujoco]"') from None
+    raise ImportError(
+        'pkmctl.plants.mujoco needs MuJoCo: pip install "mujoco>=3.1" (or, in a checkout of '
+        'pkmctl, pip install ".[mujoco]")'
+    ) from None
 import numpy as np
 
 from pkmctl.errors import InvalidPoseError
@@ -265,12 +269,20 @@ def build_mjcf(
             raise ValueError(f"{name} = {v!r}: must be finite and >= 0")
     if not (np.isfinite(screw_lead) and screw_lead > 0.0):
         raise ValueError(f"screw_lead = {screw_lead!r}: must be finite and > 0")
+    if not (np.isfinite(timestep) and timestep > 0.0):
+        raise ValueError(f"timestep = {timestep!r}: must be finite and > 0 (s)")
     if not (np.isfinite(payload_mass) and payload_mass >= 0.0):
         raise ValueError(f"payload_mass = {payload_mass!r}: must be finite and >= 0")
     offset = np.asarray(payload_offset, dtype=float)
     if offset.shape != (3,) or not np.all(np.isfinite(offset)):
         raise ValueError(f"payload_offset = {payload_offset!r}: must be 3 finite numbers (m)")
-    armature = rotor_inertia * (2.0 * np.pi / screw_lead) ** 2
+    with np.errstate(over="ignore"):  # (a Python float's square raises OverflowError)
+        armature = float(rotor_inertia * np.float64(2.0 * np.pi / screw_lead) ** 2)
+    if not np.isfinite(armature):  # (the scenario's ranges keep it finite; the API may not)
+        raise ValueError(
+            f"screw_lead = {screw_lead!r}: reflects rotor_inertia = {rotor_inertia!r} as "
+            "an infinite armature"
+        )
     slide_options = f' armature="{_f(armature)}" damping="{_f(friction_viscous)}"'
     home = robot.home
     geo = _limb_geometry(robot, home)

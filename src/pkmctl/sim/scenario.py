@@ -57,6 +57,9 @@ MAX_TRAJECTORY_CONDITION = 100.0
 MAX_FRICTION_STEP = 2.5
 #: A .fis output at s* = sdot* = 0 beyond this fraction of its range gets a warning.
 FUZZY_OFFSET_TOLERANCE = 1e-9
+#: The finest ball-screw lead a scenario takes (m): 0.1 mm, below the finest screws made
+#: (J_m (2 pi / l)^2 overflowed for l ~ 1e-154 and reflected 3.9e13 kg at 1e-6).
+SCREW_LEAD_MIN = 1e-4
 #: The built-in controllers with the fuzzy term: they run the scenario's ``[fuzzy]``
 #: system (:meth:`Scenario.fuzzy_offset_note` concerns them).
 FUZZY_CONTROLLERS = ("fsmc", "afsmc", "afsmc-ext")
@@ -510,7 +513,7 @@ class PlantSpec(_Model):
 
     kind: str = "rigid"
     rotor_inertia: _nonneg("kg m^2", 1.0) = 0.0
-    screw_lead: _positive("m", 1.0) = 0.01
+    screw_lead: Annotated[float, _in_range(SCREW_LEAD_MIN, 1.0, unit="m")] = 0.01
     friction_coulomb: _nonneg("N", 1e5) = 0.0
     friction_viscous: _nonneg("N s/m", 1e6) = 0.0
     friction_velocity: _positive("m/s", 1.0) = 1e-3
