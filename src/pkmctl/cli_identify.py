@@ -39,12 +39,13 @@ from pkmctl.cli import (
 
 def _metadata_scenario(log: Path) -> str | None:
     """The scenario (TOML text) of pkmctl's metadata beside ``log`` (its .json); None if
-    there is none, or the .json is not pkmctl's."""
+    there is none, or the .json is not pkmctl's. The text ends with a line break, so that
+    ``Scenario.from_toml`` reads it as text (one line of it was read as a file's name)."""
     try:
         text = json.loads(log.with_suffix(".json").read_text(encoding="utf-8"))["scenario_toml"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
-    return text if isinstance(text, str) else None
+    return text + "\n" if isinstance(text, str) else None
 
 
 def _other_machine(log: Path, assumed) -> str:
@@ -305,7 +306,6 @@ def identify(
     from pkmctl.ident.identify import (
         IdentificationError,
         check_log_file,
-        lead_note,
         predict,
         read_log,
     )
@@ -395,7 +395,7 @@ def identify(
     )
     if lead is None:
         _say(f"force lead ({how}): {1e3 * obs.force_lead:+.4g} ms")
-    elif note := lead_note(obs):
+    for note in idn.notes:  # (the report's notes: a tester found them only there)
         _say(f"warning: {note}")
     t = Table(title=f"{idn.base.count} base parameters (cond {idn.cond:.4g}), WLS")
     for c, j in (("#", "right"), ("base parameter", "left"), ("unit", "left"),

@@ -951,14 +951,19 @@ def _physical(
 
 def _compile_time_apart(fn):
     """``fn`` (an identification) with the time a first compilation of the kernels it
-    needed took apart from its ``seconds``: in ``compile_seconds``."""
+    needed took apart from its ``seconds``: in ``compile_seconds``; and BLAS in one thread
+    while it runs. Its matrices (a few thousand rows by 48) gain nothing from more, and
+    OpenBLAS's threads spinning on a busy 2-core machine made a 60 s log's identification
+    take 2.9-5.3 s where one thread took 0.78-0.83 s (measured side by side, 2026-12-07)."""
 
     @functools.wraps(fn)
     def timed(*args, **kwargs) -> Identification:
+        from threadpoolctl import threadpool_limits
+
         from pkmctl import _jit  # (so written: the text would make this file a kernel source)
 
         clock = _CompileClock()
-        with _jit.announce(clock):
+        with _jit.announce(clock), threadpool_limits(limits=1, user_api="blas"):
             idn = fn(*args, **kwargs)
         spent = clock.seconds
         return dataclasses.replace(idn, seconds=max(0.0, idn.seconds - spent),
@@ -1097,14 +1102,29 @@ def identify(
         note = lead_note(obs)
         if note:
             notes.append(note)
-    # a lead given far from 0 (more than a few samples) is another suspect
-    lead = obs.force_lead if abs(obs.force_lead) > LEAD_SEARCH / obs.sample_rate else None
-    _check_fit(where, base, wls, phys_fit, prior, max_residual, mass_ratio, lead)
+    if obs.length_noise > NOISY_LENGTHS:
+        notes.append(
+            f"the lengths' noise, <= {1e6 * obs.length_noise:.3g} um rms, is over "
+            f"{1e6 * NOISY_LENGTHS:g} um: identification was measured to work at 1 um of encoder "
+            "noise and not at 5 um (the friction columns fail, the rotor masses came out "
+            "8.0-13.7 kg for 10.9; docs/identification.md): trust this estimate less"
+        )
+    # a lead given far from 0 (more than a few samples) is another suspect, and so is one
+    # that fits much worse than the best near 0 (5 ms late forces at the default 0 were
+    # blamed on signs, units and columns only)
+    misfit = lead_note(obs)
+    far = abs(obs.force_lead) > LEAD_SEARCH / obs.sample_rate
+    lead = obs.force_lead if far and not misfit else None
+    _check_fit(where, base, wls, phys_fit, prior, max_residual, mass_ratio, lead, misfit)
     return Identification(
         base, obs, ols, wls, cond, phys, phys_fit, vs, time.perf_counter() - t0, notes,
         label, active if physical else (),
     )  # fmt: skip
 
+
+#: Lengths noisier than this (m rms, what the pose filter removes) get a note: 1 um of
+#: encoder noise identifies (friction coverage 85-88 %), 5 um does not (docs/identification.md).
+NOISY_LENGTHS = 2e-6
 
 #: A given force lead whose relative misfit is more than this many times that of the best
 #: lead within +-LEAD_SEARCH samples (more than a sample away) is named in the notes.
@@ -1154,14 +1174,18 @@ def _check_fit(
     max_residual: float | None,
     mass_ratio: tuple[float, float] | None,
     lead: float | None = None,
+    misfit: str = "",
 ) -> None:
     """Refuse a fit that no genuine log gives (one line each): a clearly negative WLS mass,
     a relative residual above ``max_residual`` (of the physically consistent fit if there
     is one, else of WLS), an m_platform outside ``mass_ratio`` x the prior's. ``lead``: a
-    force lead given that is itself suspect (named among the causes)."""
+    force lead given that is itself suspect (named among the causes); ``misfit``: the
+    :func:`lead_note` saying it fits much worse than the best near 0 (named first)."""
     causes = _LIKELY_CAUSES
     if lead is not None:
         causes += f", or a wrong force_lead = {lead:+.4g} s"
+    if misfit:
+        causes = f"{misfit}; else {causes}"
     if max_residual is not None:
         masses = [k for k, e in enumerate(base.expressions) if e.startswith("m_") and " " not in e]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -1196,7 +1220,8 @@ def _check_fit(
             causes = (
                 causes
                 if ratio <= 0
-                else "forces in other units (kN instead of N: 1e-3 x), or motor torques in "
+                else (f"{misfit}; else " if misfit else "")
+                + "forces in other units (kN instead of N: 1e-3 x), or motor torques in "
                 "N m instead of limb forces (f = 2 pi eta T / lead: lead / (2 pi eta) x); or "
                 "the prior is not this machine's (give its --scenario, with its masses)"
             )

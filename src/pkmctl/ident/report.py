@@ -309,7 +309,9 @@ def write_identification(
             fh.write(
                 f"# The identified model (pkmctl identify) from {_comment(source)}\n"
                 f"# on {_comment(idn.scenario or 'the scenario given')}.\n"
-                "# Paste into a scenario, or merge it:\n"
+                "# Replace a scenario's whole [controller_model] table with this one (every\n"
+                "# scenario pkmctl scenario prints has one; theta_ext sets what its other\n"
+                "# keys would, and TOML refuses a table declared twice):\n"
                 "# Theta_ext = [Theta (36), m_r (4, kg), F_c (4, N), F_v (4, N s/m)]\n"
             )
             fh.write(tomli_w.dumps({"controller_model": idn.controller_model()}))
