@@ -784,11 +784,20 @@ def test_a_validation_log_of_another_machine_is_said_so(tmp_path, exciting, nois
     args = ["identify", "run.csv", "--out", "o", "--no-physical", "--validate", "val.csv"]
     r = _run(*args, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    said = f"warning: --validate 'val.csv': its .json is of scenario {sc.name!r}, whose payload"
+    said = (
+        f"warning: --validate 'val.csv': its .json is of scenario {sc.name!r}, whose payload "
+        "differs from"
+    )
     assert said in " ".join(r.stderr.split()), r.stderr
     (tmp_path / "val.json").write_text((tmp_path / "run.json").read_text())
     r = _run(*args, cwd=tmp_path)
     assert r.returncode == 0 and "--validate" not in r.stderr, r.stderr
+    # a validation log in kN: 9.99e+04 % without a word (the same machine's .json)
+    _write_csv(tmp_path / "val.csv", _with(noisy, tau=lambda x: x / 1000.0))
+    r = _run(*args, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    said = "warning: --validate 'val.csv': the estimate leaves 9.99e+04 % of its J^T tau"
+    assert said in " ".join(r.stderr.split()), r.stderr
 
 
 def test_excite_names_the_cutoff_its_harmonics_need(tmp_path):

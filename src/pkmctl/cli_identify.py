@@ -64,7 +64,8 @@ def _other_machine(log: Path, assumed) -> str:
         return ""
     names = ", ".join("plant" if n == "plant_spec" else n for n in differ)
     return (
-        f"its .json is of scenario {sc.name!r}, whose {names} differ from the scenario "
+        f"its .json is of scenario {sc.name!r}, whose {names} "
+        f"{'differ' if len(differ) > 1 else 'differs'} from the scenario "
         f"assumed ({assumed.name!r}): the validation error compares two machines"
     )
 
@@ -420,6 +421,14 @@ def identify(
     console.print(Text(f"machine: {idn.scenario}"))
     if validate is not None and (other := _other_machine(validate, sc)):
         _say(f"warning: --validate {str(validate)!r}: {other}")
+    if val is not None and not val["relative_error"] <= max_residual / 100:
+        # (a log in kN read 9.99e+04 %, negated forces 200 %, without a word)
+        _say(
+            f"warning: --validate {str(validate)!r}: the estimate leaves "
+            f"{100 * val['relative_error']:.3g} % of its J^T tau unexplained, more than "
+            f"--max-residual = {max_residual:g} % allows the identification's log: forces of "
+            "the other sign or in other units, swapped columns, or another machine"
+        )
     wrote = f"wrote {out / 'report.md'} and {len(paths) - 1} more files"
     if stale:
         wrote += f"; removed {', '.join(p.name for p in stale)} of an earlier run"
