@@ -711,6 +711,11 @@ def _error_lines(r) -> list[str]:
 
 def test_max_residual_option_and_refusals_write_nothing(tmp_path, exciting, noisy):
     _, sc = exciting
+    # the library's is a fraction, checked before the fit (nan and -1 were refused after
+    # it, 5.0 turned the gate off)
+    for bad in (float("nan"), -1.0, 0.0, 5.0):
+        with pytest.raises(IdentificationError, match=r"must be in \(0, 1\], a fraction"):
+            identify(Log(noisy.t[:10], noisy.q[:10], noisy.tau[:10], "x"), sc, max_residual=bad)
     shaken = _with(noisy, tau=lambda x: x + 15.0 * np.sin(2 * np.pi * 7.3 * noisy.t)[:, None])
     _write_csv(tmp_path / "run.csv", shaken)
     r = _run("identify", "run.csv", "--out", "o", cwd=tmp_path)

@@ -1021,6 +1021,11 @@ def identify(
     kernels it needed (once per machine) is ``compile_seconds``, not in it."""
     t0 = time.perf_counter()
     label = scenario_label or f"scenario {scenario.name!r}"
+    if max_residual is not None and not 0.0 < max_residual <= 1.0:  # NaN too; before the fit
+        raise IdentificationError(
+            f"max_residual = {max_residual!r}: must be in (0, 1], a fraction (the command's "
+            "--max-residual is in %), or None for no gate"
+        )
     _check_rate(log, cutoff, None)  # a bad log is refused before any work
     mech = scenario.plant()  # the geometry only: W does not depend on Theta
     vs = scenario.plant_spec.friction_velocity if friction_velocity is None else friction_velocity
