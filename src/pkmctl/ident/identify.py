@@ -1157,8 +1157,12 @@ def check_excitation(where: str, base: BaseParameters, A: np.ndarray) -> float:
     """cond of the base observation matrix A (3n, base.count); refused if its rank is
     short of ``base.count`` (the trajectory does not move some base parameters: named)."""
     r = base.count
-    sv = np.linalg.svd(A / np.linalg.norm(A, axis=0).clip(1e-300), compute_uv=False)
-    rank = int(np.sum(sv > 1e-9 * sv[0]))
+    norms = np.linalg.norm(A, axis=0)
+    # columns of rounding alone (a constant pose's accelerations) scaled to unit norm added
+    # rank: a constant pose read "rank 5 of 30"
+    live = norms > 1e-9 * norms.max(initial=0.0)
+    sv = np.linalg.svd(A[:, live] / norms[live], compute_uv=False)
+    rank = int(np.sum(sv > 1e-9 * sv[0])) if sv.size else 0
     cond = float(np.linalg.cond(A))
     if rank < r:
         weakest = [base.names[k] for k in np.argsort(np.linalg.norm(A, axis=0))[: r - rank]]
