@@ -291,6 +291,46 @@ def test_runs_of_another_version_of_a_part_than_the_recorded_one_are_error_recor
     assert all(r["rmse_z_mm"] is None and r["status"] == "error" for r in mine)
 
 
+def test_runs_a_worker_made_with_another_pkmctl_are_error_records(tmp_path, monkeypatch):
+    """A tester's Dask worker ran a copy of pkmctl with one line changed: 8 records differed
+    from an undisturbed run, with exit 0 and "0 failed". Each task's worker now sends the
+    hash of pkmctl's modules as it imported them; a task made by other code is error
+    records saying so (run here: the worker's hash stands for another machine's)."""
+    from pkmctl import _jit
+    from pkmctl.campaign import execute
+
+    spec = CampaignSpec.from_toml(_spec(tmp_path, ["pd", "smc"]))
+    real = execute._task_result
+    other = "f" * 20
+    assert _jit.package_stamp() != other
+
+    def elsewhere(spec, task):
+        table, ran, code = real(spec, task)
+        assert code == _jit.package_stamp()  # (what a worker sends: its own)
+        return table, ran, other if task.index == 0 else code
+
+    monkeypatch.setattr(execute, "_task_result", elsewhere)
+    done = run_campaign(spec, tmp_path / "c", workers=1)
+    rows = read_records(tmp_path / "c").to_pylist()
+    first = {(r.controller, r.seed) for r in spec.tasks()[0].runs}
+    bad = [r for r in rows if (r["controller"], r["seed"]) in first]
+    assert bad and done.errors == len(bad) == len(first)
+    assert {r["message"] for r in bad} == {
+        f"CodeMismatch: the worker ran another pkmctl (its modules' hash {other}; this "
+        f"campaign's {_jit.package_stamp()}): run the same pkmctl on every worker (restart a "
+        "worker started before pkmctl changed), then --resume"
+    }
+    assert all(r["status"] == "error" and r["rmse_z_mm"] is None for r in bad)
+    assert all(r["status"] == "ok" for r in rows if r not in bad)
+    session = json.loads((tmp_path / "c" / "campaign.json").read_text())["sessions"][-1]
+    assert session["pkmctl_sources"] == _jit.package_stamp()
+    # --resume with the workers on the campaign's code runs them again
+    monkeypatch.setattr(execute, "_task_result", real)
+    again = run_campaign(spec, tmp_path / "c", workers=1, resume=True)
+    statuses = {r["status"] for r in read_records(tmp_path / "c").to_pylist()}
+    assert again.errors == 0 and statuses == {"ok"}
+
+
 @pytest.mark.cluster
 def test_dask_workers_running_another_version_of_a_plugin_make_error_records(tmp_path):
     """The workers preload their own copy of the plugin (another GAIN); the client's copy,

@@ -406,3 +406,16 @@ def test_empty_term_and_variable_names_are_refused(old, new, message):
     with pytest.raises(fis.FISError) as info:
         fis.read_fis(text)
     assert str(info.value) == f"<string>:{_lineno(text, new)}: {message} in: {new}"
+
+
+def test_degenerate_linear_ramps_are_matlabs():
+    """MATLAB's linzmf [a a] is 1 below a and 0 from a on, linsmf [a a] 0 below a and 1
+    from a on; linzmf gave 1 at x = a (a tester: an output of 3.386 where MATLAB's is 8)."""
+    from pkmctl.fuzzy.mf import MF_TYPES, mf_value
+
+    z, s = MF_TYPES["linzmf"][0], MF_TYPES["linsmf"][0]
+    x = (4.999, 5.0, 5.001)
+    assert [mf_value(z, 5.0, 5.0, 0.0, 0.0, v) for v in x] == [1.0, 0.0, 0.0]
+    assert [mf_value(s, 5.0, 5.0, 0.0, 0.0, v) for v in x] == [0.0, 1.0, 1.0]
+    # a proper ramp is unchanged: ends and middle
+    assert [mf_value(z, 4.0, 6.0, 0.0, 0.0, v) for v in (4.0, 5.0, 6.0)] == [1.0, 0.5, 0.0]

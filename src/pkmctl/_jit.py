@@ -101,6 +101,12 @@ def _kernel_sources() -> list[Path]:
     return out
 
 
+def _package_stamp() -> str:
+    h = hashlib.sha256()
+    _hash_files(_PACKAGE.rglob("*.py"), h, _PACKAGE)
+    return h.hexdigest()[:20]
+
+
 def _compute_stamp() -> str:
     h = hashlib.sha256()
     h.update(f"numba {numba.__version__} python {sys.version_info[:3]}\0".encode())
@@ -112,11 +118,19 @@ def _compute_stamp() -> str:
 
 
 _STAMP = _compute_stamp()
+_PACKAGE_STAMP = _package_stamp()
 
 
 def source_stamp() -> str:
     """The content hash of pkmctl's kernel sources (and of Numba's and Python's versions)."""
     return _STAMP
+
+
+def package_stamp() -> str:
+    """The content hash of every module of pkmctl, as this process found them when it
+    imported pkmctl: a campaign's worker that runs other code than the campaign's (another
+    pkmctl on a Dask worker, a file edited since) says so by it."""
+    return _PACKAGE_STAMP
 
 
 def cache_root() -> Path:

@@ -259,22 +259,44 @@ def _ran_sources(spec: CampaignSpec, task: Task) -> dict[str, dict[str, str]]:
     return out
 
 
-def _task_result(spec: CampaignSpec, task: Task) -> tuple[pa.Table, dict]:
-    """What a worker sends back for ``task``: its records (:func:`run_task`) and the source
-    hash of each user part they were made with there (:func:`_ran_sources`), for the
-    client to check against the hashes the campaign records (:func:`_same_sources`)."""
+def _task_result(spec: CampaignSpec, task: Task) -> tuple[pa.Table, dict, str]:
+    """What a worker sends back for ``task``: its records (:func:`run_task`), the source
+    hash of each user part they were made with there (:func:`_ran_sources`) and of its
+    pkmctl (:func:`pkmctl._jit.package_stamp`), for the client to check against the
+    campaign's (:func:`_same_sources`)."""
+    from pkmctl import _jit
+
     ran = _ran_sources(spec, task)
-    return run_task(spec, task), ran
+    return run_task(spec, task), ran, _jit.package_stamp()
 
 
-def _same_sources(spec: CampaignSpec, table: pa.Table, ran: dict, parts: dict) -> pa.Table:
+def _same_sources(
+    spec: CampaignSpec, table: pa.Table, ran: dict, parts: dict, code: str | None = None
+) -> pa.Table:
     """``table``, with each run whose user part was another version than the campaign's
     (``ran``: :func:`_ran_sources` of the worker; ``parts``: :func:`~pkmctl.campaign.
     store.user_parts` of this process, in campaign.json) made an error record that says
     so: a worker that imported another version of a plugin (a Dask worker's own copy) ran
-    it, and its records are not those of the code the campaign records. As any error
-    record, they are run again by ``--resume`` (once the workers run the campaign's
-    version), and the other runs are kept."""
+    it, and its records are not those of the code the campaign records. Every run, if
+    the worker's pkmctl (``code``, its package stamp) is not this process's: a Dask worker
+    with another pkmctl, or one started before a file was edited, went unnoticed (a
+    tester's changed line made 8 records differ, exit 0). As any error record, they are
+    run again by ``--resume`` (once the workers run the campaign's code), and the other
+    runs are kept."""
+    from pkmctl import _jit
+
+    mine = _jit.package_stamp()
+    if code is not None and code != mine:
+        message = (
+            f"CodeMismatch: the worker ran another pkmctl (its modules' hash {code}; this "
+            f"campaign's {mine}): run the same pkmctl on every worker (restart a worker "
+            "started before pkmctl changed), then --resume"
+        )
+        rows = table.to_pylist()
+        for row in rows:
+            row.update(status="error", diverged_at=None, message=message)
+            row.update(dict.fromkeys(metric_columns(spec.metrics)))
+        return pa.Table.from_pylist(rows, schema=table.schema)
     why = {}
     for controller, hashes in ran.items():
         for key, h in hashes.items():
@@ -681,8 +703,8 @@ def _run_locked(spec, out, runs_dir, client, scheduler, workers, progress, on_cl
     else:
         stream = _local_results(spec, todo, min(workers, max(1, len(todo))))
     try:
-        for task, (table, ran) in stream:
-            table = _same_sources(spec, table, ran, parts)  # the code the campaign records?
+        for task, (table, ran, code) in stream:
+            table = _same_sources(spec, table, ran, parts, code)  # the campaign's code?
             write_task(runs_dir, task.index, table)
             n_tasks += 1
             now += table.num_rows

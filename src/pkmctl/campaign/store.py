@@ -355,6 +355,7 @@ def record_session(out: str | Path, where: str, parts: dict[str, dict] | None = 
         "host": platform.node(),
         "pkmctl": pkmctl.__version__,
         "kernel_sources": _jit.source_stamp(),
+        "pkmctl_sources": _jit.package_stamp(),
         "python": platform.python_version(),
         "numpy": numpy.__version__,
         "numba": version("numba"),

@@ -109,11 +109,11 @@ def mf_value(kind, a, b, c, d, x):
         return _sig(a, b, x) * _sig(c, d, x)
     if kind == _PI:
         return mf_piece(4, a, b, 0.0, 0.0, x)[0] * mf_piece(3, c, d, 0.0, 0.0, x)[0]
-    if kind == _LINZ:
-        if x <= a:
-            return 1.0
+    if kind == _LINZ:  # 0 from b on first: [a a] is 0 at a (MATLAB: 1 below a, 0 from a)
         if x >= b:
             return 0.0
+        if x <= a:
+            return 1.0
         return (b - x) / (b - a)
     # _LINS
     if x >= b:

@@ -216,8 +216,9 @@ class MujocoPlant(NamedTuple):
 @kernel(refcount=False)
 def mujoco_observe(p, x, tau, work, q, F):
     """q and J^T tau at X from the closed-form kinematics (the loop overwrites q with the
-    lengths MuJoCo's slides give: 2e-15 m apart when assembled, up to ~5 nm in a run, as
-    MuJoCo's equality constraints are soft; a sensor reads the pose's)."""
+    lengths MuJoCo's slides give: 2e-15 m apart when assembled, up to 44 nm in a run (the
+    paper's first ms, 5.5 kN a limb; docs/machine.md), as MuJoCo's equality constraints are
+    soft; a sensor reads the pose's)."""
     w, M, C, G = work[0], work[1], work[2], work[3]  # the rigid plant's work tuple
     dynamics_kernel(p.geom, p.theta, x[0:3], x[3:6], x[3:6], w, M, C, G)
     for i in range(4):
