@@ -172,7 +172,8 @@ def _free_port() -> int:
 
 @contextlib.contextmanager
 def _cluster(n_workers: int, *, deadline_s: float = 180.0, dashboard: bool = False,
-             worker_args: tuple[str, ...] = (), pythonpath: tuple[str, ...] = ()):  # fmt: skip
+             worker_args: tuple[str, ...] = (), pythonpath: tuple[str, ...] = (),
+             allowed_failures: int = 3):  # fmt: skip
     """A real dask.distributed cluster on 127.0.0.1: a scheduler and ``n_workers`` worker
     processes of one thread, without nannies (so a worker's pid is the process we started
     and can kill), each started with ``worker_args`` too (``--preload``) and
@@ -187,7 +188,8 @@ def _cluster(n_workers: int, *, deadline_s: float = 180.0, dashboard: bool = Fal
     env = dict(os.environ)
     src = str(Path(pkmctl.__file__).resolve().parents[1])
     env["PYTHONPATH"] = os.pathsep.join([*pythonpath, src, env.get("PYTHONPATH", "")])
-    env["DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES"] = "3"  # a task outlives 3 lost workers
+    # a task outlives 3 lost workers
+    env["DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES"] = str(allowed_failures)
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": env}
     # loopback only: --no-dashboard alone still serves HTTP on 0.0.0.0:8787 (scheduler)
     # and 0.0.0.0 at a random port (each worker)
@@ -1605,3 +1607,29 @@ def test_a_resume_while_the_campaign_runs_is_refused(tmp_path):
         with pytest.raises(OutputError, match="another pkmctl campaign run is running into"):
             run_campaign(spec, out, workers=1, resume=True)
     assert run_campaign(spec, out, workers=1, resume=True).done_now == 0
+
+
+def test_workers_that_cannot_take_the_spec_are_one_line():
+    """A Dask worker started before pkmctl changed could not unpickle the spec: the
+    command said "Exception: ImportError(...) (an internal error ...)", exit 1."""
+    from pkmctl.campaign.execute import WorkStopped, _dask_stream
+
+    class Workers:  # a client whose workers fail to load what it sends
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def scatter(self, data, broadcast=False):
+            raise Exception(  # noqa: TRY002 - what distributed raised, as it raised it
+                "ImportError(\"cannot import name 'FUZZY_CONTROLLERS' from 'pkmctl.sim.scenario'\")"
+            )
+
+    spec = CampaignSpec.from_toml(HEAD)
+    with pytest.raises(WorkStopped) as info:
+        list(_dask_stream(spec, spec.tasks(), Workers(), None, None))
+    msg = str(info.value)
+    assert msg.startswith("the Dask workers could not take the campaign's spec (Exception: "
+                          "ImportError(\"cannot import name 'FUZZY_CONTROLLERS'"), msg  # fmt: skip
+    assert msg.endswith("Restart them; no run was made") and "\n" not in msg

@@ -252,6 +252,35 @@ def test_a_worker_that_keeps_dying_names_its_task_and_the_resume(tmp_path, monke
     assert [r["status"] for r in read_records(out).to_pylist()] == ["ok"]  # the one done
 
 
+@pytest.mark.cluster
+def test_a_task_that_ends_its_dask_workers_is_named(tmp_path):
+    """On Dask, a run that ends its worker process read "KilledWorker: Attempted to run
+    task ... (an internal error ...)", exit 1, no resume (a tester; or, with the default
+    allowed-failures, that the scheduler had gone away). Now the task is named, as the
+    local executor names it."""
+    from tests.test_campaign import _cluster
+
+    module = "law_" + uuid.uuid4().hex[:10]
+    name = module.replace("_", "-")
+    (tmp_path / f"{module}.py").write_text(EXITS.replace("NAME", name))
+    spec_file = _spec(tmp_path, [name], seeds=1)
+    spec_file.write_text(spec_file.read_text() + '[factors."payload.mass"]\nvalues = [0.0, 5.0]\n')
+    out = tmp_path / "c"
+    with _cluster(2, worker_args=("--preload", module), pythonpath=(str(tmp_path),),
+                  allowed_failures=0) as (address, _):  # fmt: skip
+        proc = _pkmctl("--plugin", str(tmp_path / f"{module}.py"), "campaign", "run",
+                       str(spec_file), "--out", str(out), "--scheduler", address)  # fmt: skip
+        _, err = proc.communicate(timeout=170)
+    assert proc.returncode == 2, err
+    (line,) = [ln for ln in err.splitlines() if ln.startswith("error: ")]
+    assert line.startswith(
+        f"error: task 1 (cell 1: payload.mass = 5.0; controller {name}) ended each worker "
+        "process it ran on, 1 of them (the scheduler's allowed-failures): a run there ends "
+        "its process"
+    ), line
+    assert "--resume completes the campaign" in line and "internal error" not in line, line
+
+
 def _mismatch(name: str, ran: str, recorded: str) -> str:
     return (
         f"PluginMismatch: controller {name!r}: the worker ran another version of it (source "

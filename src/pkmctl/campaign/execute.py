@@ -498,7 +498,7 @@ def _dask_results(spec: CampaignSpec, tasks: list[Task], client, on_client=None)
     import logging
     from concurrent.futures import CancelledError
 
-    from distributed import as_completed
+    from distributed import KilledWorker, as_completed
 
     # its own traceback of a lost scheduler; the one line is ours (WorkStopped)
     log = logging.getLogger("distributed.client")
@@ -506,6 +506,15 @@ def _dask_results(spec: CampaignSpec, tasks: list[Task], client, on_client=None)
     log.setLevel(logging.CRITICAL)
     try:
         yield from _dask_stream(spec, tasks, client, on_client, as_completed)
+    except KilledWorker as exc:  # (it read "KilledWorker: ... (an internal error ...)")
+        key = str(exc.task)
+        which = [t for t in tasks if key == f"pkmctl-{spec.digest}-task-{t.index}"]
+        raise WorkStopped(
+            f"{_tasks_named(spec, which) if which else key} ended each worker process it ran "
+            f"on, {exc.allowed_failures + 1} of them (the scheduler's allowed-failures): a run "
+            "there ends its process (a plugin that exits, a crash in compiled code, the "
+            "system's out-of-memory killer); the runs done are kept"
+        ) from None
     except (CancelledError, OSError) as exc:
         # (a lost scheduler cancels every future; Dask's CommClosedError, an OSError, may
         # come first; a task's own error is raised as it was)
@@ -514,8 +523,10 @@ def _dask_results(spec: CampaignSpec, tasks: list[Task], client, on_client=None)
         why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise WorkStopped(
             f"the Dask cluster stopped the campaign's work ({type(exc).__name__}: {_clip(why)}): "
-            "its scheduler went away, or every worker holding the campaign's spec did; "
-            "the runs done are kept"
+            "its scheduler went away, or every worker holding the campaign's spec did (a run "
+            "that ends its worker process takes the spec with each worker it runs on: if "
+            "--resume stops the same way, local workers, without --scheduler, name its "
+            "task); the runs done are kept"
         ) from None
     finally:
         log.setLevel(level)
@@ -535,7 +546,18 @@ def _dask_stream(spec, tasks, client, on_client, as_completed) -> Iterable:
     with client:
         if on_client is not None:
             on_client(client)
-        spec_f = client.scatter(spec, broadcast=True)
+        try:
+            spec_f = client.scatter(spec, broadcast=True)
+        except Exception as exc:  # noqa: BLE001 - the workers' own failure, one line
+            if isinstance(exc, OSError) and _comm_closed(exc):
+                raise
+            why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise WorkStopped(
+                f"the Dask workers could not take the campaign's spec ({type(exc).__name__}: "
+                f"{_clip(why)}): do they run this pkmctl (a worker started before pkmctl "
+                "changed, another version on that machine) with the plugins' modules? "
+                "Restart them; no run was made"
+            ) from None
         futures = {
             client.submit(
                 _task_result,
