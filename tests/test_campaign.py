@@ -1633,3 +1633,34 @@ def test_workers_that_cannot_take_the_spec_are_one_line():
     assert msg.startswith("the Dask workers could not take the campaign's spec (Exception: "
                           "ImportError(\"cannot import name 'FUZZY_CONTROLLERS'"), msg  # fmt: skip
     assert msg.endswith("Restart them; no run was made") and "\n" not in msg
+
+
+def test_a_factor_over_a_gain_no_controller_reads_is_refused():
+    """gains.gamma (AFSMC's adaptation gain) over smc and pd made cells of identical runs,
+    which the statistics counted as independent pairs (a tester). Refused in one line; a
+    controller that reads it makes the factor valid."""
+    from pkmctl.campaign.spec import SpecError
+
+    def spec(controllers: str, factor: str) -> CampaignSpec:
+        return CampaignSpec.from_toml(HEAD.replace('["smc"]', controllers) + factor)
+
+    gamma = '[factors."gains.gamma"]\nvalues = [0.5, 0.9]\n'
+    with pytest.raises(SpecError) as info:
+        spec('["smc", "pd"]', gamma)
+    assert str(info.value) == (
+        "factors.'gains.gamma': none of the controllers (smc, pd) reads it: its cells would "
+        "be identical runs counted as independent pairs; remove the factor, or add a "
+        "controller that reads it"
+    )
+    assert spec('["smc", "afsmc"]', gamma).n_runs == 4
+    # each read by the one named and by none of the other two
+    for factor, reader, others in (
+        ('[factors."gains.eps"]\nvalues = [0.1, 0.2]\n', "smc", '["pd", "ctc"]'),
+        ('[factors."gains.pd_kp"]\nvalues = [[1.0, 2.0, 3.0], [2.0, 2.0, 3.0]]\n', "pd",
+         '["smc", "ctc"]'),
+        ('[factors."gains.ctc_kd"]\nvalues = [[1.0, 2.0, 3.0], [2.0, 2.0, 3.0]]\n', "ctc",
+         '["smc", "pd"]'),
+    ):  # fmt: skip
+        with pytest.raises(SpecError, match="none of the controllers"):
+            spec(others, factor)
+        assert spec(f'["{reader}"]', factor).n_runs == 2

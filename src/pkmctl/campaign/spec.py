@@ -561,6 +561,7 @@ class CampaignSpec:
             cells = _one_at_a_time(base, parsed, center)
         for cell in cells:
             _cell_scenario(base, _with_fis(cell, fis_files))  # raises its one-line error
+        _check_gains_read(base, parsed, controllers)
         if "rmse_after_1s" in metrics and "rmse" not in metrics:
             _check_after_1s(base, cells, float(duration), metrics)
         compare = _comparisons(data.get("compare", []), controllers)
@@ -778,6 +779,44 @@ def _comparisons(body: Any, controllers: list[str]) -> tuple[Comparison, ...]:
                 )
         out.append(Comparison(str(q["name"]), q["controller"], q["baseline"]))
     return tuple(out)
+
+
+def _check_gains_read(base: Scenario, parsed: dict, controllers: list[str]) -> None:
+    """Refuse a factor over a gain that none of the controllers reads: each one's parameter
+    bundle is the same at every value of it, so its cells would be identical runs counted
+    as independent pairs (a tester's ``gains.gamma`` over smc and pd). Asked only when every
+    controller is pkmctl's own (a user's part may read any gain) and of a factor that sets
+    nothing else (no ``with``)."""
+    from pkmctl.parts import PartContext, get_part
+
+    fields = [f for f, (_, with_) in parsed.items() if f.startswith("gains.") and not with_]
+    parts = [get_part("controller", c) for c in controllers]
+    if not fields or not all(part.builtin for part in parts):
+        return
+    for field in fields:
+        seen = []
+        for value in parsed[field][0]:
+            sc = _cell_scenario(base, {field: value})
+            ctx = PartContext(plant=sc.plant(), model=sc.controller_mechanism(),
+                              gains=sc.controller_gains(), period=sc.timing.control_period,
+                              flc=sc.fuzzy_system(), scenario=sc)  # fmt: skip
+            seen.append([part.bundle(ctx) for part in parts])
+        if all(_same_bundle(seen[0], other) for other in seen[1:]):
+            raise _fail(
+                f"factors.{field!r}: none of the controllers ({', '.join(controllers)}) reads "
+                "it: its cells would be identical runs counted as independent pairs; remove "
+                "the factor, or add a controller that reads it"
+            )
+
+
+def _same_bundle(a, b) -> bool:
+    """Two parameter bundles (nested tuples of numbers and arrays) equal to the bit."""
+    if isinstance(a, tuple | list):
+        return (isinstance(b, tuple | list) and len(a) == len(b)
+                and all(_same_bundle(x, y) for x, y in zip(a, b, strict=True)))  # fmt: skip
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return np.array_equal(a, b)
+    return a == b
 
 
 def _cell_scenario(base: Scenario, cell: dict) -> Scenario:
