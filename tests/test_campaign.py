@@ -1664,3 +1664,45 @@ def test_a_factor_over_a_gain_no_controller_reads_is_refused():
         with pytest.raises(SpecError, match="none of the controllers"):
             spec(others, factor)
         assert spec(f'["{reader}"]', factor).n_runs == 2
+
+
+def test_the_estimate_says_when_the_workers_compile_first(tmp_path, monkeypatch):
+    """A campaign estimated at 1.1 s took 250 s on an empty cache, and nothing said the
+    workers were compiling (a tester). The loops not run on this machine are counted."""
+    from pkmctl.campaign import store
+
+    spec = CampaignSpec.from_toml(HEAD.replace('["smc"]', '["smc", "pd"]'))
+    pkmctl.simulate(spec.scenario(0), "smc", duration=0.01)  # this cache: smc's has run
+    pkmctl.simulate(spec.scenario(0), "pd", duration=0.01)
+    assert store.uncompiled_loops(spec) == 0
+    with monkeypatch.context() as m:
+        m.setenv("PKMCTL_CACHE_DIR", str(tmp_path / "empty"))
+        assert store.uncompiled_loops(spec) == 2
+    monkeypatch.setattr(store, "uncompiled_loops", lambda spec: 1)  # (the run: compiled)
+    spec_file = tmp_path / "spec.toml"
+    spec_file.write_text(HEAD)
+    res = runner.invoke(app, ["campaign", "run", str(spec_file), "--out", str(tmp_path / "c"),
+                              "--workers", "1"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert (", plus compiling: 1 combination of parts and controller has not run on this "
+            "machine with this pkmctl yet") in " ".join(res.stderr.split()), res.stderr  # fmt: skip
+
+
+def test_a_campaigns_log_gets_a_line_a_minute_as_well(tmp_path, monkeypatch):
+    """In a log (not a terminal) progress came every 10 % only: an 85 min campaign was
+    silent for 8.5 min. A line also comes once LOG_EVERY_S has passed since the last."""
+    from pkmctl import cli
+
+    spec_file = tmp_path / "spec.toml"
+    spec_file.write_text(
+        HEAD + '[factors."payload.mass"]\n'
+        "values = [" + ", ".join(f"{0.1 * k:.1f}" for k in range(24)) + "]\n"
+    )
+    lines = {}
+    for every in (60.0, 0.0):
+        monkeypatch.setattr(cli, "LOG_EVERY_S", every)
+        res = runner.invoke(app, ["campaign", "run", str(spec_file), "--out",
+                                  str(tmp_path / f"c{every}"), "--workers", "1"])  # fmt: skip
+        assert res.exit_code == 0, res.output
+        lines[every] = [ln for ln in res.stderr.splitlines() if " runs, 0 not ok, " in ln]
+    assert len(lines[0.0]) > len(lines[60.0]) >= 1, lines

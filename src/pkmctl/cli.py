@@ -834,6 +834,10 @@ def _runs_left(spec, out: Path) -> list[tuple[int, str]]:
             for r in t.runs]  # fmt: skip
 
 
+#: A campaign's progress in a log (not a terminal): a line at least this often (s).
+LOG_EVERY_S = 60.0
+
+
 def _n(count: int, noun: str) -> str:
     """``1 cell``, ``2 cells``."""
     return f"{count} {noun}" + "s" * (count != 1)
@@ -914,7 +918,7 @@ def campaign_run(
         if scheduler
         else f"{n_workers} local worker" + "s" * (n_workers > 1)
     )
-    from pkmctl.campaign.store import estimate_seconds
+    from pkmctl.campaign.store import estimate_seconds, uncompiled_loops
 
     runs = _runs_left(spec, out) if resume and existed else None
     left = spec.n_runs if runs is None else len(runs)
@@ -925,6 +929,12 @@ def campaign_run(
         else f"{_seconds(work / n_workers)}"
         + (" (plus a few s to start the workers)" if min(n_workers, len(tasks)) > 1 else "")
     )
+    if new := uncompiled_loops(spec):
+        estimate += (
+            f", plus compiling: {_n(new, 'combination')} of parts and controller "
+            f"{'has' if new == 1 else 'have'} not run on this machine with this pkmctl yet, "
+            "and the workers compile their loops first (a minute or more each, once)"
+        )
     _say(
         f"campaign {spec.name!r} ({spec.digest}): {_n(spec.n_runs, 'run')} = "
         f"{_n(len(spec.cells), 'cell')} x {_n(len(spec.controllers), 'controller')} x "
@@ -945,7 +955,7 @@ def campaign_run(
         disable=not err_console.is_terminal,
     ) as bar:
         task = bar.add_task("running", total=spec.n_runs, failures=0, rate=0.0, left="")
-        state = {"done": 0}
+        state = {"done": 0, "said": time.monotonic()}
 
         def progress(done, failures, total, rate):
             # the time left at this session's rate so far (its start and first compile
@@ -953,11 +963,15 @@ def campaign_run(
             left = (
                 f"about {_seconds((total - done) / rate)} left" if rate > 0 and done < total else ""
             )
-            step = max(1, total // 10)  # a log (not a terminal) gets a line every 10 %
-            # (not before a run of this session: a resume's start said "0.0 runs/s")
-            if not err_console.is_terminal and rate > 0 and done // step > state["done"] // step:
+            step = max(1, total // 10)  # a log (not a terminal) gets a line every 10 %, or
+            # a minute (an 85 min campaign was silent 8.5 min); not before a run of this
+            # session (a resume's start said "0.0 runs/s")
+            now = time.monotonic()
+            due = done // step > state["done"] // step or now - state["said"] >= LOG_EVERY_S
+            if not err_console.is_terminal and rate > 0 and due:
                 _say(f"{done}/{total} runs, {failures} not ok, {rate:.1f} runs/s"
                      + (f", {left}" if left else ""))  # fmt: skip
+                state["said"] = now
             state["done"] = done
             bar.update(task, completed=done, failures=failures, rate=rate, left=left)
 
