@@ -1706,3 +1706,51 @@ def test_a_campaigns_log_gets_a_line_a_minute_as_well(tmp_path, monkeypatch):
         assert res.exit_code == 0, res.output
         lines[every] = [ln for ln in res.stderr.splitlines() if " runs, 0 not ok, " in ln]
     assert len(lines[0.0]) > len(lines[60.0]) >= 1, lines
+
+
+def test_a_full_disk_names_the_file_the_runs_kept_and_the_resume(tmp_path, monkeypatch):
+    """ "error: No space left on device", and nothing more (a tester's 200 kB tmpfs): no
+    file, no runs kept, no resume command."""
+    import contextlib
+    import errno
+
+    import pyarrow as pa
+
+    from pkmctl.campaign import execute, store
+
+    @contextlib.contextmanager
+    def full(path, mode="w"):
+        class Disk:
+            def write(self, data):
+                raise OSError(errno.ENOSPC, "No space left on device")
+
+        yield Disk()
+
+    real = store.atomic_write
+    monkeypatch.setattr(store, "atomic_write", full)
+    with pytest.raises(OSError) as info:
+        store.write_task(tmp_path, 3, pa.table({"a": [1]}))
+    assert info.value.filename == str(tmp_path / "task-00003.parquet")
+    monkeypatch.setattr(store, "atomic_write", real)
+    calls = []
+
+    def second_fails(runs, index, table):
+        calls.append(index)
+        if len(calls) == 2:
+            raise OSError(errno.ENOSPC, "No space left on device", str(runs / "task-x.parquet"))
+        return store.write_task(runs, index, table)
+
+    monkeypatch.setattr(execute, "write_task", second_fails)
+    spec_file = tmp_path / "spec.toml"
+    spec_file.write_text(HEAD + '[factors."payload.mass"]\nvalues = [0.0, 1.0, 2.0]\n')
+    out = tmp_path / "c"
+    res = runner.invoke(app, ["campaign", "run", str(spec_file), "--out", str(out),
+                              "--workers", "1"])  # fmt: skip
+    assert res.exit_code == 2, res.output
+    line = " ".join(res.stderr.split())
+    said = (
+        f"error: {out / 'runs' / 'task-x.parquet'}: No space left on device; the runs done are "
+        f"kept (1 of 3 in {out}); once it can be written, pkmctl campaign run {spec_file} "
+        f"--out {out} --workers 1 --resume completes the campaign"
+    )
+    assert said in line, line

@@ -1020,6 +1020,13 @@ def campaign_run(
                 raise
             _fail(f"{exc} ({state['done']} of {spec.n_runs} in {out}); {resume_command()} "
                   "completes the campaign")  # fmt: skip
+        except OSError as exc:  # a full disk: which file, what is kept, how to go on
+            bar.stop()
+            if _debug(ctx) or not (out / "campaign.json").exists():
+                _campaign_handle(ctx, exc, "writing the campaign")
+            _fail(f"{_describe(exc)}; the runs done are kept ({state['done']} of "
+                  f"{spec.n_runs} in {out}); once it can be written, {resume_command()} "
+                  "completes the campaign")  # fmt: skip
         except Exception as exc:
             bar.stop()
             _campaign_handle(

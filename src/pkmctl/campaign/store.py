@@ -656,8 +656,13 @@ def write_task(runs: Path, index: int, table: pa.Table) -> Path:
     buf = io.BytesIO()
     pq.write_table(table, buf)
     path = _task_path(runs, index)
-    with atomic_write(path, "wb") as fh:
-        fh.write(buf.getvalue())
+    try:
+        with atomic_write(path, "wb") as fh:
+            fh.write(buf.getvalue())
+    except OSError as exc:  # a full disk said "No space left on device", naming no file
+        if exc.filename is not None or exc.errno is None:
+            raise
+        raise OSError(exc.errno, exc.strerror, str(path)) from None
     return path
 
 
