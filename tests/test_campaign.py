@@ -1435,7 +1435,7 @@ def test_error_records_fail_the_command_and_a_resume_runs_their_tasks_again(tmp_
         res = runner.invoke(app, args)
         assert res.exit_code == 1, res.output
         assert "of the 2 runs stored: 0 diverged, 1 failed with an error" in res.stdout
-        assert "1 run failed: RuntimeError: flaky" in res.stderr
+        assert "1 run failed (cell 1 smc seed 0): RuntimeError: flaky" in res.stderr
         hint = f"{' '.join(['pkmctl', *args[:5]])} --workers 1 --resume runs their tasks again"
         assert hint in res.stderr, res.stderr
         # an interrupted resume: the error records of the earlier session still count

@@ -193,12 +193,13 @@ def test_a_run_that_errs_says_why_in_the_command_and_the_report(tmp_path, monkey
     res, out, plugin, name = _with_payload(tmp_path, NO_PAYLOAD, workers=1)
     assert res.exit_code == 1, res.output  # a run that failed with an error: not a result
     why = f"PartError: controller {name!r}: build failed: ValueError: no payload, please"
-    assert f"1 run failed: {why}" in res.stderr, res.stderr
+    # which run, so that it can be rerun alone (a tester queried the records for it)
+    assert f"1 run failed (cell 1 {name} seed 0): {why}" in res.stderr, res.stderr
     assert [r["status"] for r in read_records(out).to_pylist()] == ["ok", "error"]
     res = runner.invoke(app, ["--plugin", str(plugin), "campaign", "report", str(out)])
     assert res.exit_code == 0, res.output
     md = (out / "report" / "report.md").read_text()
-    assert f"at payload.mass = 5; 1 error: {why}" in md, md
+    assert f"at payload.mass = 5; 1 error (seed 0): {why}" in md, md
 
 
 SEED_ZERO = LAW.replace(
@@ -394,7 +395,7 @@ def test_dask_workers_running_another_version_of_a_plugin_make_error_records(tmp
     assert f"the campaign's is {recorded})" in message
     ran = message.split("(source hash ", 1)[1].split(";", 1)[0]
     assert ran != recorded
-    assert f"2 runs failed: {message}" in err, err
+    assert f"2 runs failed (cell 0 {name} seed 0, cell 0 {name} seed 1): {message}" in err, err
 
 
 @pytest.mark.cluster

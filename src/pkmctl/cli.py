@@ -1047,12 +1047,14 @@ def campaign_run(
     if done.errors:  # why, in the words of the errors (a divergence is the metrics' part)
         import shlex
 
-        from pkmctl.campaign.stats import error_messages
+        from pkmctl.campaign.stats import error_messages, error_runs, seeds_named
         from pkmctl.campaign.store import read_records
 
-        why = error_messages(read_records(out, timing=False))
+        table = read_records(out, timing=False)
+        why = error_messages(table)
         for msg, n in why[:3]:
-            _say(f"{n} run{'s' if n > 1 else ''} failed: {msg}")
+            where = seeds_named(error_runs(table, msg))
+            _say(f"{n} run{'s' if n > 1 else ''} failed ({where}): {msg}")
         if len(why) > 3:
             _say(f"and {len(why) - 3} other errors: pkmctl campaign report {out} lists them")
         args = ["pkmctl", *_plugin_args(ctx), "campaign", "run", spec_file, "--out", str(out)]

@@ -484,3 +484,29 @@ def error_messages(table: pa.Table, cell: int | None = None, controller: str | N
         if status == "error" and cell in (None, c) and controller in (None, ctrl):
             counts[msg] = counts.get(msg, 0) + 1
     return sorted(counts.items(), key=lambda kv: -kv[1])
+
+
+def error_runs(
+    table: pa.Table, message: str, cell: int | None = None, controller: str | None = None
+) -> list[tuple[int, str, int]]:
+    """The runs (cell, controller, seed) that failed with ``message`` (of ``cell`` and
+    ``controller`` where given), in the table's order: which seeds to look at (a tester had
+    to query the records to learn them)."""
+    cols = [table.column(k).to_pylist() for k in ("cell", "controller", "seed", "status",
+                                                  "message")]  # fmt: skip
+    return [
+        (c, ctrl, seed)
+        for c, ctrl, seed, status, msg in zip(*cols, strict=True)
+        if status == "error" and msg == message and cell in (None, c)
+        and controller in (None, ctrl)
+    ]  # fmt: skip
+
+
+def seeds_named(runs: list[tuple[int, str, int]], most: int = 5, *, cells: bool = True) -> str:
+    """``cell 1 seed 5, cell 2 seed 3 and 4 more`` (``seed 5, 7`` without ``cells``)."""
+    if cells:
+        named = [f"cell {c} {ctrl} seed {s}" for c, ctrl, s in runs[:most]]
+    else:
+        named = [str(s) for _, _, s in runs[:most]]
+    more = f" and {len(runs) - most} more" if len(runs) > most else ""
+    return ("" if cells else "seed" + "s" * (len(runs) > 1) + " ") + ", ".join(named) + more

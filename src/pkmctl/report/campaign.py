@@ -534,11 +534,17 @@ def write_report(out: str | Path, cancel=None) -> list[Path]:
     else:
         for r in div:
             if r["n"] > r["ok"]:
-                why = stats.error_messages(table, r["cell"], r["controller"])
+                cell, ctrl = r["cell"], r["controller"]
+                why = stats.error_messages(table, cell, ctrl)
                 lines.append(
-                    f"- {r['controller']}: {r['n'] - r['ok']} of {r['n']} runs did not end ok "
-                    f"({r['diverged']} diverged) at {_cell_name(spec, r['cell'])}"
-                    + "".join(f"; {n} error: {m}" for m, n in why)
+                    f"- {ctrl}: {r['n'] - r['ok']} of {r['n']} runs did not end ok "
+                    f"({r['diverged']} diverged) at {_cell_name(spec, cell)}"
+                    + "".join(
+                        f"; {n} error ("
+                        + stats.seeds_named(stats.error_runs(table, m, cell, ctrl), cells=False)
+                        + f"): {m}"
+                        for m, n in why
+                    )
                 )
     missing = [r for r in summary if r.get("missing")]
     if missing:
