@@ -368,7 +368,11 @@ def test_a_cluster_that_loses_every_worker_stops_in_one_line_and_resumes(tmp_pat
     assert killed and killed[0] < spec.n_runs
     msg = str(info.value)
     assert msg.startswith("the Dask cluster stopped the campaign's work (") and "\n" not in msg
-    assert msg.endswith("every worker holding the campaign's spec did; the runs done are kept")
+    assert msg.endswith(
+        "every worker holding the campaign's spec did (a run that ends its worker process "
+        "takes the spec with each worker it runs on: if --resume stops the same way, local "
+        "workers, without --scheduler, name its task); the runs done are kept"
+    )
     done = run_campaign(spec, out, workers=1, resume=True)
     assert done.complete and done.done_before >= killed[0]
     run_campaign(spec, tmp_path / "local", workers=1)
