@@ -37,7 +37,6 @@ import pyarrow.parquet as pq
 from pkmctl.campaign.spec import (
     LEGACY_TASK_MULTIPLE,
     LEGACY_TASK_SECONDS,
-    SECONDS_PER_RUN,
     TASK_MULTIPLE,
     TASK_SECONDS,
     CampaignSpec,
@@ -187,24 +186,33 @@ def machine_key(cell: dict) -> str:
 #: AFSMC 1.7 us) and with a plant stepped from Python (MuJoCo's: 64-73 us). The estimate
 #: alone: the tasks' size keeps spec.SECONDS_PER_PERIOD, which a resume must find again.
 ESTIMATE_PERIOD = {"lanes": 0.6e-6, "single": 2e-6, "stepped": 70e-6}
+#: Seconds a run costs outside its loop in the estimate (prepare, build, metrics): in
+#: lanes next to nothing (1600 runs of 0.2 s in 8 lanes took 2.8 s on one worker, 2026-12-07,
+#: 1.75 ms a run with the loop; the spec's 10 ms a run made it "20 s"), alone 3-5 ms
+#: (docs/campaigns.md, "cost outside the loop").
+ESTIMATE_RUN = {"lanes": 2e-4, "single": 4e-3, "stepped": 4e-3}
 
 
 def estimate_seconds(spec: CampaignSpec, runs=None) -> float:
     """Estimated seconds of work of ``runs`` (default: all the campaign's) on one core of
     a machine like ours, unloaded: each run's periods at :data:`ESTIMATE_PERIOD` of its
-    loop, plus :data:`SECONDS_PER_RUN`."""
+    loop, plus :data:`ESTIMATE_RUN` of it a run."""
     from pkmctl.sim.lanes import lane_count, lanes_supported
 
     parts = {(machine_key(spec.cells[i]), c): p for (i, c), p in cell_parts(spec).items()}
     durations = spec.durations()
-    per = {}
+    per, each = {}, {}
     for key, p in parts.items():
         if p["plant"].stepper is not None:
+            loop = "stepped"
             per[key] = ESTIMATE_PERIOD["stepped"]
         elif lanes_supported(p):
+            loop = "lanes"
             per[key] = ESTIMATE_PERIOD["lanes"] * 8 / max(1, min(8, lane_count()))
         else:
+            loop = "single"
             per[key] = ESTIMATE_PERIOD["single"]
+        each[key] = ESTIMATE_RUN[loop]
     if runs is None:
         runs = [(cell, c) for cell in range(len(spec.cells)) for c in spec.controllers
                 for _ in spec.seeds]  # fmt: skip
@@ -212,8 +220,9 @@ def estimate_seconds(spec: CampaignSpec, runs=None) -> float:
     for cell, c in runs:
         period = float(spec.cells[cell].get("timing.control_period",
                                             spec.base.timing.control_period))  # fmt: skip
-        total += per[(machine_key(spec.cells[cell]), c)] * durations[cell] / period
-    return total + SECONDS_PER_RUN * len(runs)
+        key = (machine_key(spec.cells[cell]), c)
+        total += per[key] * durations[cell] / period + each[key]
+    return total
 
 
 def uncompiled_loops(spec: CampaignSpec) -> int:
