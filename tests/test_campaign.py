@@ -76,6 +76,15 @@ def reference(spec_file, tmp_path_factory):
             '[factors."payload.mass"]\ndistribution = "uniform"\nlow = 1.0\nhigh = 2.0\n',
             "samples = None: must be an integer >= 1",
         ),
+        # not "(zero runs)", which 2.5 seeds are not (a tester)
+        ("seeds = 2.5\n", "seeds = 2.5: must be a count >= 1 or a non-empty list of integers"),
+        # a draw out of range names the factor that drew it (it read "payload.mass = -0.80")
+        (
+            '[factors."payload.mass"]\ndistribution = "normal"\nmean = 0.5\nstd = 1.0\n'
+            "samples = 20\nseed = 1\n",
+            "factors.'payload.mass': a draw of its normal distribution (seed 1) is outside the "
+            "field's range: payload.mass = -0.80",
+        ),
     ],
 )
 def test_bad_specs_fail_in_one_line_before_anything_runs(tmp_path, change, expected):

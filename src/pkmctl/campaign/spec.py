@@ -501,7 +501,10 @@ class CampaignSpec:
         if count:
             seeds = list(range(seeds))
         if not isinstance(seeds, list) or not seeds:
-            raise _fail(f"seeds = {seeds!r}: must be a count >= 1 or a non-empty list (zero runs)")
+            raise _fail(
+                f"seeds = {seeds!r}: must be a count >= 1 or a non-empty list of integers"
+                + (" (zero runs)" if seeds == [] else "")
+            )
         for s in seeds:
             if not isinstance(s, int) or isinstance(s, bool) or not 0 <= s <= 2**63 - 1:
                 raise _fail(f"seeds: {s!r} must be an integer in [0, 2^63 - 1]")
@@ -559,8 +562,19 @@ class CampaignSpec:
             )
         else:
             cells = _one_at_a_time(base, parsed, center)
+        drawn = {f: b for f, b in factors.items() if isinstance(b, dict) and "distribution" in b}
         for cell in cells:
-            _cell_scenario(base, _with_fis(cell, fis_files))  # raises its one-line error
+            try:
+                _cell_scenario(base, _with_fis(cell, fis_files))  # raises its one-line error
+            except ScenarioError as exc:  # a draw out of range: which factor drew it
+                field = str(exc).split(" = ", 1)[0].split(": ", 1)[0]
+                if field not in drawn:
+                    raise
+                raise _fail(
+                    f"factors.{field!r}: a draw of its {drawn[field]['distribution']} "
+                    f"distribution (seed {drawn[field].get('seed', 0)}) is outside the "
+                    f"field's range: {exc}; narrow the distribution"
+                ) from None
         _check_gains_read(base, parsed, controllers)
         if "rmse_after_1s" in metrics and "rmse" not in metrics:
             _check_after_1s(base, cells, float(duration), metrics)
