@@ -95,6 +95,10 @@ def test_registration_errors_are_one_line():
         assert "\n" not in str(info.value)
     with pytest.raises(PartError, match=r"controller = 'nope': must be one of .*afsmc"):
         pkmctl.simulate("paper", controller="nope", duration=0.01)
+    # how a part of one's own is found, a Dask worker's too (a tester's campaign records
+    # said "must be one of ..." where the workers lacked the plugin)
+    with pytest.raises(PartError, match=r"or a Dask worker's --preload FILE.py\)$"):
+        pkmctl.simulate("paper", controller="nope", duration=0.01)
 
 
 class _Zero(NamedTuple):

@@ -284,7 +284,11 @@ def get_part(kind: str, name: str) -> Part:
     try:
         return reg[name]
     except (KeyError, TypeError):
-        raise PartError(f"{kind} = {name!r}: must be one of {', '.join(sorted(reg))}") from None
+        raise PartError(
+            f"{kind} = {name!r}: must be one of {', '.join(sorted(reg))} (a part of your own is "
+            "registered by importing its module: pkmctl --plugin FILE.py, or a Dask worker's "
+            "--preload FILE.py)"
+        ) from None
 
 
 def _sizer(v, what: str, kind: str, name: str) -> Callable[[Any], int]:
