@@ -150,3 +150,35 @@ def test_the_short_answer_says_what_each_mean_is_over_when_one_side_failed():
     (line,) = short_answer(spec, rows, q, [METRIC])[1:]
     assert "pairs" not in line and f", pd {pd_all:.4g}; ratio " in line, line
     assert "Over all cells: smc " in line and line.count("all cells") == 1, line
+
+
+def test_drawn_values_are_named_in_the_fewest_digits_that_tell_them_apart():
+    """Cell names printed a draw in 16 digits (theta_scale = 0.6582751372901796; a tester),
+    where the docs promise as many as tell it from the others."""
+    from pkmctl.report.campaign import _cell_name
+
+    head = 'scenario = "paper"\ncontrollers = ["smc"]\nseeds = 1\nduration = 0.05\n'
+    drawn = CampaignSpec.from_toml(
+        head + '[factors."controller_model.theta_scale"]\ndistribution = "uniform"\n'
+        "low = 0.4\nhigh = 1.0\nsamples = 3\nseed = 2\n"
+    )
+    names = [_cell_name(drawn, i) for i in range(3)]
+    values = [c["controller_model.theta_scale"] for c in drawn.cells]
+    assert names == [f"controller_model.theta_scale = {v:.3g}" for v in values], names
+    close = CampaignSpec.from_toml(
+        head + '[factors."controller_model.theta_scale"]\nvalues = [0.1234567891, 0.1234567899]\n'
+    )
+    # 9 digits tell these two apart (0.1234567899 reads 0.12345679)
+    assert [_cell_name(close, i).split(" = ")[1] for i in range(2)] == [
+        "0.123456789",
+        "0.12345679",
+    ]
+    # a value %g holds is written so, whatever the others need
+    mixed = CampaignSpec.from_toml(
+        head + '[factors."payload.mass"]\nvalues = [0.5, 2.0000000001, 2.0000000002]\n'
+    )
+    assert [_cell_name(mixed, i).split(" = ")[1] for i in range(3)] == [
+        "0.5",
+        "2.0000000001",
+        "2.0000000002",
+    ]

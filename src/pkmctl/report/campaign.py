@@ -68,6 +68,30 @@ def _full(x) -> str:
     return str(x)
 
 
+_DIGITS: dict[tuple[str, str], int] = {}
+
+
+def _digits(spec: CampaignSpec, factor: str) -> int:
+    """The fewest significant digits (3 to 17) in which the factor's float values all read
+    apart: a drawn value printed 16 (``theta_scale = 0.6582751372901796``)."""
+    key = (spec.digest, factor)
+    if key not in _DIGITS:
+        floats = {c[factor] for c in spec.cells if isinstance(c[factor], float)}
+        floats = {v for v in floats if math.isfinite(v)}
+        _DIGITS[key] = next(
+            (d for d in range(3, 18) if len({f"{v:.{d}g}" for v in floats}) == len(floats)), 17
+        )
+    return _DIGITS[key]
+
+
+def _value_in(spec: CampaignSpec, factor: str, x) -> str:
+    """:func:`_level`, a float that %g does not hold in the fewest digits that tell it
+    from the factor's other values."""
+    if isinstance(x, float) and math.isfinite(x) and float(f"{x:g}") != x:
+        return f"{x:.{_digits(spec, factor)}g}"
+    return _level(x)
+
+
 def _cell_name(spec: CampaignSpec, cell: int) -> str:
     if cell < 0:
         return "all cells"
@@ -78,7 +102,7 @@ def _cell_name(spec: CampaignSpec, cell: int) -> str:
         varied = [p for p in spec.factors if spec.cells[cell][p] != spec.center[p]]
         if not varied:
             return "the centre"
-    return ", ".join(f"{p} = {_level(spec.cells[cell][p])}" for p in varied)
+    return ", ".join(f"{p} = {_value_in(spec, p, spec.cells[cell][p])}" for p in varied)
 
 
 def _ratio(r: dict) -> str:
