@@ -6,11 +6,12 @@ q_desired, F, tau, tau_desired, disturbance, the measured q1_m..q4_m when the se
 not ideal (and the pose and velocity it gave, z_m ... betadot_m) and, for AFSMC,
 theta_hat; and ``<stem>.json`` (the scenario as TOML text, the controller, the parts,
 ``info``, the metrics, the loop's metric accumulators, the column names and the table's
-file name). ``load_result`` reads them back into a :class:`~pkmctl.Result`, bit for bit
-(the measured columns, where absent, are the true ones, as an ideal sensor gave them),
-but for a user part's own logs (``logs``) and the parts' ``final_state``, which are not
-saved; a decimated run's metrics (``logging.every`` > 1) come back from the
-accumulators, not from the rows it logged.
+file name). A part's own log (``Result.logs``) is saved as the columns
+``log_<name>_0``, ``log_<name>_1``, ... and the parts' ``final_state`` in the JSON (they
+were not saved before 2026-12-07, without a word). ``load_result`` reads them back into a
+:class:`~pkmctl.Result`, bit for bit (the measured columns, where absent, are the true
+ones, as an ideal sensor gave them); a decimated run's metrics (``logging.every`` > 1)
+come back from the accumulators, not from the rows it logged.
 
 The JSON is standard JSON (any parser reads it): a number that is not finite is written
 as ``null`` (an unbounded actuator's ``force_limit``, a limb speed not measured), and read
@@ -91,8 +92,16 @@ def _columns(result: Result) -> tuple[list[str], list[np.ndarray]]:
     if result.theta_hat is not None:
         names += [f"theta_hat{k}" for k in range(result.theta_hat.shape[1])]
         blocks.append(result.theta_hat)
+    for name, log in result.logs.items():  # a part's own log: log_NAME_0, log_NAME_1, ...
+        log = np.asarray(log, dtype=np.float64).reshape(result.t.size, -1)
+        names += [f"{LOG_PREFIX}{name}_{k}" for k in range(log.shape[1])]
+        blocks.append(log)
     columns = [b[:, j] for b in blocks for j in range(b.shape[1])]
     return names, columns
+
+
+#: The columns of a part's own log (``Result.logs``) are LOG_PREFIX + its name + ``_k``.
+LOG_PREFIX = "log_"
 
 
 FORMATS = ("parquet", "csv")
@@ -136,6 +145,12 @@ def save_result(
         "scenario_toml": result.scenario.to_toml(),
         "parts": dict(result.parts),
         "info": _plain(result.info),
+        # a part's own logs (their columns' widths) and every part's final state
+        "logs": {
+            name: int(np.asarray(log).reshape(result.t.size, -1).shape[1])
+            for name, log in result.logs.items()
+        },  # fmt: skip
+        "final_state": _plain(result.final_state),
     }
     fis = result.scenario.fuzzy.fis
     if fis is not None:
@@ -293,7 +308,17 @@ def load_result(json_path: Path) -> Result:
         if names[col : col + 3] == list(cols):
             fields[name] = data[:, col : col + 3]
             col += 3
-    theta = data[:, col:] if col < data.shape[1] else None
+    n_theta = sum(1 for n in names[col:] if n.startswith("theta_hat"))
+    theta = data[:, col : col + n_theta] if n_theta else None
+    col += n_theta
+    logs = {}
+    for name, width in meta.get("logs", {}).items():
+        logs[name] = data[:, col : col + width]
+        col += width
+    final_state = {  # (a state that is not finite was written as null)
+        k: np.array([np.nan if x is None else x for x in v], dtype=np.float64)
+        for k, v in meta.get("final_state", {}).items()
+    }
     lm = meta.get("loop_metrics")
     try:
         scenario = _scenario(meta)
@@ -308,5 +333,7 @@ def load_result(json_path: Path) -> Result:
         message=meta["message"],
         parts=dict(meta.get("parts", {})),
         info=dict(meta.get("info", {})),
+        logs=logs,
+        final_state=final_state,
         **fields,
     )
