@@ -320,3 +320,17 @@ def test_a_plugin_that_fails_is_one_line(tmp_path, content, message):
     res = runner.invoke(app, ["--plugin", str(path), "simulate", "paper"])
     assert res.exit_code == 2, res.output
     assert res.output.strip() == "error: " + message.format(path=path)
+
+
+def test_a_plugin_module_in_the_current_folder_says_how_to_import_it(tmp_path, monkeypatch):
+    """`pkmctl --plugin myparts` beside myparts.py: "No module named 'myparts'", as the
+    command's import path does not hold the current folder (a tester)."""
+    name = "parts_" + tmp_path.name.replace("-", "_")
+    (tmp_path / f"{name}.py").write_text("x = 1\n")
+    monkeypatch.chdir(tmp_path)
+    res = runner.invoke(app, ["--plugin", name, "scenario", "paper"])
+    assert res.exit_code == 2, res.output
+    assert res.output.strip() == (
+        f"error: --plugin {name}: no module {name!r} on the import path, which does not hold "
+        f"the current folder; give the file (--plugin ./{name}.py) or PYTHONPATH=."
+    )

@@ -65,6 +65,17 @@ def _import(spec: str) -> str:
     try:
         importlib.import_module(spec)
     except Exception as exc:
+        top = spec.split(".")[0]
+        here = Path.cwd() / f"{top}.py", Path.cwd() / top / "__init__.py"
+        if (
+            isinstance(exc, ModuleNotFoundError)
+            and exc.name == top
+            and any(f.is_file() for f in here)
+        ):  # (a console script's path holds its own folder, not the current one)
+            raise PluginError(
+                f"--plugin {spec}: no module {top!r} on the import path, which does not hold "
+                f"the current folder; give the file (--plugin ./{top}.py) or PYTHONPATH=."
+            ) from exc
         raise PluginError(f"--plugin {spec}: {_why(exc)}") from exc
     return spec
 
