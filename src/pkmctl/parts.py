@@ -477,10 +477,13 @@ def _register_part(
             if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD) and p.default is p.empty
         ]
         if len(plain) != want or len(sig.parameters) != want:
+            odd = (
+                "" if len(sig.parameters) != want else ("; no keyword-only, default or * arguments")
+            )  # ("takes 5 arguments, the contract needs 5" said nothing)
             raise PartError(
                 f"{kind} {name!r}: {role} function {py.__name__}{sig} takes "
-                f"{len(sig.parameters)} arguments, the contract needs {want} "
-                f"({_SIGNATURES[kind][role]})"
+                f"{len(sig.parameters)} arguments, the contract needs {want} plain ones "
+                f"({_SIGNATURES[kind][role]}){odd}"
             )
         if builtin and py is not fn:  # pkmctl's own kernel: called, and inlined by LLVM
             py.__pkmctl_llvm_inline__ = True
@@ -669,13 +672,73 @@ def _filled(cell: Any) -> bool:
 
 
 @functools.cache
+@functools.cache
 def _library_folders() -> tuple[str, ...]:
-    """Folders whose files are not the user's: Python's, installed packages', pkmctl's."""
+    """Where files are not the user's: Python's own, pkmctl's, and the installed packages
+    pkmctl stands on (its requirements, extras included, and theirs, transitively). Any
+    other installed package may be the user's own (docs/parts.md: a package the Dask
+    workers import), and its files count: they were all left out, and an edit to a
+    part's helper installed in site-packages ran the old compiled loop (a tester)."""
     paths = sysconfig.get_paths()
-    folders = {paths[k] for k in ("stdlib", "platstdlib", "purelib", "platlib") if k in paths}
-    folders |= set(site.getsitepackages()) | {site.getusersitepackages()}
+    # Python's own modules (a venv's platstdlib is its lib/pythonX.Y, which holds its
+    # site-packages: not that one)
+    folders = {paths["stdlib"], os.path.dirname(os.__file__)}
     folders.add(os.path.dirname(os.path.abspath(__file__)))  # pkmctl
-    return tuple(os.path.join(os.path.realpath(f), "") for f in folders if f)
+    deps = _dependencies()
+    if deps is None:  # pkmctl run from its source, not installed: every installed package
+        folders |= {paths[k] for k in ("purelib", "platlib") if k in paths}
+        folders |= set(site.getsitepackages()) | {site.getusersitepackages()}
+        deps = []
+    out = [os.path.join(os.path.realpath(f), "") for f in folders if f]
+    for dist in deps:
+        for top in _top_level(dist):
+            where = os.path.realpath(str(dist.locate_file(top)))
+            if os.path.isdir(where):
+                out.append(os.path.join(where, ""))
+            elif os.path.isfile(where + ".py"):
+                out.append(where + ".py")
+    return tuple(dict.fromkeys(out))
+
+
+def _dependencies() -> list | None:
+    """The installed distributions pkmctl requires, with their own, transitively; None
+    if pkmctl itself is not installed."""
+    from importlib import metadata
+
+    seen: dict[str, Any] = {}
+    todo = ["pkmctl"]
+    while todo:
+        name = re.sub(r"[-_.]+", "-", todo.pop()).lower()
+        if name in seen:
+            continue
+        try:
+            dist = metadata.distribution(name)
+        except metadata.PackageNotFoundError:
+            seen[name] = None
+            continue
+        seen[name] = dist
+        for req in dist.requires or []:
+            m = re.match(r"\s*([A-Za-z0-9][A-Za-z0-9._-]*)", req)
+            if m:
+                todo.append(m.group(1))
+    if seen.get("pkmctl") is None:
+        return None
+    return [d for n, d in seen.items() if d is not None and n != "pkmctl"]
+
+
+def _top_level(dist) -> set[str]:
+    """The top-level import names a distribution installs."""
+    text = dist.read_text("top_level.txt")
+    if text:
+        return {t.strip() for t in text.splitlines() if t.strip()}
+    tops = set()
+    for f in dist.files or ():
+        first = f.parts[0] if f.parts else ""
+        if first.endswith((".dist-info", ".egg-info", ".data")) or first in ("..", "__pycache__"):
+            continue
+        if first.endswith(".py") or "." not in first:
+            tops.add(first.removesuffix(".py"))
+    return tops
 
 
 def attach_lanes(

@@ -481,8 +481,10 @@ def _reason(exc: Exception) -> str:
         cause = f"no implementation of {sig[3:].strip()}" if sig else cause
     if not cause:
         cause = next((x for x in lines if x and not x.startswith(skip[:3])), "")
-    if "returning of array" in cause:  # Numba's words for an allocation without refcounts
-        cause += " (a step must not allocate: make its arrays in its work)"
+    if "returning of array" in cause or "NRT required" in cause:  # Numba's words for an
+        # allocation without refcounts (NRT: array arithmetic such as ref[0:3] - y[0:3])
+        cause += (" (a step must not allocate: no array arithmetic or copies, loop over the "
+                  "elements; make its arrays in its work)")  # fmt: skip
     where = ""
     for i in range(start, len(lines)):
         m = re.match(r'File "([^"]+)", line (\d+):', lines[i])

@@ -478,6 +478,37 @@ class _Run:
     speed_limit: float
 
 
+#: Log names a result keeps in its own fields, with the width each must have.
+_RESULT_LOGS = {"q_measured": 4}
+
+
+def _check_log_names(parts: dict[str, Part], bundles: dict) -> None:
+    """Refuse logs a result cannot keep apart: a sensor and a controller logging under one
+    name (the sensor's rows replaced the controller's, without a word), or a log named as a
+    result's own field with another width (``q_measured`` of 3 columns ran, then could
+    not be saved)."""
+    named = {}
+    for kind in ("sensor", "controller"):
+        part = parts[kind]
+        width = int(part.log_size(bundles[kind][0]))
+        if width == 0:
+            continue
+        name = part.log_name or part.name
+        if name in named:
+            other = parts[named[name]]
+            raise PartError(
+                f"{named[name]} {other.name!r} and {kind} {part.name!r} both log as {name!r}: "
+                "give one of them another log_name"
+            )
+        named[name] = kind
+        if name in _RESULT_LOGS and width != _RESULT_LOGS[name]:
+            raise PartError(
+                f"{kind} {part.name!r}: log_name {name!r} is the result's field of "
+                f"{_RESULT_LOGS[name]} columns, its log_size gives {width}: another name, or "
+                f"{_RESULT_LOGS[name]} columns"
+            )
+
+
 def _set_up(prep: Prepared, parts: dict[str, Part], seed: int | None, check_logs: bool) -> _Run:
     scenario = prep.scenario if seed is None else _with_seed(prep.scenario, seed)
     Tc = scenario.timing.control_period
@@ -491,6 +522,7 @@ def _set_up(prep: Prepared, parts: dict[str, Part], seed: int | None, check_logs
     )
     x0 = np.concatenate([scenario.initial.X, scenario.initial.Xdot]).astype(float)
     bundles = _build(parts, ctx, x0)
+    _check_log_names(parts, bundles)
     n, every = prep.periods, prep.every
     holds = disturbance_count(scenario)
     if check_logs:  # the prepared arrays exist already: only the logs are new
