@@ -313,3 +313,27 @@ def test_memory_estimate_covers_what_a_decimated_run_allocates():
     need = sim.memory_needed(sc.timing.periods, 36, every=20,
                              disturbance_values=sim.disturbance_count(sc))  # fmt: skip
     assert logged < need
+
+
+def test_a_cut_result_gives_its_own_metrics_not_the_whole_runs():
+    """rmse() of a result cut to t >= 1 s (dataclasses.replace) gave the whole run's
+    3.4 deg for beta, the loop's sums, where the rows give 0.005 (a tester). The loop's
+    sums now stand only for the rows it logged; a decimated run cut is refused."""
+    import dataclasses
+
+    fields = ("t", "X", "Xdot", "X_desired", "Xdot_desired", "q", "q_desired", "F", "tau",
+              "tau_desired", "disturbance", "X_measured", "Xdot_measured",
+              "q_measured")  # fmt: skip
+
+    def cut(r):
+        keep = r.t >= 1.0
+        return dataclasses.replace(r, **{f: getattr(r, f)[keep] for f in fields})
+
+    whole = pkmctl.simulate(pkmctl.Scenario.builtin("paper", 1.5), "pd")
+    part = cut(whole)
+    mine = np.degrees(np.sqrt(np.mean((part.X_desired[:, 2] - part.X[:, 2]) ** 2)))
+    assert part.rmse()["beta_deg"] == pytest.approx(mine, rel=1e-12)
+    assert whole.rmse()["beta_deg"] > 100 * mine  # (the whole run's, as it was given)
+    sc = pkmctl.Scenario.builtin("paper", 1.5).replace(**{"logging.every": 20})
+    with pytest.raises(ValueError, match=r"rows are not the 1500 its loop logged"):
+        cut(pkmctl.simulate(sc, "pd")).rmse()

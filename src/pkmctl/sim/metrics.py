@@ -150,6 +150,16 @@ def _use_loop(result, source: str, t_from: float | None = None, *, exact: bool =
             "(logging.every); its metrics over every period are source='loop'"
         )
     lm = getattr(result, "loop_metrics", None)
+    if source == "auto" and lm is not None and not _logged_by(result, lm, every):
+        # the arrays are not the run's log (cut, say, with dataclasses.replace): the loop's
+        # sums are of the whole run, and rmse() gave them for a window of it (a tester)
+        if every > 1:
+            raise ValueError(
+                f"the result's {result.t.size} rows are not the {_rows(lm, every)} its loop "
+                "logged (cut or replaced): its metrics over every period describe the whole "
+                "run; use the whole result, or source='loop' for them"
+            )
+        return False
     if source == "loop" or (source == "auto" and every > 1):
         if lm is None:
             raise ValueError("this result carries no loop metrics (read from an older file?)")
@@ -157,6 +167,22 @@ def _use_loop(result, source: str, t_from: float | None = None, *, exact: bool =
     if source == "log" or lm is None or not exact:
         return False
     return t_from is None or any(abs(w - t_from) <= _SAME_TIME for w in lm.windows)
+
+
+def _rows(lm: LoopMetrics, every: int) -> int:
+    return -(-lm.periods // every)
+
+
+def _logged_by(result, lm: LoopMetrics, every: int) -> bool:
+    """Whether ``result``'s rows are those its loop logged: their count, and the times of
+    the first and last (a run's log starts at t = 0, one row every ``every`` periods)."""
+    t = result.t
+    if t.size != _rows(lm, every):
+        return False
+    if t.size == 0:
+        return True
+    last = (t.size - 1) * every * lm.period
+    return abs(t[0]) <= _SAME_TIME and abs(t[-1] - last) <= _SAME_TIME + 1e-9 * abs(last)
 
 
 def _every(result) -> int:
