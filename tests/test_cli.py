@@ -334,3 +334,19 @@ def test_a_plugin_module_in_the_current_folder_says_how_to_import_it(tmp_path, m
         f"error: --plugin {name}: no module {name!r} on the import path, which does not hold "
         f"the current folder; give the file (--plugin ./{name}.py) or PYTHONPATH=."
     )
+
+
+def test_a_file_named_as_a_built_in_scenario_is_not_passed_over(tmp_path, monkeypatch):
+    """`pkmctl scenario paper > paper`, edited, then `pkmctl simulate paper` ran the
+    built-in without a word (a tester). The two are told apart in one line."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "paper").write_text(pkmctl.Scenario.builtin("paper").to_toml())
+    res = runner.invoke(app, ["simulate", "paper", "--duration", "0.01", "--out", "o"])
+    assert res.exit_code == 2, res.output
+    assert res.output.strip() == (
+        "error: 'paper' names both a built-in scenario and a file here: give ./paper for the "
+        "file (or rename it to .toml)"
+    )
+    assert not (tmp_path / "o").exists()
+    res = runner.invoke(app, ["simulate", "./paper", "--duration", "0.01", "--out", "o"])
+    assert res.exit_code == 0, res.output

@@ -283,6 +283,13 @@ def _load_scenario(spec: str, changes: dict | None = None):
     from pkmctl.sim.scenario import BUILTINS, Scenario
 
     if spec in BUILTINS:
+        if Path(spec).is_file():  # (`pkmctl scenario paper > paper`, edited, ran the built-in)
+            from pkmctl.sim.scenario import ScenarioError
+
+            raise ScenarioError(
+                f"{spec!r} names both a built-in scenario and a file here: give ./{spec} for "
+                "the file (or rename it to .toml)"
+            )
         return Scenario.builtin(spec, changes=changes)
     path = Path(spec)
     if path.suffix.lower() == ".toml" or path.exists():
