@@ -186,6 +186,22 @@ def test_printing_to_a_closed_or_full_stdout_is_one_line(args):
     )
 
 
+def test_a_full_stdout_after_the_files_are_written_is_one_line(tmp_path):
+    """`pkmctl simulate ... > /dev/full` printed a 40-line traceback, exit 1, after its
+    files were written (a tester): one line on stderr now, the files whole."""
+    with open("/dev/full", "w") as full:
+        res = subprocess.run([sys.executable, "-m", "pkmctl", "simulate", "paper", "--duration",
+                              "0.01", "--out", str(tmp_path / "o")], stdout=full,
+                             stderr=subprocess.PIPE, text=True, timeout=300)  # fmt: skip
+    assert res.returncode == 1, res.stderr
+    assert res.stderr.strip().splitlines()[-1] == (
+        "error: stdout: No space left on device; the files written are whole"
+    ), res.stderr
+    assert "Traceback" not in res.stderr
+    back = pkmctl.load_result(tmp_path / "o" / "afsmc.json")
+    assert back.t.size == 200
+
+
 @pytest.mark.parametrize(
     ("command", "text"),
     [(["identify"], "scenario [controller_model] block"),

@@ -1196,5 +1196,25 @@ def main() -> None:
 
     try:
         app(prog_name="pkmctl")
+    except OSError as exc:  # (typer lets it through: a traceback of 40 lines)
+        if not _stdout_failed(exc):
+            raise
+        # stdout full or closed (> /dev/full, a pipe whose reader quit): the files the
+        # command wrote are whole; say so on stderr, and leave nothing for the final flush
+        sys.stderr.write(f"error: stdout: {exc.strerror or exc}; the files written are whole\n")
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        sys.exit(1)
     finally:
         gc.freeze()
+
+
+def _stdout_failed(exc: OSError) -> bool:
+    """Whether ``exc`` came from writing to stdout (directly or through rich)."""
+    tb = exc.__traceback__
+    while tb is not None:
+        owner = tb.tb_frame.f_locals.get("self")
+        if owner is sys.stdout or getattr(owner, "file", None) is sys.stdout:
+            return True
+        tb = tb.tb_next
+    return False
