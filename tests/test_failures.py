@@ -442,6 +442,27 @@ def test_what_does_not_fit_in_memory_is_refused_in_one_line(tmp_path, monkeypatc
     assert not out.exists() and not leftovers(tmp_path)
 
 
+def test_simulate_counts_the_saves_copy_of_the_table(tmp_path, monkeypatch):
+    """The check counted the run's arrays, not the copy of the table its save makes
+    (+217-279 MB for a 20 s AFSMC run): a run that fitted computed, then could not be
+    saved (a tester). With memory between the two needs, simulate is refused up front."""
+    import pkmctl
+    from pkmctl.sim import simulate as sim
+
+    sc = pkmctl.Scenario.builtin("paper", 0.5)
+    n, holds = sc.timing.periods, sim.disturbance_count(sc)
+    run = sim.memory_needed(n, 36, disturbance_values=holds)
+    saved = sim.memory_needed(n, 36, disturbance_values=holds, saved=True)
+    assert saved > 1.5 * run  # (the table: most of a run's arrays)
+    monkeypatch.setattr(sim, "_available_memory", lambda: (run + saved) // 2)
+    pkmctl.simulate(sc, "afsmc")  # the library's run alone fits
+    out = tmp_path / "out"
+    line = one_line(runner.invoke(app, ["simulate", "paper", "--duration", "0.5", "--out",
+                                        str(out)]), 2)  # fmt: skip
+    assert "a 0.5 s run at T_c = 5e-05 s and its save needs" in line, line
+    assert not out.exists() and not leftovers(tmp_path)
+
+
 def test_simulate_many_checks_the_memory_of_its_batches(monkeypatch):
     """simulate_many checked one run, then a batch of lanes allocated the logs of eight
     at once: a raw MemoryError (or an OOM kill) after seconds of work. Now the runs in

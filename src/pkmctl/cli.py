@@ -625,6 +625,9 @@ def simulate(
                 bar.update(task, completed=done, total=total, description=doing)
 
             def work():
+                from pkmctl.sim.simulate import check_saved_memory
+
+                check_saved_memory(sc, controller)  # (the save's copy too)
                 result = run(sc, controller=controller, progress=progress)
                 bar.update(task, description=f"writing {controller}.{fmt}")
                 return result, save_result(result, stage, fmt=fmt)

@@ -140,7 +140,8 @@ def reproduce(
     def need(e: int) -> int:
         return memory_needed(n, _MAX_CONTROLLER_LOG, runs=runs, every=e, sensor_log=4,
                              part_values=part_memory(scenario),
-                             disturbance_values=disturbance_count(scenario))  # fmt: skip
+                             disturbance_values=disturbance_count(scenario),
+                             saved=True)  # fmt: skip
 
     check_memory(need(every), f"reproduce ({runs} runs of {scenario.timing.duration:g} s)",
                  decimated=need, every=every, periods=n)  # fmt: skip

@@ -95,23 +95,44 @@ def memory_needed(
     sensor_log: int = 0,
     disturbance_values: int = 0,
     part_values: int = 0,
+    saved: bool = False,
 ) -> int:
     """Bytes of the arrays ``runs`` runs of ``periods`` control periods allocate, each
     logging every ``every``-th period: the prepared reference (every period, or the
     logged rows and one chunk of inputs at a time when decimated), the disturbance index,
     the logs, a controller log of ``controller_log`` and a sensor log of ``sensor_log``
     columns, ``disturbance_values`` held disturbance values (3 each) and ``part_values``
-    doubles per period in the parts' bundles (:func:`part_memory`) per run."""
+    doubles per period in the parts' bundles (:func:`part_memory`) per run; with
+    ``saved``, the copy of one run's table that :func:`~pkmctl.save_result` makes (pyarrow
+    copies the columns, CSV stacks them: a 20 s AFSMC run's save added 217-279 MB)."""
     rows = -(-periods // every)
     per_run = rows * (_LOG_COLUMNS + controller_log + sensor_log) + 3 * disturbance_values
     per_run += periods * part_values
+    table = rows * (_LOG_COLUMNS + controller_log + sensor_log) if saved else 0
     if every == 1:
         shared = periods * (_PREPARED_COLUMNS + 1)  # + the disturbance index (int64)
     else:
         shared = rows * _PREPARED_COLUMNS + min(periods, CHUNK_PERIODS) * _CHUNK_COLUMNS
         if periods <= CACHED_PERIODS:
             shared += periods * _CACHED_COLUMNS
-    return 8 * (shared + runs * per_run)
+    return 8 * (shared + runs * per_run + table)
+
+
+def check_saved_memory(scenario: Scenario, controller: str) -> None:
+    """:func:`prepare`'s memory check for a run of ``controller`` whose result is then
+    saved (``pkmctl simulate``): the save's copy of the table counted too, so that a run
+    that fits but could not be saved is refused before it computes."""
+    n, every = scenario.timing.periods, scenario.logging.every
+    cols = log_columns(scenario, resolve_parts(scenario, controller))
+    holds, parts = disturbance_count(scenario), part_memory(scenario)
+
+    def need(e: int) -> int:
+        return memory_needed(n, cols, every=e, disturbance_values=holds, part_values=parts,
+                             saved=True)  # fmt: skip
+
+    Tc = scenario.timing.control_period
+    check_memory(need(every), f"a {n * Tc:g} s run at T_c = {Tc:g} s and its save",
+                 decimated=need, every=every, periods=n)  # fmt: skip
 
 
 def part_memory(scenario: Scenario) -> int:
