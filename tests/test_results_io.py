@@ -220,3 +220,10 @@ def test_a_result_of_a_part_not_imported_names_its_file_and_the_import(runs, tmp
         load_result(meta)
     msg = str(err.value)
     assert msg.startswith(f"{meta}: its scenario: sensor.kind") and "in Python, import it" in msg
+
+
+def test_an_empty_stem_is_refused(runs, tmp_path):
+    """stem="" fell back to the controller's name without a word (a tester)."""
+    with pytest.raises(ValueError, match="stem = '': must be a file name, or None"):
+        save_result(runs["seed0"], tmp_path, stem="")
+    assert not any(tmp_path.iterdir())

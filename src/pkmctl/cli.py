@@ -578,7 +578,8 @@ def simulate(
     out: Annotated[
         str,
         typer.Option(
-            help="Output folder for the time series (created; this controller's files replaced)."
+            help="Output folder for the time series (created; this controller's files "
+            "replaced, its table in the other format removed)."
         ),
     ] = (
         "pkmctl-out"  # a str: typer would make --out '' the Path '.', the current folder

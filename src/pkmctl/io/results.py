@@ -19,7 +19,8 @@ back as what it stood for. A scenario whose fuzzy term is a ``.fis`` file carrie
 file's text (``fis_text``): the result reads back after the file moved or changed, with
 the system the run used.
 
-Parquet is the default: a 10 s run at 20 kHz has 200,000 rows and up to 83 columns,
+Parquet is the default: a 10 s run at 20 kHz has 200,000 rows and 35 to 93 columns (93:
+afsmc-ext's 48 estimates on an encoder), and a part's own logs add theirs,
 which takes ~8 s to print as CSV with round-trip precision and ~0.2 s as Parquet
 (any dataframe library or DuckDB reads it; columns are stored byte-stream-split and
 zstd-compressed, about 54 MB for an AFSMC run).
@@ -124,6 +125,8 @@ def save_result(
         not isinstance(stem, str) or stem in (".", "..") or Path(stem).name != stem or "\\" in stem
     ):  # "../x" wrote outside ``directory``
         raise ValueError(f"stem = {stem!r}: must be a file name, without a folder")
+    if stem == "":  # (it fell back to the controller's name, unsaid)
+        raise ValueError("stem = '': must be a file name, or None for the controller's name")
     directory = Path(directory)
     stem = stem or result.controller
     names, columns = _columns(result)

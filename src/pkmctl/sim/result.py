@@ -22,7 +22,8 @@ class Result:
     by the actuators); ``q``, ``q_desired``, ``tau``, ``tau_desired`` (N, 4) (q the true
     limb lengths); ``disturbance`` (N, 3) the tau_d' acting over each period;
     ``X_measured``, ``Xdot_measured`` (N, 3) and ``q_measured`` (N, 4): what the sensor
-    gave the controller; ``theta_hat`` (N, 36) for AFSMC, else None; ``logs`` any other
+    gave the controller; ``theta_hat`` (N, 36) for AFSMC, (N, 48) for afsmc-ext, else
+    None; ``logs`` any other
     per-period log of a part, by name. ``final_state`` maps each part kind ("plant",
     "sensor", "controller", "actuator") to its state array at the end; ``parts`` maps it
     to the part's name. ``success`` is False only for a partial result kept in a
