@@ -941,3 +941,23 @@ def test_sigterm_is_handled_as_ctrl_c(old_results, after):
     else:
         assert untouched(old_results), (seen[-1], sorted(p.name for p in old_results.iterdir()))
     assert not leftovers(old_results.parent)
+
+
+@pytest.mark.parametrize("fmt", ["parquet", "csv"])
+def test_a_write_that_fails_names_the_file(tmp_path, fmt):
+    """Under a file size limit: "error: Error writing bytes to file. Detail: [errno 27]
+    File too large", no file named (a tester). The file is named as it would have been."""
+    import resource
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (2_000_000, 2_000_000))
+
+    out = tmp_path / "fz"
+    res = subprocess.run([sys.executable, "-m", "pkmctl", "simulate", "paper", "--controller",
+                          "afsmc", "--duration", "2", "--format", fmt, "--out", str(out)],
+                         capture_output=True, text=True, preexec_fn=limit, timeout=600)  # fmt: skip
+    assert res.returncode == 2, res.stderr
+    line = res.stderr.strip().splitlines()[-1]
+    assert line.startswith(f"error: {out / ('afsmc.' + fmt)}: "), line
+    assert "File too large" in line and line.endswith(f"nothing written; {out} was not created")
+    assert not out.exists() and not leftovers(tmp_path)

@@ -643,6 +643,9 @@ def simulate(
         _KEPT["note"] = _kept(out, existed, stage)
         raise
     except Exception as exc:
+        if isinstance(exc, OSError) and stage is not None and exc.filename:  # the file it
+            # was writing, by the name it would have had (not the staging folder's)
+            exc.filename = str(exc.filename).replace(str(stage), str(out), 1)
         _handle(ctx, exc, suffix="; " + _untouched(out, existed))
     _KEPT["note"] = _kept(out, existed, stage)
     # the run's time series in the other format, of an earlier run, would now disagree

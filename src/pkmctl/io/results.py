@@ -163,12 +163,17 @@ def save_result(
             pass  # gone since the run: the result names it, as before
     meta = _finite(meta)
     json.dumps(meta, allow_nan=False)  # a value JSON cannot hold fails here, not midway
-    with atomic_files(table_path, json_path) as (table_tmp, json_tmp):
-        _write_table(table_tmp, names, columns, fmt)
-        with open(table_tmp, "rb") as fh:  # streamed: a 10 s run's CSV is 335 MB
-            meta["table_sha256"] = hashlib.file_digest(fh, "sha256").hexdigest()
-        with open(json_tmp, "w", encoding="utf-8", newline="\n") as fh:
-            json.dump(meta, fh, indent=2, allow_nan=False)
+    try:
+        with atomic_files(table_path, json_path) as (table_tmp, json_tmp):
+            _write_table(table_tmp, names, columns, fmt)
+            with open(table_tmp, "rb") as fh:  # streamed: a 10 s run's CSV is 335 MB
+                meta["table_sha256"] = hashlib.file_digest(fh, "sha256").hexdigest()
+            with open(json_tmp, "w", encoding="utf-8", newline="\n") as fh:
+                json.dump(meta, fh, indent=2, allow_nan=False)
+    except OSError as exc:  # a full disk or a file size limit: which file (it named none)
+        if exc.filename is not None:
+            raise
+        raise OSError(exc.errno, exc.strerror or str(exc), str(table_path)) from exc
     return table_path, json_path
 
 
