@@ -102,7 +102,12 @@ BAD = [
     # one value is held over each period: a shorter hold drew values no period read
     ({"disturbance": {"hold": 1e-300}}, "disturbance.hold = 1e-300: must be >= timing.contr"),
     ({"mechanism": {"r_a": 0.5}}, "need 0 < r_a < r_b"),
-    ({"mechanism": {"theta": [1.0] * 35}}, "mechanism.theta"),
+    # a long list's length, which the cut text hid (a tester)
+    (
+        {"mechanism": {"theta": [1.0] * 35}},
+        "mechanism.theta = [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, "
+        "1.0, 1.0, 1.0, 1.0, 1.0, 1... (35 numbers): must be a list of 36 finite numbers",
+    ),
     ({"controller_model": {"theta_scale": 0.0}}, "controller_model.theta_scale = 0.0"),
     ({"initial": {"X": [-0.1, 0.0, 0.0]}}, "initial.X"),
     ({"trajectory": {"offset": [0.7, 1.7, 0.0]}}, "trajectory: leaves the valid workspace"),

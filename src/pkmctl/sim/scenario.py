@@ -1211,6 +1211,8 @@ def _one_line(exc: ValidationError) -> str:
     shown = repr(value)
     if len(shown) > 60:
         shown = shown[:57] + "..."
+        if isinstance(value, list):  # its length, which the cut text hides (35 for 36)
+            shown += f" ({len(value)} numbers)"
     more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
     return f"{loc} = {shown}: {msg}{more}"
 
