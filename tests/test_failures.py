@@ -961,3 +961,33 @@ def test_a_write_that_fails_names_the_file(tmp_path, fmt):
     assert line.startswith(f"error: {out / ('afsmc.' + fmt)}: "), line
     assert "File too large" in line and line.endswith(f"nothing written; {out} was not created")
     assert not out.exists() and not leftovers(tmp_path)
+
+
+def test_a_killed_runs_staging_folder_is_removed_by_a_later_run(tmp_path):
+    """kill -9 (or the out-of-memory killer) left a .pkmctl-*.tmp folder beside --out
+    with partial files (286 MB in a tester's case), which no run removed. A staging folder
+    names its process; a later run removes those of processes gone (a minute old)."""
+    import platform
+    import time
+
+    from pkmctl.io.atomic import STALE_AFTER_S, _own_prefix
+
+    host = _own_prefix().rsplit("@", 1)[1][:-1]
+    assert host and host in platform.node().replace("_", "")
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    old = time.time() - 2 * STALE_AFTER_S
+    dead = tmp_path / f".pkmctl-{gone.pid}@{host}-abc123.tmp"
+    fresh = tmp_path / f".pkmctl-{gone.pid}@{host}-new456.tmp"  # made a moment ago
+    alive = tmp_path / f".pkmctl-{os.getpid()}@{host}-live78.tmp"
+    other_host = tmp_path / f".pkmctl-{gone.pid}@elsewhere-x9.tmp"
+    for folder in (dead, fresh, alive, other_host):
+        (folder / "figures").mkdir(parents=True)
+        (folder / "figures" / "fig10.png").write_bytes(b"partial")
+        if folder is not fresh:
+            os.utime(folder, (old, old))
+    res = runner.invoke(app, ["simulate", "paper", "--duration", "0.01", "--out",
+                              str(tmp_path / "o")])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert not dead.exists()
+    assert fresh.exists() and alive.exists() and other_host.exists()

@@ -18,6 +18,7 @@ location (empty, a file, unwritable, a name too long) before any work starts.
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
@@ -308,7 +309,8 @@ def staged_folder(dest: str | os.PathLike[str]) -> Iterator[Path]:
     made = [f for f in (parent, *parent.parents) if not f.exists()]  # to remove on failure
     try:
         parent.mkdir(parents=True, exist_ok=True)
-        stage = Path(tempfile.mkdtemp(prefix=_STAGE_PREFIX, suffix=".tmp", dir=parent))
+        _sweep(parent)
+        stage = Path(tempfile.mkdtemp(prefix=_own_prefix(), suffix=".tmp", dir=parent))
         os.chmod(stage, 0o777 & ~_umask())  # mkdtemp's 0700 would become dest's mode
     except OSError as exc:
         from pkmctl.errors import OutputError
@@ -324,6 +326,47 @@ def staged_folder(dest: str | os.PathLike[str]) -> Iterator[Path]:
         raise
     finally:
         _MADE.pop(stage, None)
+
+
+def _own_prefix() -> str:
+    """A staging folder's name names its process: ``.pkmctl-<pid>@<host>-``, so that a
+    later run can tell one whose process was killed (kill -9, the out-of-memory killer:
+    nothing ran to remove it, 286 MB a tester's stayed) from one being written."""
+    import platform
+
+    host = re.sub(r"[^A-Za-z0-9.-]", "", platform.node())[:32] or "host"
+    return f"{_STAGE_PREFIX}{os.getpid()}@{host}-"
+
+
+_OWNED = re.compile(r"^\.pkmctl-(\d+)@([A-Za-z0-9.-]*)-[^/]*\.tmp$")
+#: A dead process's staging folder is removed once this old (s): never one being made.
+STALE_AFTER_S = 60.0
+
+
+def _sweep(parent: Path) -> None:
+    """Remove the staging folders in ``parent`` of processes of this host that are gone
+    (never raises): those a killed run left."""
+    import shutil
+    import time
+
+    host = _own_prefix().rsplit("@", 1)[1][:-1]
+    try:
+        entries = list(os.scandir(parent))
+    except OSError:
+        return
+    for entry in entries:
+        m = _OWNED.match(entry.name)
+        if m is None or m.group(2) != host or int(m.group(1)) == os.getpid():
+            continue
+        try:
+            if time.time() - entry.stat(follow_symlinks=False).st_mtime < STALE_AFTER_S:
+                continue
+            os.kill(int(m.group(1)), 0)  # alive (or another user's): keep it
+            continue
+        except ProcessLookupError:
+            shutil.rmtree(entry.path, ignore_errors=True)
+        except (OSError, ValueError, OverflowError):
+            continue
 
 
 #: The folders each live staging folder's run made above it (:func:`staged_folder`).
