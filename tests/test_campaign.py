@@ -1695,6 +1695,16 @@ def test_the_estimate_says_when_the_workers_compile_first(tmp_path, monkeypatch)
     with monkeypatch.context() as m:
         m.setenv("PKMCTL_CACHE_DIR", str(tmp_path / "empty"))
         assert store.uncompiled_loops(spec) == 2
+    # several seeds run in lanes: their lane loop is the one asked for, marked as it runs
+    # (the single loop's marker said "not run yet" after every campaign of lanes)
+    lanes = CampaignSpec.from_toml(HEAD.replace('["smc"]', '["smc", "pd"]')
+                                   .replace("seeds = 1", "seeds = 3"))  # fmt: skip
+    pkmctl.simulate_many(lanes.scenario(0), "smc", seeds=[0, 1], duration=0.01, lanes=2)
+    pkmctl.simulate_many(lanes.scenario(0), "pd", seeds=[0, 1], duration=0.01, lanes=2)
+    assert store.uncompiled_loops(lanes) == 0
+    with monkeypatch.context() as m:
+        m.setenv("PKMCTL_CACHE_DIR", str(tmp_path / "empty"))
+        assert store.uncompiled_loops(lanes) == 2
     monkeypatch.setattr(store, "uncompiled_loops", lambda spec: 1)  # (the run: compiled)
     spec_file = tmp_path / "spec.toml"
     spec_file.write_text(HEAD)

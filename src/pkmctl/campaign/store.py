@@ -229,14 +229,20 @@ def uncompiled_loops(spec: CampaignSpec) -> int:
     """How many of the campaign's combinations of pkmctl's own parts (by cell and
     controller) have no loop that ran on this machine with these sources: the workers
     compile those first, which :func:`estimate_seconds` leaves out (a tester's estimate
-    of 1.1 s took 250 s on an empty cache). The single loop's marker stands for the
-    combination's loops (its lane loop compiles beside it on a first campaign)."""
+    of 1.1 s took 250 s on an empty cache). A campaign of several seeds runs them in
+    lanes (:func:`~pkmctl.campaign.execute.run_task`): its lane loop is the one asked for."""
+    from pkmctl.sim.lanes import lanes_compiled
     from pkmctl.sim.loop import is_compiled
 
     parts = {(machine_key(spec.cells[i]), c): p for (i, c), p in cell_parts(spec).items()}
-    return sum(
-        all(part.builtin for part in p.values()) and not is_compiled(p) for p in parts.values()
-    )
+    lanes = len(spec.seeds) > 1
+
+    def compiled(p) -> bool:
+        if lanes and p["plant"].stepper is None:
+            return lanes_compiled(p)
+        return is_compiled(p)
+
+    return sum(all(part.builtin for part in p.values()) and not compiled(p) for p in parts.values())
 
 
 def _part_files(part) -> list[str]:

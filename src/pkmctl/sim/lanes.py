@@ -29,10 +29,11 @@ import time
 
 import numpy as np
 
-from pkmctl._jit import kernel, ready, specialise
+from pkmctl._jit import kernel, ready, specialise, specialised_dir
 from pkmctl.model.lanes import make_lane_work, wide_vectors
 from pkmctl.model.simd import flat_view
 from pkmctl.parts import (
+    EachLane,
     LaneMismatch,
     Part,
     actuator_command_after,
@@ -41,6 +42,7 @@ from pkmctl.parts import (
     controller_log,
     controller_step,
     global_values,
+    lane_class,
     plant_derivative,
     plant_observe,
     sensor_log,
@@ -48,9 +50,11 @@ from pkmctl.parts import (
     stack_lanes,
 )
 from pkmctl.sim.loop import (
+    _MARKER,
     Inputs,
     LogBuffers,
     LoopOutput,
+    _mark_compiled,
     accumulate_metrics_lanes,
     blame,
     metric_windows,
@@ -316,10 +320,26 @@ def _run_lanes(
 def lane_loop_for(parts: dict[str, Part], bundles: dict[str, tuple]):
     """The compiled lane loop for these parts (one per combination of lane-form types)."""
     key = tuple(type(bundles[k][0]) for k in ("plant", "sensor", "controller", "actuator"))
-    key = key + tuple(parts[k].params for k in ("plant", "sensor", "controller", "actuator"))
+    fn, key, sources, values = _lane_key(parts, key)
+    return specialise(fn, key, sources, refcount=False, values=values)
+
+
+def _lane_key(parts: dict[str, Part], lane_types: tuple) -> tuple:
+    """(function, key, sources, values) of the lane loop whose bundles have ``lane_types``."""
+    key = lane_types + tuple(parts[k].params for k in ("plant", "sensor", "controller", "actuator"))
     sources = [s for p in parts.values() if not p.builtin for s in p.sources]
-    return specialise(_run_lanes, ("lanes", *key), sources, refcount=False,
-                      values=global_values(parts.values()))  # fmt: skip
+    return _run_lanes, ("lanes", *key), sources, global_values(parts.values())
+
+
+def lanes_compiled(parts: dict[str, Part]) -> bool:
+    """Whether this combination's lane loop has run on this machine with these sources (a
+    marker in its cache folder, as :func:`pkmctl.sim.loop.is_compiled` for the single
+    loop; a part whose ``lane_ok`` refuses a run's bundle runs lane by lane, another loop,
+    which this does not ask)."""
+    types = tuple(lane_class(parts[k].params) if parts[k].lanes else EachLane
+                  for k in ("plant", "sensor", "controller", "actuator"))  # fmt: skip
+    fn, key, sources, values = _lane_key(parts, types)
+    return (specialised_dir(fn, key, sources, values) / _MARKER).exists()
 
 
 def _is_stack(buffers: list | None, L: int, rows: int, n_log: int, n_slog: int) -> bool:
@@ -430,6 +450,7 @@ def run_lanes(
             dt += time.perf_counter() - t0
         if left == 0:
             break
+    _mark_compiled(loop)  # (lanes_compiled asks for it)
     runs = runs[:n_runs]
     for kind, s, f in zip(("plant", "sensor", "controller", "actuator"), states, fin, strict=True):
         for i, run in enumerate(runs):

@@ -526,7 +526,9 @@ def is_compiled(parts: dict[str, Part]) -> bool:
 
 
 def _mark_compiled(loop) -> None:
-    if not loop.signatures:  # never called (a run that stopped before its first period)
+    # never called (a run that stopped before its first period), or not a cached
+    # dispatcher (a test's stand-in)
+    if not getattr(loop, "signatures", None) or getattr(loop, "_cache", None) is None:
         return
     folder = Path(loop._cache.cache_path)
     if not (folder / _MARKER).exists():
