@@ -477,9 +477,8 @@ def _register_part(
             if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD) and p.default is p.empty
         ]
         if len(plain) != want or len(sig.parameters) != want:
-            odd = (
-                "" if len(sig.parameters) != want else ("; no keyword-only, default or * arguments")
-            )  # ("takes 5 arguments, the contract needs 5" said nothing)
+            # ("takes 5 arguments, the contract needs 5" said nothing)
+            odd = "; no keyword-only, default or * arguments" if len(sig.parameters) == want else ""
             raise PartError(
                 f"{kind} {name!r}: {role} function {py.__name__}{sig} takes "
                 f"{len(sig.parameters)} arguments, the contract needs {want} plain ones "
@@ -671,7 +670,6 @@ def _filled(cell: Any) -> bool:
     return True
 
 
-@functools.cache
 @functools.cache
 def _library_folders() -> tuple[str, ...]:
     """Where files are not the user's: Python's own, pkmctl's, and the installed packages
