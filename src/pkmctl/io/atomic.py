@@ -307,25 +307,32 @@ def staged_folder(dest: str | os.PathLike[str]) -> Iterator[Path]:
     dest = check_output_folder(dest)
     parent = _stage_parent(dest)
     made = [f for f in (parent, *parent.parents) if not f.exists()]  # to remove on failure
+    prefix = _own_prefix()
+    stage = None
     try:
-        parent.mkdir(parents=True, exist_ok=True)
-        _sweep(parent)
-        stage = Path(tempfile.mkdtemp(prefix=_own_prefix(), suffix=".tmp", dir=parent))
-        os.chmod(stage, 0o777 & ~_umask())  # mkdtemp's 0700 would become dest's mode
-    except OSError as exc:
-        from pkmctl.errors import OutputError
+        # a Ctrl-C between making the folder and the cleanup's knowing of it left the
+        # folder behind (one interrupted test in a full run): held until both are done
+        with _sigint_deferred():
+            try:
+                parent.mkdir(parents=True, exist_ok=True)
+                _sweep(parent)
+                stage = Path(tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=parent))
+                os.chmod(stage, 0o777 & ~_umask())  # mkdtemp's 0700 would become dest's mode
+            except OSError as exc:
+                from pkmctl.errors import OutputError
 
-        _remove_empty(made)
-        raise OutputError(f"output folder {str(dest)!r}: {exc.strerror}") from None
-    _MADE[stage] = made  # discard(stage) removes them too (the CLI's Ctrl-C calls it)
-    try:
+                _remove_empty(made)
+                raise OutputError(f"output folder {str(dest)!r}: {exc.strerror}") from None
+            _MADE[stage] = made  # discard(stage) removes them too (the CLI's Ctrl-C calls it)
         yield stage
         publish(stage, dest)
     except BaseException:
-        discard(stage)
+        if stage is not None:
+            discard(stage)
         raise
     finally:
-        _MADE.pop(stage, None)
+        if stage is not None:
+            _MADE.pop(stage, None)
 
 
 def _own_prefix() -> str:
