@@ -633,20 +633,41 @@ def test_an_installed_package_of_ones_own_is_in_the_loops_key():
     import os
     import sysconfig
 
-    from pkmctl.parts import _library_folders, user_sources
+    from pkmctl.parts import _is_library, _library_folders, user_sources
 
     fuzzylite = pytest.importorskip("fuzzylite")  # installed apart, no requirement of ours
-    skip = _library_folders()
+    where = _library_folders()
     site_packages = os.path.join(os.path.realpath(sysconfig.get_paths()["purelib"]), "")
-    assert site_packages not in skip
-    assert os.path.join(os.path.dirname(os.path.realpath(np.__file__)), "") in skip
-    theirs = os.path.realpath(fuzzylite.__file__)
-    assert not any(theirs.startswith(f) for f in skip)
+    assert site_packages not in where.packages
+    assert os.path.join(os.path.dirname(os.path.realpath(np.__file__)), "") in where.packages
+    assert _is_library(np.__file__) and _is_library(os.__file__)
+    assert not _is_library(fuzzylite.__file__)
     from fuzzylite import engine
 
     reached = user_sources(engine.Engine.__init__)  # its imports of its own package count
     assert len(reached) > 1 and all("fuzzylite" in f for f in reached), reached
     assert not any("numpy" in f for f in user_sources(engine.Engine.__init__))
+
+
+def test_pythons_own_folder_holding_site_packages_leaves_them_the_users():
+    """Outside a venv (pyenv, a Python built from source) site-packages is inside Python's
+    own lib/python3.11, and a prefix test counted every installed package as Python's: the
+    user's own installed package was left out of the loop's key again (CI, on pyenv)."""
+    from pkmctl.parts import _is_library, _Library
+
+    lib = "/opt/py/lib/python3.11/"
+    where = _Library(
+        python=(lib,),
+        sites=(lib + "site-packages/",),
+        packages=("/src/pkmctl/", lib + "site-packages/numpy/"),
+    )
+    assert _is_library(lib + "os.py", where)
+    assert _is_library(lib + "json/decoder.py", where)
+    assert _is_library(lib + "site-packages/numpy/linalg/__init__.py", where)
+    assert _is_library("/src/pkmctl/parts.py", where)
+    assert not _is_library(lib + "site-packages/mypkg/helper.py", where)
+    assert not _is_library(lib + "site-packages/mypkg.py", where)
+    assert not _is_library("/home/me/plugin.py", where)
 
 
 class _Copy(NamedTuple):

@@ -544,7 +544,6 @@ def user_sources(fn: Callable) -> set[str]:
     ``import helper``). Python's, installed libraries' and pkmctl's files are left out
     (pkmctl's own hash covers its kernels). Numba compiles whatever these reach, so an
     edit to any of them must compile the loop anew."""
-    skip = _library_folders()
     found: set[str] = set()
     seen: set[int] = set()
 
@@ -559,8 +558,7 @@ def user_sources(fn: Callable) -> set[str]:
     def visit(namespace: dict[str, Any], file: str | None) -> None:
         if not file or not file.endswith(".py") or file in found:
             return
-        path = os.path.realpath(file)
-        if any(path.startswith(folder) for folder in skip):
+        if _is_library(file):
             return
         found.add(file)
         for value in list(namespace.values()):
@@ -594,7 +592,6 @@ def global_values(parts: Iterable[Part]) -> str:
     of a function with no file on disk (typed at a prompt, ``python -c``). Built-in
     parts add nothing."""
     h = hashlib.sha256()
-    skip = _library_folders()
     seen: set[int] = set()
 
     def users(py: Any) -> bool:
@@ -602,7 +599,7 @@ def global_values(parts: Iterable[Part]) -> str:
             file = inspect.getsourcefile(py) or ""
         except TypeError:
             return False
-        return not any(os.path.realpath(file).startswith(folder) for folder in skip)
+        return not _is_library(file)
 
     def names(code: CodeType) -> set[str]:
         out = set(code.co_names)
@@ -670,32 +667,57 @@ def _filled(cell: Any) -> bool:
     return True
 
 
+class _Library(NamedTuple):
+    """Where files are not the user's, as folder prefixes (each ending in a separator)."""
+
+    python: tuple[str, ...]  # Python's own modules, except under a site folder
+    sites: tuple[str, ...]  # where installed packages go
+    packages: tuple[str, ...]  # pkmctl and what it stands on, wherever they are
+
+
 @functools.cache
-def _library_folders() -> tuple[str, ...]:
+def _library_folders() -> _Library:
     """Where files are not the user's: Python's own, pkmctl's, and the installed packages
     pkmctl stands on (its requirements, extras included, and theirs, transitively). Any
     other installed package may be the user's own (docs/parts.md: a package the Dask
     workers import), and its files count: they were all left out, and an edit to a
-    part's helper installed in site-packages ran the old compiled loop (a tester)."""
+    part's helper installed in site-packages ran the old compiled loop (a tester).
+    Python's own folder holds site-packages outside a venv (pyenv, a Python built from
+    source: lib/python3.11/site-packages), so the site folders are cut out of it."""
     paths = sysconfig.get_paths()
-    # Python's own modules (a venv's platstdlib is its lib/pythonX.Y, which holds its
-    # site-packages: not that one)
-    folders = {paths["stdlib"], os.path.dirname(os.__file__)}
-    folders.add(os.path.dirname(os.path.abspath(__file__)))  # pkmctl
+
+    def folder(f: str) -> str:
+        return os.path.join(os.path.realpath(f), "")
+
+    python = {folder(f) for f in (paths["stdlib"], os.path.dirname(os.__file__)) if f}
+    sites = {paths[k] for k in ("purelib", "platlib") if k in paths}
+    sites |= set(site.getsitepackages()) | {site.getusersitepackages()}
+    sites = {folder(f) for f in sites if f}
+    packages = [folder(os.path.dirname(os.path.abspath(__file__)))]  # pkmctl
     deps = _dependencies()
     if deps is None:  # pkmctl run from its source, not installed: every installed package
-        folders |= {paths[k] for k in ("purelib", "platlib") if k in paths}
-        folders |= set(site.getsitepackages()) | {site.getusersitepackages()}
+        packages += sorted(sites)
         deps = []
-    out = [os.path.join(os.path.realpath(f), "") for f in folders if f]
     for dist in deps:
         for top in _top_level(dist):
             where = os.path.realpath(str(dist.locate_file(top)))
             if os.path.isdir(where):
-                out.append(os.path.join(where, ""))
+                packages.append(os.path.join(where, ""))
             elif os.path.isfile(where + ".py"):
-                out.append(where + ".py")
-    return tuple(dict.fromkeys(out))
+                packages.append(where + ".py")
+    return _Library(tuple(sorted(python)), tuple(sorted(sites)), tuple(dict.fromkeys(packages)))
+
+
+def _is_library(path: str, where: _Library | None = None) -> bool:
+    """Whether a file is Python's, pkmctl's or a package's pkmctl stands on (not the
+    user's): ``where`` defaults to this interpreter's :func:`_library_folders`."""
+    where = where or _library_folders()
+    path = os.path.realpath(path)
+    if any(path.startswith(f) for f in where.packages):
+        return True
+    return any(path.startswith(f) for f in where.python) and not any(
+        path.startswith(f) for f in where.sites
+    )
 
 
 def _dependencies() -> list | None:
