@@ -506,6 +506,8 @@ def test_bad_logging_every_is_one_line_with_the_range(tmp_path, value):
     line = one_line(runner.invoke(app, ["simulate", str(path), "--out", str(tmp_path / "o")]), 2)
     shown = {"true": "True", '"ten"': "'ten'"}.get(value, value)
     assert f"logging.every = {shown}: must be an integer in [1, 1000]" in line
+    # the range comes from the run's length, which --duration may have set (a tester)
+    assert "1000 is the run's length, timing.duration 0.05 s / control_period 5e-05 s" in line
     assert not (tmp_path / "o").exists()
 
 

@@ -101,6 +101,13 @@ BAD = [
     ({"disturbance": {"hold": 0.0}}, "disturbance.hold = 0.0"),
     # one value is held over each period: a shorter hold drew values no period read
     ({"disturbance": {"hold": 1e-300}}, "disturbance.hold = 1e-300: must be >= timing.contr"),
+    # a control period typed in ms named only the hold, which the user had not changed; the
+    # message offers both ways out (a tester)
+    (
+        {"timing": {"control_period": 0.05}},
+        "disturbance.hold = 0.001: must be >= timing.control_period (0.05 s): the loop holds "
+        "one value over each control period (or a timing.control_period <= 0.001 s)",
+    ),
     ({"mechanism": {"r_a": 0.5}}, "need 0 < r_a < r_b"),
     # a long list's length, which the cut text hid (a tester)
     (

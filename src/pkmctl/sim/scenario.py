@@ -741,7 +741,8 @@ class Scenario(_Model):
             raise ValueError(
                 f"disturbance.hold = {self.disturbance.hold:g}: must be >= "
                 f"timing.control_period ({t.control_period:g} s): the loop holds one value "
-                "over each control period"
+                f"over each control period (or a timing.control_period <= "
+                f"{self.disturbance.hold:g} s)"
             )
         h = t.control_period / t.substeps
         lag = self.actuators.lag
@@ -767,7 +768,8 @@ class Scenario(_Model):
         if not (isinstance(every, int) and not isinstance(every, bool) and 1 <= every <= t.periods):
             raise ValueError(
                 f"logging.every = {every!r}: must be an integer in [1, {t.periods}] "
-                f"(control periods; {t.periods} is the run's length)"
+                f"(control periods; {t.periods} is the run's length, timing.duration "
+                f"{t.duration:g} s / control_period {t.control_period:g} s)"
             )
         # The whole desired trajectory must stay in the workspace, away from singularities.
         ts = np.linspace(0.0, t.duration, int(min(20001, max(2, t.duration / 1e-3))))
