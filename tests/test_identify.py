@@ -824,6 +824,27 @@ def test_excite_names_the_cutoff_its_harmonics_need(tmp_path):
     assert f"identify DIR/pd.parquet --cutoff {cut:g}" in " ".join(r.stdout.split())
 
 
+def test_excite_on_a_slow_log_names_the_cutoff_identify_allows(tmp_path):
+    """A 100 Hz log (prototype, logging.every = 10) allows --cutoff <= 2 Hz: excite printed
+    plain `identify` (its 10 Hz default, refused) and timed the run for 10 Hz, so identify
+    refused again for a run too short (a tester). It names the cutoff and the periods now."""
+    import inspect
+
+    from pkmctl import cli_identify
+    from pkmctl.ident.identify import DEFAULT_CUTOFF, cutoff_for, max_cutoff
+
+    assert inspect.signature(cli_identify.identify).parameters["cutoff"].default == DEFAULT_CUTOFF
+    assert cutoff_for(1.0, 100.0) == max_cutoff(100.0) == 2.0
+    slow = pkmctl.Scenario.builtin("prototype").replace(**{"logging.every": 10})
+    (tmp_path / "slow.toml").write_text(slow.to_toml())
+    r = _run("excite", "--scenario", "slow.toml", "--out", "ex.toml", "--harmonics", "3",
+             "--base-frequency", "0.5", cwd=tmp_path)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "identify DIR/pd.parquet --cutoff 2" in " ".join(r.stdout.split())
+    said = " ".join(r.stderr.split())
+    assert "too short for pkmctl identify at --cutoff 2 Hz" in said, said
+
+
 def test_identify_leaves_a_first_compilation_out_of_its_time():
     """The report's "Identification took" counted a first compilation of the kernels."""
     import dataclasses
@@ -885,3 +906,22 @@ def test_the_lengths_noise_and_the_rate_cutoff_it_allows_are_reported(exciting, 
         assert fd < obs.rate_cutoff < 0.4 * fs
     else:
         assert obs.rate_cutoff == pytest.approx(expected, rel=1e-12)
+
+
+def test_excite_predicts_the_forces_of_the_payload_too(proto):
+    """excite predicted limb forces with Theta's machine alone: with 300 kg on the platform it
+    reported 282 N (as with none) for a trajectory needing 3633 N, and the written run
+    diverged (a tester). The payload's weight alone, at the pose the design starts from at
+    rest, now bounds the peak it reports from below; the payload's forces themselves are
+    checked against a point mass in tests/test_machine.py."""
+    from pkmctl.ident.excite import _split
+
+    loaded = proto.replace(**{"payload.mass": 60.0, "payload.offset": [0.02, 0.0, 0.05]})
+    e = design_excitation(loaded, harmonics=3, restarts=1, max_iter=15)
+    X0 = np.array([loaded.initial.X])
+    plant = loaded.plant()
+    at_rest = _split(plant.jacobian(X0), plant.gravity(X0[0])[None] + loaded.payload_forces(X0))
+    bare = _split(plant.jacobian(X0), plant.gravity(X0[0])[None])
+    assert np.abs(at_rest).max() > np.abs(bare).max() + 100.0  # 60 kg: ~150 N a limb more
+    assert e.peak_force >= np.abs(at_rest).max()
+    assert e.peak_force <= 0.5 * e.force_limit

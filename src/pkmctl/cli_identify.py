@@ -152,6 +152,7 @@ def excite(
     base, _ = _scenario_for(ctx, scenario, None)
     from pkmctl.ident.excite import FORCE_MARGIN, SPEED_MARGIN, design_excitation
     from pkmctl.ident.identify import (
+        DEFAULT_CUTOFF,
         MIN_HARMONIC_GAIN,
         cutoff_for,
         highest_harmonic,
@@ -229,7 +230,7 @@ def excite(
     t.add_row(Text("z range [m]"), f"{exc_.z_range[0]:.3f}-{exc_.z_range[1]:.3f}", "0.62-0.78")
     t.add_row(Text("max |alpha|, |beta| [rad]"), f"{exc_.max_angle:.3f}", "0.5")
     console.print(t)
-    raise_cutoff = f" --cutoff {cut:g}" if cut > 10.0 else ""
+    raise_cutoff = f" --cutoff {cut:g}" if cut != DEFAULT_CUTOFF else ""
     console.print(
         Text(
             f"wrote {out}: {exc_.duration:g} s; run it with "
@@ -239,7 +240,7 @@ def excite(
     )
     need = minimum_duration(cut, exc_.base.count, fs)
     if exc_.duration < need:
-        at = f"--cutoff {cut:g} Hz" if raise_cutoff else "its default --cutoff 10 Hz"
+        at = f"--cutoff {cut:g} Hz" if raise_cutoff else f"its default --cutoff {cut:g} Hz"
         _say(
             f"warning: {exc_.duration:g} s is too short for pkmctl identify at {at}, which "
             f"needs >= {need:.3g} s: use --periods >= {math.ceil(need * base_frequency - 1e-9)}"

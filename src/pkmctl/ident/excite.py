@@ -9,7 +9,7 @@ to correct). The start and end are at rest at the scenario's initial pose: per
 coordinate sum_l a_l = 0 (Xdot(0) = 0), sum_l l b_l = 0 (Xddot(0) = 0) and
 sum_l b_l / l = 0 (X(0) = offset), imposed exactly by optimising in their null space.
 Forces are predicted with the scenario's true machine (the designer's nominal model:
-for the prototype, the catalogue values of DESIGN.md §7).
+for the prototype, the catalogue values of DESIGN.md §7) and its payload.
 """
 
 from __future__ import annotations
@@ -189,13 +189,13 @@ def design_excitation(
         X, Xd, Xdd = tr.evaluate(t)
         _, J = limbs_batch(geom, X)  # no checks: the constraints keep X valid
         W = extended_regressor_batch(geom, X, Xd, Xd, Xdd, vs)
-        return X, Xd, J, W
+        return X, Xd, Xdd, J, W
 
     def constraints(x) -> np.ndarray:
-        X, Xd, J, W = kinematics(x)
+        X, Xd, Xdd, J, W = kinematics(x)
         sv = np.linalg.svd(J, compute_uv=False)
         qd = np.einsum("nij,nj->ni", J, Xd)
-        tau = _split(J, W @ theta_ext)
+        tau = _split(J, W @ theta_ext + scenario.payload_forces(X, Xd, Xdd))
         return np.array(
             [
                 (MAX_ANGLE - np.abs(X[:, 1:]).max()) / MAX_ANGLE,
@@ -208,7 +208,7 @@ def design_excitation(
         )
 
     def objective(x) -> float:
-        X, _, _, W = kinematics(x)
+        X, _, _, _, W = kinematics(x)
         if X[:, 0].min() <= 0 or np.abs(X[:, 1:]).max() >= 1.2:
             return 20.0
         return math.log10(_cond(base.reduce(W).reshape(-1, base.count)))
@@ -281,7 +281,7 @@ def design_excitation(
     X, Xd, Xdd = tr.evaluate(tt)
     J = plant.jacobian(X)
     W = plant.extended_regressor(X, Xd, Xd, Xdd, vs)
-    tau = _split(J, W @ theta_ext)
+    tau = _split(J, W @ theta_ext + scenario.payload_forces(X, Xd, Xdd))
     qd = np.einsum("nij,nj->ni", J, Xd)
     cond = float(np.linalg.cond(base.reduce(W).reshape(-1, base.count)))
     Xp, Xdp, Xddp = scenario.builtin("paper").trajectory.build().evaluate(tt)

@@ -373,6 +373,9 @@ def max_cutoff(fs: float) -> float:
     return DIFF_CUTOFF_RATIO * fs / MIN_POSE_TO_CUTOFF
 
 
+#: The parallel filter's cutoff (Hz) unless one is given.
+DEFAULT_CUTOFF = 10.0
+
 #: The parallel filter's gain that ``pkmctl excite`` asks at its trajectory's top harmonic
 #: (:func:`cutoff_for`): the Hamming FIR of :func:`_lowpass` halves an amplitude at its
 #: cutoff and keeps 0.9 of it up to about 0.79 x the cutoff, nothing beyond 1.4 x.
@@ -386,14 +389,16 @@ def filter_gain(cutoff: float, fs: float, f: float) -> float:
     return float(abs(np.sum(h * np.exp(-2j * np.pi * f / fs * k))))
 
 
-def cutoff_for(f: float, fs: float, least: float = 10.0) -> float | None:
-    """The least cutoff (Hz, to 0.1 Hz, at least ``least``) whose parallel filter keeps
-    :data:`MIN_HARMONIC_GAIN` of a harmonic at ``f`` Hz in a log at ``fs`` Hz; None if
-    even :func:`max_cutoff` does not (identify would filter the harmonic away)."""
+def cutoff_for(f: float, fs: float, least: float = DEFAULT_CUTOFF) -> float | None:
+    """The least cutoff (Hz, to 0.1 Hz, at least ``least``, or :func:`max_cutoff` if that
+    is lower) whose parallel filter keeps :data:`MIN_HARMONIC_GAIN` of a harmonic at ``f``
+    Hz in a log at ``fs`` Hz; None if even :func:`max_cutoff` does not (identify would
+    filter the harmonic away). A log below 500 Hz allows no 10 Hz cutoff: it gave 10, and
+    excite printed an identify command that identify refused (a tester)."""
     top = max_cutoff(fs)
     if filter_gain(top, fs, f) < MIN_HARMONIC_GAIN:
         return None
-    lo, hi = least, top
+    lo, hi = min(least, top), top
     if filter_gain(lo, fs, f) >= MIN_HARMONIC_GAIN:
         return lo
     while hi - lo > 0.05:  # the gain at f rises with the cutoff
@@ -607,7 +612,7 @@ def observe(
     mechanism: Mechanism,
     *,
     friction_velocity: float = 1e-3,
-    cutoff: float = 10.0,
+    cutoff: float = DEFAULT_CUTOFF,
     diff_cutoff: float | None = None,
     decimation: int | None = None,
     force_lead: float | None = None,
@@ -998,7 +1003,7 @@ def identify(
     log: Log,
     scenario: Scenario,
     *,
-    cutoff: float = 10.0,
+    cutoff: float = DEFAULT_CUTOFF,
     decimation: int | None = None,
     physical: bool = True,
     friction_velocity: float | None = None,

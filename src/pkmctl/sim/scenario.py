@@ -948,6 +948,28 @@ class Scenario(_Model):
         """The true mechanism."""
         return self.mechanism.build()
 
+    def payload_forces(self, X, Xd=None, Xdd=None) -> np.ndarray:
+        """The payload's share of the true plant's generalised forces, M_p Xdd + C_p(X, Xd)
+        Xd + G_p (N, 3) at poses X (N, 3), rates Xd and accelerations Xdd (zeros if not
+        given): what Theta's machine (:meth:`plant`) leaves out of the plant the loop runs
+        (DESIGN.md §8; zeros without a payload)."""
+        from pkmctl.model.machine import add_payload
+
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        Xd = np.zeros_like(X) if Xd is None else np.atleast_2d(np.asarray(Xd, dtype=float))
+        Xdd = np.zeros_like(X) if Xdd is None else np.atleast_2d(np.asarray(Xdd, dtype=float))
+        F = np.zeros_like(X)
+        mass = float(self.payload.mass)
+        if mass <= 0.0:
+            return F
+        geom, offset = self.plant().geometry, np.asarray(self.payload.offset, dtype=float)
+        R, M, Cv, G = np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty(3)
+        for n in range(len(X)):
+            M[:], Cv[:], G[:] = 0.0, 0.0, 0.0
+            add_payload(geom, mass, offset, X[n], Xd[n], Xd[n], R, M, Cv, G)
+            F[n] = M @ Xdd[n] + Cv + G
+        return F
+
     def controller_mechanism(self) -> Mechanism:
         """The controllers' model: same geometry, Theta^ = theta_scale * Theta (or the
         first 36 entries of ``controller_model.theta_ext``)."""
