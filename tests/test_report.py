@@ -285,6 +285,37 @@ def test_render_report_names_the_fis_file_fsmc_and_afsmc_ran_on(tmp_path) -> Non
     assert ".fis" not in render_report(plain, figures=[], scenario_name="paper")
 
 
+def test_render_report_says_what_an_edited_scenario_changed() -> None:
+    """An edited file that kept `name = "prototype"` (5 kg payload, another PD gain) gave
+    the built-in's report word for word; a report on excite's trajectory set the paper's
+    Table 4 beside it unsaid (a tester)."""
+    proto = pkmctl.Scenario.builtin("prototype")
+    edited = proto.replace(**{"payload.mass": 5.0, "gains.pd_kp": [20000.0, 2000.0, 2000.0]})
+    run = {"pd": pkmctl.simulate(edited, controller="pd", duration=0.02)}
+    text = " ".join(render_report(run, figures=[], scenario_name="prototype").split())
+    assert (
+        "It differs from the built-in “prototype” in gains.pd_kp = [20000, 2000, 2000] "
+        "(built-in: [50000, 4000, 4000]); payload.mass = 5 (built-in: 0)." in text
+    )
+    assert "not the paper's" not in text
+    plain = {"pd": pkmctl.simulate(proto, controller="pd", duration=0.02)}
+    assert "differs from the built-in" not in render_report(plain, figures=[], scenario_name="p")
+    # another trajectory, under another name: against the built-in it differs least from
+    fourier = proto.replace(
+        name="mine",
+        trajectory={"kind": "fourier", "base_frequency": 0.2, "offset": [0.7, 0.0, 0.0],
+                    "a": [[0.01, -0.01, 0.0]] * 3, "b": [[0.0, 0.0, 0.0]] * 3},
+    )  # fmt: skip
+    run = {"pd": pkmctl.simulate(fourier, controller="pd", duration=0.02)}
+    text = " ".join(render_report(run, figures=[], scenario_name="mine").split())
+    assert (
+        "It differs from the built-in “prototype” in trajectory.kind = fourier (built-in: "
+        "sinusoid). **Warning**: its trajectory is not the paper's (eq. 54, from rest at "
+        "z = 0.7 m): Table 4's paper rows, and our ratios to them, come from another "
+        "experiment." in text
+    )
+
+
 def test_render_report_says_when_the_drives_saturate_and_overspeed() -> None:
     """A prototype start saturates limbs 2 and 4 for milliseconds and drives the limbs
     past the drives' 0.833 m/s; the report gave the instant of one rounding's maximum

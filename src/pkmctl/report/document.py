@@ -525,6 +525,61 @@ def _swing(result: Result) -> str:
     return f" (its error swings from {e.min():.3g} to {e.max():.3g} mm with the trajectory)"
 
 
+#: Fields the report's run sentence states already, left out of its list of differences.
+_STATED = ("timing.duration", "disturbance.seed", "fuzzy.")
+
+
+def _value(v) -> str:
+    if isinstance(v, list):
+        if len(v) > 6:
+            return f"({len(v)} values)"
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, float):
+        return f"{v:g}"
+    return "none" if v is None else str(v)
+
+
+def _differences_sentence(sc) -> str:
+    """What the run's scenario changed from the built-in of its name (else the built-in it
+    differs least from): an edited file that kept `name = "prototype"` gave the built-in's
+    report word for word, and a report on another trajectory compared with the paper's
+    Table 4 unsaid (a tester)."""
+    from pkmctl.sim.scenario import BUILTINS, Scenario
+
+    def changed(ref: str) -> list[tuple[str, object, object]]:
+        out, kind = [], None
+        for k, a, b in sc.differences(Scenario.builtin(ref)):
+            if k.startswith(_STATED):
+                continue
+            if k.startswith("trajectory."):  # another kind of trajectory: one item
+                if k == "trajectory.kind":
+                    kind = (k, a, b)
+                if kind is not None:
+                    continue
+            out.append((k, a, b))
+        return ([kind] if kind else []) + out
+
+    if sc.name in BUILTINS:
+        ref = sc.name
+    else:
+        ref = min(BUILTINS, key=lambda name: len(changed(name)))
+    text = ""
+    if diffs := changed(ref):
+        shown = [f"{k} = {_value(a)} (built-in: {_value(b)})" for k, a, b in diffs[:8]]
+        more = f", and {len(diffs) - 8} more" if len(diffs) > 8 else ""
+        text += f" It differs from the built-in “{ref}” in {'; '.join(shown)}{more}."
+    paper = Scenario.builtin("paper")
+    moved = [what for key, what in (("trajectory", "trajectory"), ("initial", "initial state"))
+             if getattr(sc, key) != getattr(paper, key)]  # fmt: skip
+    if moved:
+        text += (
+            f" **Warning**: its {' and '.join(moved)} {'are' if len(moved) > 1 else 'is'} not "
+            "the paper's (eq. 54, from rest at z = 0.7 m): Table 4's paper rows, and our "
+            "ratios to them, come from another experiment."
+        )
+    return text
+
+
 def render_report(
     results: Mapping[str, Result],
     *,
@@ -595,6 +650,7 @@ def render_report(
         )
         if note := sc.fuzzy_offset_note():
             run += f" **Warning**: {note}."
+    run += _differences_sentence(sc)
     if wall_time_s is not None:
         run += f" Wall time {wall_time_s:.1f} s."
     lines += [run, ""]

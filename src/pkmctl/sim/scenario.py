@@ -943,6 +943,26 @@ class Scenario(_Model):
         """
         return Scenario.from_dict(_changed(self.model_dump(by_alias=True), changes))
 
+    def differences(self, other: Scenario) -> list[tuple[str, Any, Any]]:
+        """The fields (dotted names, as in :meth:`replace`) whose values differ from
+        ``other``'s: (name, this value, other's), in the order of the TOML; name and
+        description left out."""
+        out: list[tuple[str, Any, Any]] = []
+
+        def walk(a: Any, b: Any, where: str) -> None:
+            if isinstance(a, dict) and isinstance(b, dict):
+                for k in dict.fromkeys([*a, *b]):
+                    walk(a.get(k), b.get(k), f"{where}.{k}" if where else k)
+            elif a != b:
+                out.append((where, a, b))
+
+        mine, theirs = self.model_dump(by_alias=True), other.model_dump(by_alias=True)
+        for key in ("name", "description"):
+            mine.pop(key, None)
+            theirs.pop(key, None)
+        walk(mine, theirs, "")
+        return out
+
     # ------------------------------------------------------------------ derived objects
     def plant(self) -> Mechanism:
         """The true mechanism."""
