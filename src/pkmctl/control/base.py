@@ -53,8 +53,9 @@ class ControllerState:
     """A snapshot of a controller's state.
 
     s_prev : (3,) s at the previous step; sdot : (3,) filtered sdot estimate (both None
-    for a controller without a sliding surface); theta_hat : (36,) Theta^ (AFSMC) or
-    None; steps : control periods taken; raw : the part's whole state array.
+    for a controller without a sliding surface); theta_hat : (36,) Theta^ (AFSMC), (48,)
+    Theta_ext^ (afsmc-ext), or None; steps : control periods taken; raw : the part's
+    whole state array.
     """
 
     s_prev: np.ndarray | None
@@ -333,12 +334,14 @@ class CTC(Controller):
     name = "ctc"
 
 
-#: The built-in controllers by name (every registered one: :func:`pkmctl.parts.names`).
+#: The controllers with a class of their own, by name; every other registered one
+#: (afsmc-ext, a user's: :func:`pkmctl.parts.names`) is a plain :class:`Controller`.
 CONTROLLERS: dict[str, type[Controller]] = {c.name: c for c in (SMC, FSMC, AFSMC, PD, CTC)}
 
 
 def make_controller(name: str, model: Mechanism, gains: Gains | None = None, **kw) -> Controller:
-    """Build any registered controller by name ("smc", "fsmc", "afsmc", "pd", "ctc", ...)."""
+    """Build any registered controller by name ("smc", "fsmc", "afsmc", "afsmc-ext", "pd",
+    "ctc", or a user's part)."""
     if not isinstance(name, str):
         raise ValueError(f"controller = {name!r}: must be one of {names('controller')}")
     key = name.lower() if name.lower() in CONTROLLERS else name

@@ -61,8 +61,10 @@ class Gains:
     lam : lambda, the sliding-surface slope (1/s), > 0.
     K : linear gain on s (N s/m, N m s/rad), >= 0.
     Lam : switching gain of the SMC (N, N m), >= 0.
-    eps : boundary-layer width of sat(s / eps), > 0.
-    Ks, Ksd : input scalings of the FLC for s and sdot, > 0.
+    eps : boundary-layer width of sat(s / eps), in s's units (m/s on z, rad/s on the
+        angles: one number for all three), > 0.
+    Ks, Ksd : input scalings of the FLC for s (s/m, s/rad) and sdot (s^2/m, s^2/rad):
+        the FLC's inputs are numbers without units, > 0.
     Ku : output scaling of the FLC (N, N m), >= 0.
     gamma : adaptation gain gamma of Gamma = gamma diag(Theta_0^2) (1/J), >= 0.
     filter_periods : tau_f / T_c of the sdot low-pass filter, >= 1.
