@@ -30,7 +30,21 @@ def test_bench_quick_smoke(tmp_path):
         "AFSMC loop, plant.kind = mujoco",
     ):
         assert label in labels
-    assert labels.count("  closed-form AFSMC loop / this") == 4
+    # each ratio is a median of rounds in which both sides are timed alternately (they
+    # were timed a minute apart: a tester)
+    assert labels.count("  closed-form AFSMC loop / this") == 4  # (--quick: one round)
+    assert data["mujoco"]["rounds"] == 1 and data["mujoco"]["ratio_steps_per_s"] > 0
+    assert data["flops"]["rounds"] == 1
+    judged = [r[2] for r in rows(data) if r[0] == "  closed-form AFSMC loop / this"]
+    assert judged == ["≥ 20 x", "", "≥ 20 x", ""]  # RK4 and AFSMC from Python: issue 16.2
+    many = dict(data, mujoco=dict(data["mujoco"], rounds=3))
+    assert "  closed-form AFSMC loop / this, median of 3 rounds" in [r[0] for r in rows(many)]
+    targets = {r[0]: r[2] for r in rows(data)}
+    assert targets["  share of scalar peak (>100 %: 4-wide limbs)"] == "≥ 75 %"
+    assert targets["  afsmc step, time/flop ÷ plant's"] == "≤ 1.5 x"
+    assert targets["  ÷ its 5 runs' loops, summed"] == "≤ 1.5 x"
+    assert data["machine"]["cpu"] not in ("", "x86_64")  # the processor's name
+    assert "[14/14]" in res.output  # progress: each section counted, with the time so far
     assert "  user's my-law / built-in pd" in labels
     pr = data["prototype"]  # issue 10: the prototype loop beside the ideal one
     assert pr["ideal_substeps_per_s"] > 0 and pr["prototype_substeps_per_s"] > 0
@@ -74,6 +88,27 @@ def test_bench_quick_smoke(tmp_path):
     assert {r[0]: r[3] for r in rows(fast)}["closed loop afsmc, one core"] == "yes"
     assert {r[0]: r[3] for r in rows(data)}["closed loop afsmc, one core"] == "-"
     assert render(slow).splitlines()[1].split() == ["measurement", "result", "target", "held"]
+
+
+def test_bench_runs_only_this_pkmctls_benchmarks(tmp_path, monkeypatch):
+    """`pkmctl bench` ran any benchmarks/bench.py of the current folder (another project's,
+    an older checkout's) before its own (a tester)."""
+    import sys
+
+    import benchmarks
+    from pkmctl import cli
+
+    fake = tmp_path / "benchmarks"
+    fake.mkdir()
+    (fake / "__init__.py").write_text("")
+    (fake / "bench.py").write_text("raise SystemExit('the foreign bench ran')\n")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "path", [str(tmp_path), *sys.path])
+    ours = Path(benchmarks.__file__).resolve().parent
+    cli._import_benchmarks()
+    import benchmarks.bench as found
+
+    assert Path(found.__file__).resolve().parent == ours
 
 
 def test_user_law_file_kept_by_its_text(tmp_path, monkeypatch):
