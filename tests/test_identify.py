@@ -843,6 +843,24 @@ def test_excite_on_a_slow_log_names_the_cutoff_identify_allows(tmp_path):
     assert "identify DIR/pd.parquet --cutoff 2" in " ".join(r.stdout.split())
     said = " ".join(r.stderr.split())
     assert "too short for pkmctl identify at --cutoff 2 Hz" in said, said
+    # a log (not a terminal) gets a line a random start: 20-30 s went unsaid (a tester)
+    assert "(4 of 4 random starts done)" in said, said
+
+
+def test_excite_says_which_limits_it_assumed_and_refuses_an_empty_scenario(tmp_path):
+    """On the paper's ideal actuators (no limits) excite showed the prototype drive's
+    limits as the scenario's; `--scenario ''` was the prototype, unsaid (a tester)."""
+    from pkmctl.ident.excite import assumed_limits
+
+    assert assumed_limits(pkmctl.Scenario.builtin("prototype")) is None
+    note = assumed_limits(pkmctl.Scenario.builtin("paper"))
+    assert note == (
+        "the scenario's 'ideal' actuators state no force or speed limit: the design kept to "
+        "the prototype drive's (force 2160 N, speed 0.833 m/s, before the margins)"
+    )
+    r = _run("excite", "--scenario", "", "--out", "ex.toml", cwd=tmp_path)
+    assert r.returncode == 2 and not (tmp_path / "ex.toml").exists()
+    assert r.stderr.strip().startswith("error: --scenario = '': must name a built-in"), r.stderr
 
 
 def test_identify_leaves_a_first_compilation_out_of_its_time():

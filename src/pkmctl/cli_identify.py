@@ -34,6 +34,7 @@ from pkmctl.cli import (
     _untouched,
     app,
     console,
+    err_console,
 )
 
 
@@ -145,6 +146,8 @@ def excite(
         _fail(f"--periods = {periods}: must be in [1, 100]")
     if seed < 0:
         _fail(f"--seed = {seed}: must be >= 0")
+    if not scenario.strip():  # ('' was the prototype, unsaid)
+        _fail(f"--scenario = {scenario!r}: must name a built-in ({_SCENARIO_NAMES}) or a file")
     try:
         out = check_output_file(out, what="--out")
     except Exception as exc:
@@ -182,6 +185,8 @@ def excite(
             def progress(done: int, total: int) -> None:
                 text = f"{doing} ({done} of {total} random starts done)"
                 bar.update(task, completed=done, total=total, description=text)
+                if not err_console.is_terminal:  # a log: a line a start (20-30 s unsaid)
+                    _say(text)
 
             def work():
                 with warnings.catch_warnings():  # SLSQP's finite differences at a bad start
@@ -208,6 +213,10 @@ def excite(
             fh.write(sc.to_toml())
     except OSError as exc:
         _handle(ctx, exc, suffix=f"; {out} not written")
+    from pkmctl.ident.excite import assumed_limits
+
+    if note := assumed_limits(base):
+        _say(f"note: {note}")
     t = Table(title=f"Exciting trajectory for {base.name!r} ({exc_.seconds:.1f} s to design)")
     t.add_column("")
     t.add_column("this trajectory", justify="right")

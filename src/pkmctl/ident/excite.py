@@ -122,6 +122,26 @@ def _limits(sc: Scenario) -> tuple[float, float]:
     return force, speed
 
 
+def assumed_limits(sc: Scenario) -> str | None:
+    """What :func:`_limits` assumed for actuators that state no limit (None if none):
+    the prototype drive's (the paper's ideal actuators have none; excite showed them as
+    the scenario's, a tester)."""
+    a = sc.actuators
+    if a.kind == "drive":
+        return None
+    force, speed = _limits(sc)
+    parts = []
+    if a.force_limit is None:
+        parts.append(f"force {force:g} N")
+    parts.append(f"speed {speed:.3g} m/s")
+    return (
+        f"the scenario's {a.kind!r} actuators state no "
+        + ("force or speed limit" if a.force_limit is None else "speed limit")
+        + f": the design kept to the prototype drive's ({', '.join(parts)}, before the "
+        "margins)"
+    )
+
+
 def observation_condition(sc: Scenario, base: BaseParameters, X, Xd, Xdd) -> float:
     """cond(W_b) of the stacked base regressor along samples X, Xd, Xdd (N, 3)."""
     vs = sc.plant_spec.friction_velocity
