@@ -10,14 +10,22 @@ Contract of a :class:`Controller` (like SciPy's ``OdeSolver``):
    :class:`~pkmctl.errors.NonFiniteInputError` and leaves the state as it was: one bad
    sample from a sensor must not poison the s-dot filter or Theta^ for good. (The
    compiled closed loop checks its state in its own way and does not pay for this.)
-3. Its whole state is :attr:`Controller.state` (a copy); :meth:`Controller.reset`
-   restores the initial state.
+3. Its whole state is :attr:`Controller.state` (a copy); :meth:`Controller.restore`
+   puts a snapshot back (bit-identical continuation), :meth:`Controller.reset` the
+   initial state (Theta^ kept if asked: after an e-stop, restart the s-dot filter alone).
+4. One instance may be stepped from several threads: a lock keeps each step whole (the
+   compiled step releases the GIL, and two threads' inputs mixed in its one set of
+   buffers: a tester).
+5. The first step compiles (seconds on an empty cache, ~10 ms from it): call
+   :meth:`Controller.prepare` before a real-time loop.
 """
 
 from __future__ import annotations
 
 import math
 import numbers
+import threading
+import time
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -95,7 +103,10 @@ def _as_vec3(a, name: str) -> np.ndarray:
     if type(a) is np.ndarray and a.dtype == np.float64 and a.shape == (3,):
         if a.flags.c_contiguous and a.flags.aligned and a.flags.writeable:
             return a
-    a = np.array(a, dtype=np.float64)  # a copy: contiguous, aligned, writeable
+    try:
+        a = np.array(a, dtype=np.float64)  # a copy: contiguous, aligned, writeable
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} = {a!r:.80}: expected 3 numbers") from None
     if a.shape != (3,):
         raise ValueError(f"{name}: expected shape (3,), got {a.shape}")
     return a
@@ -161,18 +172,22 @@ class Controller:
         self.params, self._initial, self._work = self.part.make(ctx)
         self._state = self._initial.copy()
         self._steps = 0
+        self._lock = threading.Lock()
         self._new_buffers()
         self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False,
                                 values=global_values([self.part]))  # fmt: skip
 
     @classmethod
-    def from_scenario(cls, scenario, name: str = "afsmc") -> Controller:
+    def from_scenario(cls, scenario, name: str | None = None) -> Controller:
         """Controller ``name`` exactly as a simulation of ``scenario`` builds it: the
         controllers' model (``[controller_model]``, with its rotor inertia and friction
         feed-forward), gains, control period and fuzzy system. For a hardware loop on
         the machine the scenario describes (e.g. ``prototype-tuned``), where
         ``make_controller(name, scenario.controller_mechanism(), ...)`` would leave out
-        the feed-forward."""
+        the feed-forward. ``name`` defaults to the class's (``PD.from_scenario(sc)`` is
+        PD; it was AFSMC, unsaid: a tester), and to "afsmc" on :class:`Controller`; a
+        name another class's is refused. The step assumes the scenario's control
+        period between calls: run the hardware loop at it."""
         from pkmctl.sim.scenario import Scenario
 
         if isinstance(scenario, str):
@@ -181,9 +196,16 @@ class Controller:
             raise TypeError(
                 f"scenario: expected a pkmctl.Scenario or a built-in name, got {scenario!r}"
             )
+        if name is None:
+            name = cls.name or "afsmc"
         key = name.lower() if isinstance(name, str) and name.lower() in CONTROLLERS else name
         if not isinstance(key, str) or key not in names("controller"):
             raise ValueError(f"controller = {name!r}: must be one of {names('controller')}")
+        if cls is not Controller and key != cls.name:
+            raise ValueError(
+                f"{cls.__name__}.from_scenario: controller = {name!r} is not {cls.name!r}; "
+                f"Controller.from_scenario(scenario, {key!r}) builds it"
+            )
         kind = CONTROLLERS.get(key, Controller) if cls is Controller else cls
         return kind(scenario.controller_mechanism(), scenario.controller_gains(),
                     period=scenario.timing.control_period, flc=scenario.fuzzy_system(),
@@ -200,10 +222,44 @@ class Controller:
     def _adaptive(self) -> bool:
         return self.part.log_name == "theta_hat"
 
-    def reset(self) -> None:
-        """Restore the initial state (no previous s, sdot = 0, Theta^ = the model's Theta)."""
-        self._state[:] = self._initial
-        self._steps = 0
+    def reset(self, *, keep_theta_hat: bool = False) -> None:
+        """Restore the initial state (no previous s, sdot = 0, Theta^ = the model's Theta);
+        with ``keep_theta_hat``, Theta^ stays as adapted (after an e-stop: the s-dot
+        filter starts again, what the adaptation learnt is kept)."""
+        with self._lock:
+            keep = self._state[SLIDING_STATE:].copy() if keep_theta_hat else None
+            self._state[:] = self._initial
+            if keep is not None and self._adaptive:
+                self._state[SLIDING_STATE:] = keep
+            self._steps = 0
+
+    def restore(self, snapshot: ControllerState) -> None:
+        """Put back a state taken from :attr:`state` (of this controller, or of one built
+        the same way): the steps that follow are those that followed the snapshot, bit
+        for bit."""
+        raw = getattr(snapshot, "raw", None)
+        if not isinstance(raw, np.ndarray) or raw.shape != self._state.shape:
+            raise ValueError(
+                f"snapshot: expected a {self.name} controller's state (raw of shape "
+                f"{self._state.shape}), got {type(snapshot).__name__}"
+            )
+        with self._lock:
+            self._state[:] = raw
+            self._steps = int(snapshot.steps)
+
+    def prepare(self) -> float:
+        """Compile the step (or load it from the disk cache) now, not at the first call
+        of a real-time loop; the seconds it took. The state is not touched."""
+        t0 = time.perf_counter()
+        with self._lock:
+            if self._fast is None:
+                vec = np.zeros(3)
+                args = (self.params, self._state, self._work, self._y, self._ref,
+                        vec, vec, vec, vec, vec, np.empty(3), self._saved)  # fmt: skip
+                sig = tuple(numba.typeof(a) for a in args)
+                self._step.compile(sig)
+                self._fast = self._step.overloads[sig].entry_point
+        return time.perf_counter() - t0
 
     @property
     def state(self) -> ControllerState:
@@ -219,15 +275,22 @@ class Controller:
         )
 
     def step(self, X, Xdot, X_d, Xdot_d, Xddot_d) -> np.ndarray:
-        """One control period: the task-space force F (3,) for the measured (X, Xdot).
+        """One control period: the task-space force F (3,) (N, N m, N m on z, alpha,
+        beta) for the measured (X, Xdot), m and rad, m/s and rad/s. One call is one
+        control period of the controller's ``period``: a missed period is not made up.
+
+        F is not split, limited nor delayed: the limb forces are
+        ``model.actuator_forces(X, F)``, and the drives' limits are the caller's to apply.
 
         Raises :class:`~pkmctl.errors.NonFiniteInputError` (the state unchanged) if any
         input holds NaN or inf, :class:`~pkmctl.errors.NonFiniteOutputError` (the state
-        unchanged) if finite inputs give a force that is not (a velocity of 1e300),
-        :class:`~pkmctl.errors.InvalidPoseError` (the state unchanged) if X or X_d is
-        outside the valid set (z > 0, |alpha|, |beta| < pi/2: a sensor glitch must not
-        become a 70 kN command, nor move Theta^), and ``ValueError`` if one is not of
-        shape (3,).
+        unchanged) if finite inputs give a force that is not (inputs so large that it
+        overflows), :class:`~pkmctl.errors.InvalidPoseError` (the state unchanged) if X
+        or X_d is outside the model's valid set (z > 0, |alpha|, |beta| < pi/2), and
+        ``ValueError`` if one is not 3 numbers. Only that is checked: a glitch inside
+        the valid set (z = 5 m, a 10 m/s velocity sample) gives the force the law
+        computes for it (-215 kN for z = 5 m on AFSMC) and moves Theta^. Check your
+        measurements' plausibility (the machine's stroke and speeds) before the step.
         """
         args = (
             self.params, self._state, self._work, self._y, self._ref,
@@ -242,6 +305,10 @@ class Controller:
                     f"{self.name} step: {name} = {x.tolist()} is not a valid pose (z > 0, "
                     "|alpha|, |beta| < pi/2); the controller's state is unchanged"
                 )
+        with self._lock:
+            return self._locked_step(args)
+
+    def _locked_step(self, args: tuple) -> np.ndarray:
         # The compiled entry checks the 15 inputs before it steps (a few ns; the loop
         # has its own fast path and never calls it).
         if self._fast is None:
@@ -274,6 +341,7 @@ class Controller:
         import copy
 
         twin = copy.copy(self)
+        twin._lock = threading.Lock()
         twin._state, twin._initial = self._state.copy(), self._initial.copy()
         twin._work = copy.deepcopy(self._work, memo)
         twin._new_buffers()
@@ -281,11 +349,12 @@ class Controller:
 
     def __getstate__(self) -> dict:
         d = self.__dict__.copy()
-        del d["_step"], d["part"], d["_fast"]  # looked up again on unpickling
+        del d["_step"], d["part"], d["_fast"], d["_lock"]  # made again on unpickling
         return d
 
     def __setstate__(self, d: dict) -> None:
         self.__dict__.update(d)
+        self._lock = threading.Lock()
         self.part = get_part("controller", self.name)
         self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False,
                                 values=global_values([self.part]))  # fmt: skip
