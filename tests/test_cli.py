@@ -366,3 +366,17 @@ def test_a_file_named_as_a_built_in_scenario_is_not_passed_over(tmp_path, monkey
     assert not (tmp_path / "o").exists()
     res = runner.invoke(app, ["simulate", "./paper", "--duration", "0.01", "--out", "o"])
     assert res.exit_code == 0, res.output
+
+
+def test_simulate_in_a_log_says_how_far_it_is(tmp_path):
+    """An hour's run at 20 kHz was silent for 81 s when its stderr was a log (a tester);
+    a log gets a line every 10 % (or minute), and one when the files are written."""
+    res = subprocess.run(
+        [sys.executable, "-m", "pkmctl", "simulate", "paper", "--controller", "pd",
+         "--duration", "1", "--out", str(tmp_path / "o")],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    lines = [ln for ln in res.stderr.splitlines() if ln.startswith("simulating pd on 'paper': ")]
+    assert len(lines) >= 5 and lines[0].endswith(" of 20,000 periods (10 %)"), res.stderr
+    assert "writing pd.parquet" in res.stderr

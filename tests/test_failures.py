@@ -996,3 +996,21 @@ def test_a_killed_runs_staging_folder_is_removed_by_a_later_run(tmp_path):
     assert res.exit_code == 0, res.output
     assert not dead.exists()
     assert fresh.exists() and alive.exists() and other_host.exists()
+
+
+def test_a_full_disk_names_the_file_being_written(tmp_path, monkeypatch):
+    """ENOSPC from a write or fsync carries no file name: `campaign report` on a full disk
+    said "error: No space left on device" alone (a tester). atomic_write names its file."""
+    import errno
+
+    from pkmctl.io import atomic
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(atomic.os, "fsync", full)
+    target = tmp_path / "report.md"
+    with pytest.raises(OSError) as info, atomic.atomic_write(target) as fh:
+        fh.write("x")
+    assert info.value.filename == str(target) and info.value.errno == errno.ENOSPC
+    assert list(tmp_path.iterdir()) == []  # no temporary file left

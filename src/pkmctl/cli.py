@@ -621,9 +621,18 @@ def simulate(
             _fraction_bar() as bar,
             (compiles := _Compiles(bar, task := bar.add_task(doing, total=None))).listen(),
         ):
+            said = {"at": time.monotonic(), "tenth": 0}
 
             def progress(done: int, total: int) -> None:
                 bar.update(task, completed=done, total=total, description=doing)
+                if err_console.is_terminal or not total or done >= total:
+                    return
+                # a log gets a line every 10 % or minute (an hour's run at 20 kHz was
+                # silent for 81 s: a tester)
+                tenth, now = 10 * done // total, time.monotonic()
+                if tenth > said["tenth"] or now - said["at"] >= LOG_EVERY_S:
+                    _say(f"{doing}: {done:,} of {total:,} periods ({100 * done / total:.0f} %)")
+                    said.update(at=now, tenth=tenth)
 
             def work():
                 from pkmctl.sim.simulate import check_saved_memory
@@ -631,6 +640,8 @@ def simulate(
                 check_saved_memory(sc, controller)  # (the save's copy too)
                 result = run(sc, controller=controller, progress=progress)
                 bar.update(task, description=f"writing {controller}.{fmt}")
+                if not err_console.is_terminal:
+                    _say(f"writing {controller}.{fmt}")
                 return result, save_result(result, stage, fmt=fmt)
 
             def interrupted() -> str:
@@ -1174,6 +1185,10 @@ def campaign_report(
 
     try:
         files = _interruptible(work, interrupted)
+    except OSError as exc:  # a full disk: the file, and that the old report is kept
+        if _debug(ctx):
+            raise
+        _fail(f"{_describe(exc)}; nothing written (the report folder is as it was)")
     except Exception as exc:
         _campaign_handle(ctx, exc, "reading the records and writing the report: nothing written")
     console.print(Text(f"wrote {files[0]} and {len(files) - 1} figures"))

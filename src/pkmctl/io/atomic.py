@@ -82,9 +82,13 @@ def atomic_write(path: str | os.PathLike[str], mode: str = "w") -> Iterator[IO]:
             os.fsync(fh.fileno())
         os.chmod(tmp, file_mode())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with suppress(OSError):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and exc.filename is None:
+            # a full disk's write or fsync names no file: name the one being written
+            # ("error: No space left on device" alone, from campaign report: a tester)
+            exc.filename = str(path)
         raise
 
 
