@@ -337,3 +337,25 @@ def test_a_cut_result_gives_its_own_metrics_not_the_whole_runs():
     sc = pkmctl.Scenario.builtin("paper", 1.5).replace(**{"logging.every": 20})
     with pytest.raises(ValueError, match=r"rows are not the 1500 its loop logged"):
         cut(pkmctl.simulate(sc, "pd")).rmse()
+
+
+def test_a_cgroup_v1_containers_limit_is_seen(tmp_path):
+    """Only cgroup v2's memory.max was read: in a v1 container (this VM's kind) a limit
+    went unseen by the up-front memory check (a tester)."""
+    from pkmctl.sim.simulate import _cgroup_room
+
+    v2, v1 = tmp_path / "v2", tmp_path / "v1"
+    v1.mkdir()
+    (v1 / "memory.limit_in_bytes").write_text("2147483648\n")
+    (v1 / "memory.usage_in_bytes").write_text("536870912\n")
+    cgroups = ((str(v2), "memory.max", "memory.current"),
+               (str(v1), "memory.limit_in_bytes", "memory.usage_in_bytes"))  # fmt: skip
+    assert _cgroup_room(cgroups) == 2**31 - 2**29
+    (v1 / "memory.limit_in_bytes").write_text("9223372036854771712\n")  # v1's "no limit"
+    assert _cgroup_room(cgroups) is None
+    v2.mkdir()
+    (v2 / "memory.max").write_text("max\n")
+    (v2 / "memory.current").write_text("1\n")
+    assert _cgroup_room(cgroups) is None  # v2 first: no limit there
+    (v2 / "memory.max").write_text("1000\n")
+    assert _cgroup_room(cgroups) == 999

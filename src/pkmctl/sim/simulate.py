@@ -82,7 +82,7 @@ PROGRESS_STEPS = 100
 PROGRESS_MIN_PERIODS = 2048
 # Per period of those kept chunks: the reference 9, q_d 4 and the disturbance index.
 _CACHED_COLUMNS = 9 + 4 + 1
-# logging.every values a refusal suggests (the smallest that fits)
+# logging.every values a refusal suggests (the smallest of these round numbers that fits)
 _EVERY_SUGGESTIONS = tuple(m * 10**e for e in range(7) for m in (1, 2, 5))[1:]
 
 
@@ -155,16 +155,35 @@ def _available_memory() -> int | None:
             avail = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
         except (ValueError, OSError, AttributeError):
             return None
-    try:  # a container's limit (cgroup v2)
-        with open("/sys/fs/cgroup/memory.max", encoding="ascii") as fh:
-            limit = fh.read().strip()
-        with open("/sys/fs/cgroup/memory.current", encoding="ascii") as fh:
-            used = int(fh.read().strip())
-        if limit != "max":
-            avail = min(avail if avail is not None else 2**63, int(limit) - used)
-    except (OSError, ValueError):
-        pass
+    room = _cgroup_room()
+    if room is not None:
+        avail = min(avail if avail is not None else 2**63, room)
     return avail
+
+
+#: A container's memory limit and use: (folder, limit file, use file), cgroup v2 then v1.
+_CGROUPS = (
+    ("/sys/fs/cgroup", "memory.max", "memory.current"),
+    ("/sys/fs/cgroup/memory", "memory.limit_in_bytes", "memory.usage_in_bytes"),
+)
+
+
+def _cgroup_room(cgroups=_CGROUPS) -> int | None:
+    """Bytes the first readable cgroup's limit leaves (None: no such file, or no limit;
+    v1's "no limit" is a number near 2**63). v1 was not read, and a v1 container's
+    limit not seen (a tester)."""
+    for folder, limit_file, used_file in cgroups:
+        try:
+            with open(os.path.join(folder, limit_file), encoding="ascii") as fh:
+                limit = fh.read().strip()
+            with open(os.path.join(folder, used_file), encoding="ascii") as fh:
+                used = int(fh.read().strip())
+        except (OSError, ValueError):
+            continue
+        if limit == "max" or int(limit) >= 2**60:
+            return None
+        return int(limit) - used
+    return None
 
 
 def _gib(n: int) -> str:
