@@ -386,9 +386,8 @@ class _Compiles:
         if self.pending is not None:
             what, seconds = self.pending
             self.pending = None
-            self._show(
-                f"compiled {what} in {seconds:.1f} s " + ("(cached)" if kept else "(not cached)")
-            )
+            where = "saved in the cache for later runs" if kept else "not cached"
+            self._show(f"compiled {what} in {seconds:.1f} s ({where})")
 
     @contextlib.contextmanager
     def listen(self):
