@@ -380,3 +380,17 @@ def test_simulate_in_a_log_says_how_far_it_is(tmp_path):
     lines = [ln for ln in res.stderr.splitlines() if ln.startswith("simulating pd on 'paper': ")]
     assert len(lines) >= 5 and lines[0].endswith(" of 20,000 periods (10 %)"), res.stderr
     assert "writing pd.parquet" in res.stderr
+
+
+def test_a_write_error_names_the_file_by_its_final_name():
+    """reproduce on a full disk named a file two staging folders deep (its own and the
+    library's, inside it: a tester); the line names the file as it would have been."""
+    from pathlib import Path
+
+    from pkmctl.cli import _final_path
+
+    stage, out = Path("/d/.pkmctl-7@h-x1.tmp"), Path("/d/r")
+    inner = f"{stage}/.pkmctl-7@h-y2.tmp/timeseries/smc.parquet"
+    assert _final_path(inner, stage, out) == "/d/r/timeseries/smc.parquet"
+    assert _final_path(f"{stage}/pd.json", stage, out) == "/d/r/pd.json"
+    assert _final_path("/elsewhere/x", stage, out) == "/elsewhere/x"

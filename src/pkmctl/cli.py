@@ -406,6 +406,17 @@ class _Compiles:
         return "; kernels compiled so far stay cached" if self.done else ""
 
 
+def _final_path(path: str, stage: Path, out: Path) -> str:
+    """A file being written in the staging folder ``stage`` (and any staging folder inside
+    it), by the name it would have had in ``out``: reproduce on a full disk named
+    ".../.pkmctl-1@a.tmp/.pkmctl-1@b.tmp/timeseries/smc.parquet" (a tester)."""
+    if not path.startswith(str(stage)):
+        return path
+    rest = Path(path[len(str(stage)) :].lstrip(os.sep))
+    parts = [p for p in rest.parts if not (p.startswith(".pkmctl-") and p.endswith(".tmp"))]
+    return str(out.joinpath(*parts))
+
+
 def _fraction_bar() -> Progress:
     """A bar with the fraction done, on stderr and only on a terminal (a log gets no
     bar), gone when the work ends; its task's description says what compiles meanwhile
@@ -542,6 +553,8 @@ def reproduce(
             raise
         except Exception as exc:
             bar.stop()
+            if isinstance(exc, OSError) and stage is not None and exc.filename:
+                exc.filename = _final_path(str(exc.filename), stage, out)
             _handle(ctx, exc, suffix="; " + _untouched(out, existed))
         _KEPT["note"] = _kept(out, existed, stage)
         bar.update(task, completed=len(steps), description="done")
@@ -653,9 +666,8 @@ def simulate(
         _KEPT["note"] = _kept(out, existed, stage)
         raise
     except Exception as exc:
-        if isinstance(exc, OSError) and stage is not None and exc.filename:  # the file it
-            # was writing, by the name it would have had (not the staging folder's)
-            exc.filename = str(exc.filename).replace(str(stage), str(out), 1)
+        if isinstance(exc, OSError) and stage is not None and exc.filename:
+            exc.filename = _final_path(str(exc.filename), stage, out)
         _handle(ctx, exc, suffix="; " + _untouched(out, existed))
     _KEPT["note"] = _kept(out, existed, stage)
     # the run's time series in the other format, of an earlier run, would now disagree
