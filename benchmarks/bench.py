@@ -385,7 +385,7 @@ def bench_mujoco(quick: bool) -> dict[str, float]:
     try:
         from benchmarks.mujoco_peer import python_afsmc_steps_per_second, steps_per_second
     except ImportError as exc:
-        return {"error": f"not run: {exc}"}
+        return {"error": f"not run: {exc} (pip install '.[mujoco]')"}
     import pkmctl
 
     duration, repeats = (0.1, 1) if quick else (1.0, 3)
