@@ -85,9 +85,10 @@ def atomic_write(path: str | os.PathLike[str], mode: str = "w") -> Iterator[IO]:
     except BaseException as exc:
         with suppress(OSError):
             os.unlink(tmp)
-        if isinstance(exc, OSError) and exc.filename is None:
+        if isinstance(exc, OSError) and exc.filename is None and exc.errno is not None:
             # a full disk's write or fsync names no file: name the one being written
-            # ("error: No space left on device" alone, from campaign report: a tester)
+            # ("error: No space left on device" alone, from campaign report: a tester;
+            # one made from a message alone keeps it: its str would become "[Errno None]")
             exc.filename = str(path)
         raise
 
