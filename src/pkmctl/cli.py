@@ -1002,8 +1002,6 @@ def campaign_run(
         state = {"done": 0, "said": time.monotonic()}
 
         seen: list[tuple[float, int]] = []  # (time, runs done) of the last half minute
-        # the rate the estimate expects, once the loops are compiled
-        expected_rate = (left or 1) / (work / n_workers) if work > 0 and not scheduler else 0.0
 
         def progress(done, failures, total, rate):
             # the time left at the rate of the last 30 s once there are 10 s of it (the
@@ -1023,8 +1021,6 @@ def campaign_run(
                 if rate_left > 0 and done < total
                 else ""
             )
-            if left and new and rate_left < 0.5 * expected_rate:  # (5.3 h read for 4.7 min)
-                left += " (loops still compiling, it seems: less once they are)"
             step = max(1, total // 10)  # a log (not a terminal) gets a line every 10 %, or
             # a minute (an 85 min campaign was silent 8.5 min); not before a run of this
             # session (a resume's start said "0.0 runs/s")
