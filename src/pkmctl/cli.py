@@ -1240,8 +1240,10 @@ def _import_benchmarks() -> None:
     here = Path(__file__).resolve().parents[2]  # src/pkmctl/cli.py -> the checkout
     for root in (here, Path.cwd()):
         if same_pkmctl(root):
-            for name in [m for m in sys.modules if m.split(".")[0] == "benchmarks"]:
-                del sys.modules[name]  # (one found on the path before)
+            loaded = getattr(sys.modules.get("benchmarks"), "__file__", None) or ""
+            if not Path(loaded).resolve().is_relative_to(root):  # another found first
+                for name in [m for m in sys.modules if m.split(".")[0] == "benchmarks"]:
+                    del sys.modules[name]
             sys.path.insert(0, str(root))
             return
     _fail(
