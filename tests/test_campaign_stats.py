@@ -112,6 +112,8 @@ def test_bootstrap_draws_in_blocks_the_same_numbers_in_bounded_memory():
     try:
         stats.bootstrap_interval(big, seed=1)
         stats.bootstrap_ratio_interval(big + 10.0, big + 20.0, seed=1)
+        stats.bootstrap_intervals(rng.normal(size=(20_000, 20)), seed=1)  # many cells: the
+        # means of a chunk of rows at a time (all rows' would be 610 MiB)
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()

@@ -102,15 +102,17 @@ def bootstrap_intervals(
     m, n = x.shape
     if n < 2:
         return np.full(m, math.nan), np.full(m, math.nan)
-    rng = np.random.default_rng(seed)
     a = (1 - LEVEL) / 2
-    means = np.empty((m, n_boot))
-    for r0, idx in _resamples(rng, n, n_boot):
-        b = idx.shape[0]
-        step = max(1, _CHUNK // (b * n))
-        for i in range(0, m, step):
-            means[i : i + step, r0 : r0 + b] = x[i : i + step, idx].mean(axis=2)
-    lo, hi = np.quantile(means, [a, 1 - a], axis=1)
+    lo, hi = np.empty(m), np.empty(m)
+    step = max(1, _CHUNK // (n_boot * n))  # rows at once: their means (step, n_boot)
+    # the draw, kept if it is small; else drawn again (the same numbers) for each row
+    kept = list(_resamples(np.random.default_rng(seed), n, n_boot)) if step > 1 else None
+    for i in range(0, m, step):
+        rows = x[i : i + step]
+        means = np.empty((rows.shape[0], n_boot))
+        for r0, idx in kept or _resamples(np.random.default_rng(seed), n, n_boot):
+            means[:, r0 : r0 + idx.shape[0]] = rows[:, idx].mean(axis=2)
+        lo[i : i + step], hi[i : i + step] = np.quantile(means, [a, 1 - a], axis=1)
     se = x.std(axis=1, ddof=1) / math.sqrt(n)
     return _expanded(x.mean(axis=1), lo, hi, n, se)
 

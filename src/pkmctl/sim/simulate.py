@@ -178,11 +178,12 @@ def _cgroup_room(cgroups=_CGROUPS) -> int | None:
                 limit = fh.read().strip()
             with open(os.path.join(folder, used_file), encoding="ascii") as fh:
                 used = int(fh.read().strip())
+            bound = None if limit == "max" else int(limit)
         except (OSError, ValueError):
             continue
-        if limit == "max" or int(limit) >= 2**60:
+        if bound is None or bound >= 2**60:
             return None
-        return int(limit) - used
+        return bound - used
     return None
 
 
