@@ -1,5 +1,6 @@
 """The MuJoCo model of the machine against the closed form (DESIGN.md §10, issue 13 point 2)."""
 
+import os
 import subprocess
 import sys
 
@@ -9,6 +10,7 @@ import pytest
 mujoco = pytest.importorskip("mujoco", reason="MuJoCo is not installed (pkmctl[mujoco])")
 mj = pytest.importorskip("pkmctl.plants.mujoco")
 
+import pkmctl  # noqa: E402
 from pkmctl.errors import InvalidPoseError  # noqa: E402
 
 N_STATES = 200
@@ -300,3 +302,38 @@ def test_each_limb_is_drawn_whole_over_the_workspace(robot, model):
     assert len(rods) == len(tubes) == 4
     for rod, tube, q in zip(rods, tubes, home, strict=True):
         assert rod + tube >= 1.1 and rod <= q - 0.049
+
+
+def test_a_mujoco_plant_without_mujoco_is_refused_before_anything_compiles(tmp_path):
+    """`reproduce` of a mujoco scenario without MuJoCo said "compiling 5 control loops" and
+    compiled them for minutes (a cold cache) before its one-line refusal; a campaign ran
+    every run as an error record, exit 1."""
+    text = pkmctl.Scenario.builtin("paper").replace(**{"plant.kind": "mujoco"}).to_toml()
+    (tmp_path / "mj.toml").write_text(text)
+    code = (
+        "import sys; sys.modules['mujoco'] = None\n"
+        "from pkmctl.cli import main\n"
+        "sys.argv = ['pkmctl', *sys.argv[1:]]\n"
+        "main()\n"
+    )
+    hint = "plant 'mujoco': pkmctl.plants.mujoco needs MuJoCo: pip install \"mujoco>=3.1\""
+    (tmp_path / "spec.toml").write_text(  # (a campaign made an error record of each run)
+        'scenario = "mj.toml"\ncontrollers = ["pd"]\nseeds = [1]\nduration = 0.01\n'
+        '[factors."plant.friction_viscous"]\nvalues = [0.0, 5.0]\n'
+    )
+    for args in (
+        ["reproduce", "--scenario", "mj.toml", "--out", "o", "--duration", "0.01"],
+        ["simulate", "mj.toml", "--out", "o", "--duration", "0.01"],
+        ["campaign", "run", "spec.toml", "--out", "o", "--workers", "1"],
+    ):
+        out = subprocess.run(
+            [sys.executable, "-c", code, *args], capture_output=True, text=True, cwd=tmp_path,
+            env={**os.environ, "PKMCTL_CACHE_DIR": str(tmp_path / "cache")},
+        )  # fmt: skip
+        assert out.returncode == 2, out.stderr
+        # (the model's kernels, which check the scenario's poses, compile first on an empty
+        # cache: seconds)
+        lines = [ln for ln in out.stderr.splitlines() if "the model kernels" not in ln]
+        assert len(lines) == 1 and hint in lines[0], out.stderr
+        assert "control loop" not in out.stderr
+        assert not (tmp_path / "o").exists()

@@ -979,7 +979,9 @@ def campaign_run(
             f"{'has' if new == 1 else 'have'} not run on this machine with this pkmctl yet, "
             "and the workers compile their loops first (a minute or more each, once)"
         )
-    _say(
+    # said once the campaign starts (run_campaign's on_start): above a refusal (a folder
+    # another campaign run holds, a plant that cannot be built) it read as if it ran
+    header = (
         f"campaign {spec.name!r} ({spec.digest}): {_n(spec.n_runs, 'run')} = "
         f"{_n(len(spec.cells), 'cell')} x {_n(len(spec.controllers), 'controller')} x "
         f"{_n(len(spec.seeds), 'seed')}, in {_n(len(tasks), 'task')} on {where}; "
@@ -1068,6 +1070,7 @@ def campaign_run(
                         resume=resume,
                         progress=progress,
                         on_client=on_client,
+                        on_start=lambda: _say(header),
                     ),
                     interrupted,
                 )

@@ -595,6 +595,7 @@ def run_campaign(
     progress: Callable | None = None,
     on_client: Callable | None = None,
     stop_after: int | None = None,
+    on_start: Callable[[], None] | None = None,
 ) -> CampaignRun:
     """Run (or, with ``resume``, complete) a campaign into the store at ``out``.
 
@@ -617,6 +618,9 @@ def run_campaign(
         Called with the Dask client once connected (e.g. to print its dashboard link).
     stop_after : int, optional
         Stop after this many tasks (a deliberate interruption, for tests).
+    on_start : callable, optional
+        Called once every check has passed and the folder is held, before the first task
+        (the CLI prints what will run then, not above a refusal).
     """
     out = Path(out)
     workers = (os.cpu_count() or 1) if workers is None else int(workers)
@@ -625,7 +629,7 @@ def run_campaign(
     client = _connect(scheduler) if scheduler is not None else None
     try:  # the client is closed however this ends, also with no task left to send
         return _run(spec, out, client, scheduler, workers, resume, progress, on_client,
-                    stop_after)  # fmt: skip
+                    stop_after, on_start)  # fmt: skip
     finally:
         if client is not None:
             client.close()
@@ -667,15 +671,33 @@ def compile_user_parts(spec: CampaignSpec) -> int:
     return n
 
 
-def _run(spec, out, client, scheduler, workers, resume, progress, on_client, stop_after):
+def _run(
+    spec, out, client, scheduler, workers, resume, progress, on_client, stop_after, on_start=None
+):
     """:func:`run_campaign` once connected (``client``: a Dask client, or None: local)."""
     parts = user_parts(spec)
     check_store(out, spec, resume=resume, parts=parts)  # refused before compiling
+    _check_plants(spec)
     compile_user_parts(spec)
     runs_dir = open_store(out, spec, resume=resume, parts=parts)
     with _folder_lock(out, runs_dir):
+        if on_start is not None:
+            on_start()
         return _run_locked(spec, out, runs_dir, client, scheduler, workers, progress,
                            on_client, stop_after, parts)  # fmt: skip
+
+
+def _check_plants(spec: CampaignSpec) -> None:
+    """Each plant kind the cells use, built once here: a plant 'mujoco' without MuJoCo
+    was an error record per run (exit 1) after the workers had compiled their loops."""
+    from pkmctl.campaign.store import cell_parts
+    from pkmctl.sim.simulate import check_machine
+
+    seen = set()
+    for (i, _), combo in cell_parts(spec).items():
+        if combo["plant"].name not in seen:
+            seen.add(combo["plant"].name)
+            check_machine(spec.scenario(i))
 
 
 @contextlib.contextmanager

@@ -210,7 +210,18 @@ class MujocoPlant(NamedTuple):
 
     @classmethod
     def from_context(cls, ctx: PartContext) -> MujocoPlant:
+        # MuJoCo is checked here, where every run's parts are built before its loop
+        # compiles: without it, `reproduce` compiled five loops for minutes, then refused
+        _need_mujoco()
         return cls(ctx.plant.geometry, ctx.plant.theta)
+
+
+def _need_mujoco() -> None:
+    """One line with the install command when MuJoCo cannot be imported."""
+    try:
+        import pkmctl.plants.mujoco  # noqa: F401
+    except ImportError as exc:
+        raise PartError(f"plant 'mujoco': {exc}") from None
 
 
 @kernel(refcount=False)
@@ -229,10 +240,9 @@ def mujoco_observe(p, x, tau, work, q, F):
 def _mujoco_stepper(p: MujocoPlant, ctx: PartContext, h: float):
     """A :class:`pkmctl.plants.mujoco.MujocoMachine` of the true plant at RK4 step h (s), with
     the scenario's [plant] options and payload (DESIGN.md §7, §10)."""
-    try:
-        from pkmctl.plants.mujoco import MujocoMachine, scenario_error, scenario_options
-    except ImportError as exc:
-        raise PartError(f"plant 'mujoco': {exc}") from None
+    _need_mujoco()
+    from pkmctl.plants.mujoco import MujocoMachine, scenario_error, scenario_options
+
     options = {} if ctx.scenario is None else scenario_options(ctx.scenario)
     try:
         return MujocoMachine(ctx.plant, timestep=h, **options)

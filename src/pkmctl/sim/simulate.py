@@ -487,12 +487,25 @@ def log_columns(scenario: Scenario, parts: dict[str, Part]) -> int:
         except Exception:  # a size that reads the bundle
             pass
         if ctx is None:
-            ctx = PartContext(plant=scenario.plant(), model=scenario.controller_mechanism(),
-                              gains=scenario.controller_gains(),
-                              period=scenario.timing.control_period,
-                              flc=scenario.fuzzy_system(), scenario=scenario)  # fmt: skip
+            ctx = _context(scenario)
         n += int(part.log_size(part.bundle(ctx)))
     return n
+
+
+def check_machine(scenario: Scenario) -> None:
+    """Build the scenario's plant, sensor and actuator bundles: what refuses to build (a
+    plant 'mujoco' without MuJoCo) says so before a loop compiles (``reproduce`` compiled
+    five for minutes in its workers, then refused)."""
+    ctx = _context(scenario)
+    for part in _machine_parts(scenario).values():
+        part.bundle(ctx)
+
+
+def _context(scenario: Scenario) -> PartContext:
+    """What a part's build sees of ``scenario`` (no seed of a run)."""
+    return PartContext(plant=scenario.plant(), model=scenario.controller_mechanism(),
+                       gains=scenario.controller_gains(), period=scenario.timing.control_period,
+                       flc=scenario.fuzzy_system(), scenario=scenario)  # fmt: skip
 
 
 def _build(parts: dict[str, Part], ctx: PartContext, plant_state: np.ndarray) -> dict:
@@ -983,6 +996,7 @@ def precompile(
     n = min(len(todo), os.cpu_count() or 1, workers or len(todo))
     if n < 2:
         return []
+    check_machine(scenario)
     phases = _plan(todo, heavy, n)
     n = max(len(p) for p in phases)
     if on_start is not None:
