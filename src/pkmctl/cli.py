@@ -64,8 +64,22 @@ _CONTROLLERS = ", ".join(_part_names("controller"))
 _SCENARIO_NAMES = ", ".join(_SCENARIOS)
 
 
-# What an interrupt between a command's steps keeps (the command sets the note).
-_KEPT = {"t0": time.perf_counter(), "note": ""}
+# What an interrupt between a command's steps keeps (the command sets the note), and
+# the signal that stopped it: Ctrl-C, or SIGTERM (`kill`, a job scheduler), handled alike
+# but said and ended as itself (exit 128 + the signal: 130 or 143, as a shell reports it)
+_KEPT: dict = {"t0": time.perf_counter(), "note": "", "signal": 2}
+
+
+def _terminated(signum, frame) -> None:
+    _KEPT["signal"] = signum
+    raise KeyboardInterrupt
+
+
+def _stopped(after: float, kept: str) -> None:
+    """Say how the command was stopped and what it kept, and exit 128 + the signal."""
+    word = "terminated (SIGTERM)" if _KEPT["signal"] == 15 else "interrupted"
+    _say(f"{word} after {after:.1f} s{kept}")
+    _hard_exit(128 + _KEPT["signal"])
 
 
 class _OneLineGroup(TyperGroup):
@@ -88,8 +102,7 @@ class _OneLineGroup(TyperGroup):
             # os._exit, not sys.exit: an interpreter shutdown would wait for worker
             # processes still compiling (concurrent.futures joins them at exit)
             kept = f": {_KEPT['note']}" if _KEPT["note"] else ""
-            _say(f"interrupted after {time.perf_counter() - _KEPT['t0']:.1f} s{kept}")
-            _hard_exit(130)
+            _stopped(time.perf_counter() - _KEPT["t0"], kept)
         sys.exit(code if isinstance(code, int) else 0)
 
 
@@ -198,7 +211,8 @@ def _hard_exit(code: int) -> NoReturn:
 
 def _interruptible(work: Callable[[], T], on_interrupt: Callable[[], str]) -> T:
     """Run ``work`` in a worker thread; on Ctrl-C call ``on_interrupt`` (clean up, return
-    what was kept), say so and exit 130 at once, whatever the worker is doing.
+    what was kept), say so and exit 130 (143 for a SIGTERM) at once, whatever the worker
+    is doing.
 
     The main thread only waits, in short slices, so Python runs its SIGINT handler
     within milliseconds: Numba's compiler releases the GIL in its LLVM calls and every
@@ -220,8 +234,7 @@ def _interruptible(work: Callable[[], T], on_interrupt: Callable[[], str]) -> T:
             worker.join(0.05)
     except KeyboardInterrupt:
         kept = on_interrupt()
-        _say(f"interrupted after {time.perf_counter() - t0:.1f} s: {kept}")
-        _hard_exit(130)
+        _stopped(time.perf_counter() - t0, f": {kept}")
     if "error" in box:
         raise box["error"]
     return box["value"]
@@ -266,7 +279,7 @@ def _main(
         signal.signal(signal.SIGINT, signal.default_int_handler)  # off (pkmctl/_start.py)
         # SIGTERM (kill, a job scheduler) as Ctrl-C: the same clean-up, where it left the
         # staging folder with all written so far and the figure processes behind
-        signal.signal(signal.SIGTERM, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, _terminated)
     ctx.obj = {"debug": debug}
     if plugin:
         from pkmctl.plugins import load_plugins
