@@ -235,6 +235,38 @@ def test_limb_jacobian_is_a_controllers_path_into_its_work():
     assert "x-jac" not in names("controller")
 
 
+def test_a_limb_jacobian_path_to_no_limb_jacobian_is_named_before_compiling():
+    """A path to the work's (3,) array failed to compile as "cannot index array(float64,
+    1d, C) with 2 indices", naming neither limb_jacobian nor the shape (a tester)."""
+    from pkmctl.model.dynamics import JQ, make_work
+
+    def law(p, state, work, y, ref, F):
+        for i in range(3):
+            F[i] = 0.0
+
+    cases = {
+        (1,): r"work\[1\] is float64 \(3,\); it must be the \(4, 3\) float64 array",
+        (2,): r"work is a tuple of 2, which has no \[2\]",
+        (0, JQ, 0): rf"work\[0\]\[{JQ}\] is an array, which has no \[0\]",
+        (0,): r"work\[0\] is a tuple of \d+; it must be",
+    }
+
+    def register(name, path):
+        class P(NamedTuple):  # one class per part
+            gain: float
+
+        pkmctl.register_controller(name, params=P, build=lambda c: P(1.0), limb_jacobian=path,
+                                   work=lambda p: (make_work(), np.empty(3)))(law)  # fmt: skip
+
+    for i, (path, said) in enumerate(cases.items()):
+        register(f"x-badjac{i}", path)
+        with pytest.raises(
+            PartError, match=rf"^controller 'x-badjac{i}': limb_jacobian = .*{said}"
+        ):
+            pkmctl.simulate("paper", f"x-badjac{i}", duration=0.001)
+    # (the built-in controllers' paths pass it in every run)
+
+
 def test_a_step_that_does_not_compile_names_the_part():
     class Bad(NamedTuple):
         gain: float

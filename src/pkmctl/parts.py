@@ -253,7 +253,29 @@ class Part:
                 f"tuples of arrays), "
                 f"got {type(work).__name__}"
             )
+        if self.limb_jacobian is not None:
+            self._check_jacobian(work)
         return p, state, work
+
+    def _check_jacobian(self, work: tuple) -> None:
+        """The array at ``limb_jacobian`` in the work must be the (4, 3) limb Jacobian: a
+        wrong path failed to compile as "cannot index array(float64, 1d, C) with 2
+        indices", naming neither (a tester)."""
+        at, v = "work", work
+        for i in self.limb_jacobian:
+            if not isinstance(v, tuple) or i >= len(v):
+                what = f"a tuple of {len(v)}" if isinstance(v, tuple) else "an array"
+                raise PartError(
+                    f"{self.kind} {self.name!r}: limb_jacobian = {self.limb_jacobian!r}: "
+                    f"{at} is {what}, which has no [{i}]"
+                )
+            at, v = f"{at}[{i}]", v[i]
+        if not (isinstance(v, np.ndarray) and v.shape == (4, 3) and v.dtype == np.float64):
+            what = f"a tuple of {len(v)}" if isinstance(v, tuple) else f"{v.dtype} {v.shape}"
+            raise PartError(
+                f"{self.kind} {self.name!r}: limb_jacobian = {self.limb_jacobian!r}: {at} is "
+                f"{what}; it must be the (4, 3) float64 array of the limb Jacobian"
+            )
 
 
 def _arrays(t) -> bool:
