@@ -227,3 +227,46 @@ def test_an_empty_stem_is_refused(runs, tmp_path):
     with pytest.raises(ValueError, match="stem = '': must be a file name, or None"):
         save_result(runs["seed0"], tmp_path, stem="")
     assert not any(tmp_path.iterdir())
+
+
+def test_a_csv_reads_as_float64_in_other_readers_with_the_signs_of_zeros(tmp_path):
+    """ "%.17g" wrote 0.0 as "0" and -0.0 as "-0": pyarrow, pandas, polars and DuckDB read a
+    column of whole numbers (t logged once a second, a zero disturbance) as int64, and
+    -0.0 came back as +0 (a tester). Every column now reads as float64, bit for bit."""
+    import pyarrow.csv as pv
+    import pyarrow.parquet as pq
+
+    sc = pkmctl.Scenario.builtin("paper").replace(**{"disturbance.amplitude": [0.0, 0.0, 0.0]})
+    runs = {
+        "seconds": pkmctl.simulate(sc.replace(**{"logging.every": 20_000}), "pd", duration=3.0),
+        "zeros": pkmctl.simulate(sc, "pd", duration=0.01),
+    }
+    assert runs["seconds"].t.tolist() == [0.0, 1.0, 2.0]
+    assert np.signbit(runs["zeros"].disturbance).any()
+    for name, r in runs.items():
+        csv, _ = save_result(r, tmp_path / name, fmt="csv")
+        parquet, _ = save_result(r, tmp_path / f"{name}-p")
+        back, want = pv.read_csv(csv), pq.read_table(parquet)
+        assert back.column_names == want.column_names
+        assert {str(t) for t in back.schema.types} == {"double"}, name
+        for col in want.column_names:
+            a, b = want.column(col).to_numpy(), back.column(col).to_numpy()
+            assert np.array_equal(a, b) and np.array_equal(np.signbit(a), np.signbit(b)), col
+        mine = load_result(tmp_path / name / "pd.json")  # pkmctl's own reader, as before
+        assert np.array_equal(np.signbit(mine.disturbance), np.signbit(r.disturbance))
+        _same(mine, r)
+
+
+def test_a_save_in_the_other_format_removes_the_earlier_table(runs, tmp_path):
+    """save_result(fmt="csv") over a parquet save left pd.parquet beside a pd.json that
+    describes pd.csv; `identify pd.parquet` then labelled it with the csv run's scenario,
+    or refused it, blaming the data (a tester). The command removed it; now the library
+    does too."""
+    save_result(runs["seed0"], tmp_path)
+    save_result(runs["seed9"], tmp_path, fmt="csv")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pd.csv", "pd.json"]
+    save_result(runs["seed0"], tmp_path, stem="other")  # another stem's files are not touched
+    save_result(runs["seed0"], tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "other.json", "other.parquet", "pd.json", "pd.parquet"
+    ]  # fmt: skip
