@@ -757,6 +757,14 @@ def test_a_json_beside_the_log_is_used_refused_or_said_to_be_foreign(tmp_path, e
     assert r.returncode == 0, r.stderr
     said = "the default: no --scenario and 'run.json' beside the log is not pkmctl's metadata"
     assert said in " ".join((tmp_path / "o" / "report.md").read_text().split())
+    # pkmctl's metadata of another table (run.parquet's, saved after run.csv): not this
+    # log's machine (it labelled the log with that run's scenario, or refused the log
+    # blaming its data); the default, and the report says why
+    (tmp_path / "run.json").write_text(json.dumps({"scenario_toml": bad, "table": "run.parquet"}))
+    r = _run("identify", "run.csv", "--out", "o2", "--no-physical", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    said = "no --scenario and 'run.json' beside the log describes 'run.parquet', not this log"
+    assert said in " ".join((tmp_path / "o2" / "report.md").read_text().split())
 
 
 def test_a_pkmctl_log_gets_the_force_lead_searched_by_default(tmp_path, exciting, noisy):

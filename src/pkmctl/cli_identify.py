@@ -43,10 +43,24 @@ def _metadata_scenario(log: Path) -> str | None:
     there is none, or the .json is not pkmctl's. The text ends with a line break, so that
     ``Scenario.from_toml`` reads it as text (one line of it was read as a file's name)."""
     try:
-        text = json.loads(log.with_suffix(".json").read_text(encoding="utf-8"))["scenario_toml"]
+        meta = json.loads(log.with_suffix(".json").read_text(encoding="utf-8"))
+        text = meta["scenario_toml"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
+    if _other_table(log) is not None:  # another table's metadata: not this log's machine
+        return None
     return text + "\n" if isinstance(text, str) else None
+
+
+def _other_table(log: Path) -> str | None:
+    """The table pkmctl's .json beside ``log`` describes, when that is not ``log`` (a
+    pd.csv saved after pd.parquet: the json is the csv's run, which may be another
+    machine's, and it labelled the parquet's run or refused it, blaming the data)."""
+    try:
+        table = json.loads(log.with_suffix(".json").read_text(encoding="utf-8"))["table"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return table if isinstance(table, str) and table != log.name else None
 
 
 def _other_machine(log: Path, assumed) -> str:
@@ -84,7 +98,9 @@ def _scenario_for(ctx: typer.Context, spec: str | None, log: Path | None):
             from pkmctl.sim.scenario import Scenario
 
             text = _metadata_scenario(log)
-            if text is None:  # not pkmctl's metadata: fall back to the default
+            if (other := _other_table(log)) is not None:
+                why_not = f"{str(meta)!r} beside the log describes {other!r}, not this log"
+            elif text is None:  # not pkmctl's metadata: fall back to the default
                 why_not = f"{str(meta)!r} beside the log is not pkmctl's metadata"
             else:
                 try:
