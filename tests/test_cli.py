@@ -44,6 +44,13 @@ def test_reproduce_end_to_end(tmp_path):
     assert np.isclose(float(rows[2]["beta_deg"]), series.rmse()["beta_deg"], rtol=1e-12)
     meta = json.loads((out / "timeseries" / "smc.json").read_text())
     assert meta["controller"] == "smc" and "rmse" in meta["metrics"]
+    # which pkmctl made them (only campaign.json said: a tester)
+    from pkmctl import __version__, _jit
+
+    assert meta["software"]["pkmctl"] == __version__
+    assert meta["software"]["kernel_sources"] == _jit.source_stamp()
+    assert meta["software"]["pkmctl_sources"] == _jit.package_stamp()
+    assert f"Made by pkmctl {__version__} (sources {_jit.package_stamp()}, kernels " in report
     assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]
     said = [line for line in res.output.splitlines() if line.startswith("wrote ")]
     assert len(said) == 1, res.output  # where the time went (issue 16.4), on one line

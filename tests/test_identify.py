@@ -462,6 +462,9 @@ def test_identify_output_is_one_runs_and_names_its_log_and_machine(tmp_path, exc
     est = json.loads((out / "estimate.json").read_text())
     assert est["log"] == "run.csv" and est["scenario"].startswith(default)
     assert est["validation_log"] is None and est["theta_ext_physical"] is None
+    from pkmctl import __version__
+
+    assert est["software"]["pkmctl"] == __version__ and "Made by pkmctl " in report
 
 
 @pytest.mark.parametrize(

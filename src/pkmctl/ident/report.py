@@ -12,6 +12,7 @@ import tomli_w
 from pkmctl.ident.base import PARAMETER_NAMES, PARAMETER_UNITS
 from pkmctl.ident.identify import Identification
 from pkmctl.io.atomic import atomic_write
+from pkmctl.io.results import provenance, provenance_line
 
 __all__ = ["OUTPUT_NAMES", "remove_stale", "write_identification"]
 
@@ -169,7 +170,8 @@ def _markdown(idn: Identification, validation: dict | None, source: str) -> str:
             f" (and {idn.compile_seconds:.1f} s more compiling kernels, once per machine)."
             if idn.compile_seconds >= 0.05
             else "."
-        ),
+        )
+        + f" {provenance_line()}",
         "",
         "| fit | residual RMS z [N] | alpha [N m] | beta [N m] | relative error |",
         "|---|---:|---:|---:|---:|",
@@ -299,6 +301,7 @@ def write_identification(
         "validation_log": None if validation is None else validation["source"],
         "validation_relative_error": None if validation is None else validation["relative_error"],
     }
+    data["software"] = provenance()
     est = folder / "estimate.json"
     with atomic_write(est) as fh:
         json.dump(data, fh, indent=1)

@@ -108,6 +108,37 @@ LOG_PREFIX = "log_"
 FORMATS = ("parquet", "csv")
 
 
+def provenance() -> dict:
+    """The software that made an output: pkmctl's version, the content hashes of its
+    sources (``pkmctl_sources``: every module; ``kernel_sources``: the compiled ones, which
+    key the disk cache), and Python's, NumPy's and Numba's versions. Only campaign.json
+    said which pkmctl made it (a tester)."""
+    import platform
+    from importlib.metadata import version
+
+    import pkmctl
+    from pkmctl import _jit
+
+    return {
+        "pkmctl": pkmctl.__version__,
+        "pkmctl_sources": _jit.package_stamp(),
+        "kernel_sources": _jit.source_stamp(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "numba": version("numba"),
+    }
+
+
+def provenance_line() -> str:
+    """:func:`provenance` in a sentence, for a report."""
+    p = provenance()
+    return (
+        f"Made by pkmctl {p['pkmctl']} (sources {p['pkmctl_sources']}, kernels "
+        f"{p['kernel_sources']}) on Python {p['python']}, NumPy {p['numpy']}, Numba "
+        f"{p['numba']}."
+    )
+
+
 def save_result(
     result: Result, directory: Path, stem: str | None = None, *, fmt: str = "parquet"
 ) -> tuple[Path, Path]:
@@ -156,6 +187,7 @@ def save_result(
             for name, log in result.logs.items()
         },  # fmt: skip
         "final_state": _plain(result.final_state),
+        "software": provenance(),
     }
     fis = result.scenario.fuzzy.fis
     if fis is not None:

@@ -653,6 +653,9 @@ def render_report(
     run += _differences_sentence(sc)
     if wall_time_s is not None:
         run += f" Wall time {wall_time_s:.1f} s."
+    from pkmctl.io.results import provenance_line
+
+    run += " " + provenance_line()
     lines += [run, ""]
     for c, r in pairs:
         if not r.success:
