@@ -487,10 +487,43 @@ def test_a_logged_campaign_says_the_time_left(spec_file, tmp_path):
     assert lines and lines[-1].startswith("16/16 runs, 0 not ok, "), res.stderr
     assert not lines[-1].endswith(" left")  # done: nothing left to say
     before = [ln for ln in lines if not ln.startswith("16/16")]
+    # (on an empty cache the first lines wait for the compiles: the next test)
     assert before and all(
         re.fullmatch(r"\d+/16 runs, 0 not ok, [\d.]+ runs/s, about [\d.]+ (s|min) left", ln)
+        or re.fullmatch(
+            r"\d+/16 runs, 0 not ok, [\d.]+ runs/s, the time left once \d+ loops? "
+            r"compiled",
+            ln,
+        )  # fmt: skip
         for ln in before
     ), before
+    assert re.search(r"about [\d.]+ (s|min) left", "\n".join(before)) or "compiled" in before[-1]
+
+
+def test_no_time_left_is_guessed_while_the_workers_compile(spec_file, tmp_path, monkeypatch):
+    """A rate over the workers' first compiles read "about 3.9 h left" for 6 minutes of
+    work (a tester). Until a task of each combination that was not compiled has ended, the
+    line says the time left comes once they are; after, no rate from before is used."""
+    from pkmctl.campaign import execute, store
+
+    spec = CampaignSpec.from_toml(spec_file)
+    combos = {(store.machine_key(spec.cells[i]), c) for i, c in store.cell_parts(spec)}
+    assert len(combos) == 2  # two controllers on one machine
+    seen = []
+    monkeypatch.setattr(execute, "uncompiled_combinations", lambda s: set(combos))
+    run_campaign(spec, tmp_path / "api", workers=1,
+                 progress=lambda compiling, **kw: seen.append((kw["done"], compiling)))  # fmt: skip
+    assert seen[0] == (0, 2) and seen[-1] == (16, 0), seen
+    assert [c for _, c in seen] == sorted((c for _, c in seen), reverse=True)
+    # an old callback without ``compiling`` is called as before
+    run_campaign(spec, tmp_path / "old", workers=1, progress=lambda done, failures, total, rate: 0)
+    res = runner.invoke(app, ["campaign", "run", str(spec_file), "--out", str(tmp_path / "c"),
+                              "--workers", "1"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    lines = [ln for ln in res.stderr.splitlines() if re.match(r"\d+/16 runs, ", ln)]
+    compiling = [ln for ln in lines if ln.endswith("compiled")]
+    assert compiling and compiling[0].endswith(", the time left once 1 loop compiled"), lines
+    assert not any("about" in ln for ln in lines[: lines.index(compiling[-1])]), lines
 
 
 def test_a_folder_whose_spec_is_refused_now_says_so_and_where_its_records_are(tmp_path):

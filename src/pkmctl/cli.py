@@ -1014,28 +1014,35 @@ def campaign_run(
         disable=not err_console.is_terminal,
     ) as bar:
         task = bar.add_task("running", total=spec.n_runs, failures=0, rate=0.0, left="")
-        state = {"done": 0, "said": time.monotonic()}
+        state = {"done": 0, "said": time.monotonic(), "compiled": False}
 
         seen: list[tuple[float, int]] = []  # (time, runs done) of the last half minute
 
-        def progress(done, failures, total, rate):
+        def progress(done, failures, total, rate, compiling=0):
             # the time left at the rate of the last 30 s once there are 10 s of it (the
             # session's rate, first compile included, read "about 3.9 h left" for 4.4 min
-            # of work: a tester); before that, the session's rate so far
+            # of work: a tester); before that, the session's rate so far. None while the
+            # workers compile loops (a rate over compiles read "3.9 h" for 6 min), and the
+            # rate's window starts when they are done.
             now = time.monotonic()
+            if compiling:
+                seen.clear()
             seen.append((now, done))
             while len(seen) > 2 and now - seen[1][0] >= 30.0:
                 seen.pop(0)
             t0, d0 = seen[0]
+            state["compiled"] = state["compiled"] or bool(compiling)
             if now - t0 >= 10.0 and done > d0:
                 rate_left = (done - d0) / (now - t0)
-            else:
-                rate_left = rate
+            else:  # (the session's rate is no guide once part of it went to compiling)
+                rate_left = 0.0 if state["compiled"] else rate
             left = (
                 f"about {_seconds((total - done) / rate_left)} left"
                 if rate_left > 0 and done < total
                 else ""
             )
+            if compiling and done < total:
+                left = f"the time left once {_n(compiling, 'loop')} compiled"
             step = max(1, total // 10)  # a log (not a terminal) gets a line every 10 %, or
             # a minute (an 85 min campaign was silent 8.5 min); not before a run of this
             # session (a resume's start said "0.0 runs/s")

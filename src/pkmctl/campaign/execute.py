@@ -37,6 +37,7 @@ from pkmctl.campaign.store import (
     completed_tasks,
     factor_column,
     factor_value,
+    machine_key,
     metric_columns,
     open_store,
     part_digest,
@@ -45,6 +46,7 @@ from pkmctl.campaign.store import (
     schema,
     stored_statuses,
     task_grouping,
+    uncompiled_combinations,
     user_parts,
     write_task,
 )
@@ -341,11 +343,26 @@ class CampaignRun:
 
 
 class _Progress:
-    def __init__(self, callback):
-        self.callback = callback
+    """Calls ``callback(done=, failures=, total=, rate=)``, and ``compiling=`` too when it
+    takes it (the CLI: a rate over the workers' first compiles gave "about 3.9 h left"
+    for 6 minutes of work)."""
 
-    def __call__(self, **kw):
+    def __init__(self, callback):
+        import inspect
+
+        self.callback = callback
+        self.compiling = False
+        if callback is not None:
+            try:
+                params = inspect.signature(callback).parameters.values()
+            except (TypeError, ValueError):
+                params = []
+            self.compiling = any(p.name == "compiling" or p.kind is p.VAR_KEYWORD for p in params)
+
+    def __call__(self, compiling: int = 0, **kw):
         if self.callback is not None:
+            if self.compiling:
+                kw["compiling"] = compiling
             self.callback(**kw)
 
 
@@ -613,7 +630,9 @@ def run_campaign(
         Complete the campaign in ``out`` (the same spec): run only the tasks without a
         file. Without it an existing campaign folder is refused.
     progress : callable, optional
-        Called as ``progress(done=, failures=, total=, rate=)`` after each task.
+        Called as ``progress(done=, failures=, total=, rate=)`` after each task, with
+        ``compiling=`` too if it takes it: the combinations of parts and controller whose
+        loops the workers are compiling first (none of their tasks has ended).
     on_client : callable, optional
         Called with the Dask client once connected (e.g. to print its dashboard link).
     stop_after : int, optional
@@ -741,7 +760,10 @@ def _run_locked(spec, out, runs_dir, client, scheduler, workers, progress, on_cl
     t0 = time.perf_counter()
     report = _Progress(progress)
     now = failures = n_tasks = 0
-    report(done=before, failures=0, total=spec.n_runs, rate=0.0)
+    # the combinations whose loops the workers compile first: one is done when a task of
+    # it has ended
+    compiling = uncompiled_combinations(spec) if report.compiling else set()
+    report(done=before, failures=0, total=spec.n_runs, rate=0.0, compiling=len(compiling))
     if client is not None:
         stream = _dask_results(spec, todo, client, on_client)
     else:
@@ -754,7 +776,10 @@ def _run_locked(spec, out, runs_dir, client, scheduler, workers, progress, on_cl
             now += table.num_rows
             failures += sum(s != "ok" for s in table.column("status").to_pylist())
             elapsed = time.perf_counter() - t0
-            report(done=before + now, failures=failures, total=spec.n_runs, rate=now / elapsed)
+            for r in task.runs:
+                compiling.discard((machine_key(spec.cells[r.cell]), r.controller))
+            report(done=before + now, failures=failures, total=spec.n_runs, rate=now / elapsed,
+                   compiling=len(compiling))  # fmt: skip
             if stop_after is not None and n_tasks >= stop_after:
                 break
     finally:

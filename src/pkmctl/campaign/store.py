@@ -226,8 +226,13 @@ def estimate_seconds(spec: CampaignSpec, runs=None) -> float:
 
 
 def uncompiled_loops(spec: CampaignSpec) -> int:
-    """How many of the campaign's combinations of pkmctl's own parts (by cell and
-    controller) have no loop that ran on this machine with these sources: the workers
+    """How many combinations :func:`uncompiled_combinations` gives."""
+    return len(uncompiled_combinations(spec))
+
+
+def uncompiled_combinations(spec: CampaignSpec) -> set[tuple[str, str]]:
+    """The campaign's combinations of pkmctl's own parts, as (:func:`machine_key`,
+    controller), that have no loop that ran on this machine with these sources: the workers
     compile those first, which :func:`estimate_seconds` leaves out (a tester's estimate
     of 1.1 s took 250 s on an empty cache). A campaign of several seeds runs them in
     lanes (:func:`~pkmctl.campaign.execute.run_task`): its lane loop is the one asked for."""
@@ -242,7 +247,11 @@ def uncompiled_loops(spec: CampaignSpec) -> int:
             return lanes_compiled(p)
         return is_compiled(p)
 
-    return sum(all(part.builtin for part in p.values()) and not compiled(p) for p in parts.values())
+    return {
+        key
+        for key, p in parts.items()
+        if all(part.builtin for part in p.values()) and not compiled(p)
+    }
 
 
 def _part_files(part) -> list[str]:
