@@ -401,3 +401,29 @@ def test_a_write_error_names_the_file_by_its_final_name():
     assert _final_path(inner, stage, out) == "/d/r/timeseries/smc.parquet"
     assert _final_path(f"{stage}/pd.json", stage, out) == "/d/r/pd.json"
     assert _final_path("/elsewhere/x", stage, out) == "/elsewhere/x"
+
+
+def test_a_terminal_that_is_not_utf8_gets_the_results_and_no_traceback(tmp_path):
+    """Under LANG=C (or PYTHONIOENCODING=ascii) the "°" of the RMSE table's header was a
+    UnicodeEncodeError traceback, exit 1, after the files were written; and pyarrow,
+    which takes a path as UTF-8, could neither write nor read a table in a folder named
+    in another script ("s é": the log called "binary data" by identify)."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith("LC_")}
+    env.update(LANG="C", LC_ALL="C", PYTHONUTF8="0", PYTHONCOERCECLOCALE="0",
+               PYTHONIOENCODING="ascii")  # fmt: skip
+
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "pkmctl", *args], capture_output=True,
+                              text=True, cwd=tmp_path, env=env, encoding="utf-8",
+                              errors="surrogateescape")  # fmt: skip
+
+    r = run("simulate", "prototype", "--controller", "pd", "--duration", "0.05", "--out", "s é")
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert "alpha deg" in r.stdout and "wrote s \\udcc3\\udca9/pd.parquet" in r.stdout, r.stdout
+    folder = tmp_path / "s é"
+    assert sorted(p.name for p in folder.iterdir()) == ["pd.json", "pd.parquet"]
+    assert load_result(folder / "pd.json").t.size == 50  # 1 kHz
+    r = run("identify", "s é/pd.parquet", "--out", "id")  # read: it is too short
+    assert r.returncode == 2 and "too short for --cutoff" in r.stderr, r.stderr

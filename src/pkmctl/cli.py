@@ -127,6 +127,20 @@ console = Console(width=max(Console().width, 110), soft_wrap=True, **_PLAIN)
 err_console = Console(stderr=True, **_PLAIN)
 
 
+def _can_print(text: str) -> bool:
+    """Whether stdout's encoding can write ``text`` (not under LANG=C or
+    PYTHONIOENCODING=ascii: a "°" in the RMSE table's header was a UnicodeEncodeError
+    traceback, exit 1, after the files were written)."""
+    try:
+        text.encode(getattr(sys.stdout, "encoding", None) or "utf-8")
+    except (UnicodeEncodeError, LookupError):
+        return False
+    return True
+
+
+_DEGREE = "°" if _can_print("°") else "deg"
+
+
 def _print_error(message: str) -> None:
     # A Text, not markup: "[0.7, 2.0]" or a file named "[abc].toml" must show verbatim.
     err_console.print(Text.assemble(("error: ", "bold red"), message), soft_wrap=True)
@@ -469,7 +483,7 @@ def _rmse_table(results: dict, title: str) -> Table:
     table.add_column("RMSE", no_wrap=True)
     for k in RMSE_KEYS:
         table.add_column(
-            k.replace("_deg", " °").replace("_mm", " mm").replace("_m", " m"),
+            k.replace("_deg", f" {_DEGREE}").replace("_mm", " mm").replace("_m", " m"),
             justify="right",
             no_wrap=True,
         )
@@ -1014,7 +1028,7 @@ def campaign_run(
         disable=not err_console.is_terminal,
     ) as bar:
         task = bar.add_task("running", total=spec.n_runs, failures=0, rate=0.0, left="")
-        state = {"done": 0, "said": time.monotonic(), "compiled": False}
+        state = {"done": 0, "said": time.monotonic(), "compiled": False, "since": None}
 
         seen: list[tuple[float, int]] = []  # (time, runs done) of the last half minute
 
@@ -1027,15 +1041,21 @@ def campaign_run(
             now = time.monotonic()
             if compiling:
                 seen.clear()
+                state["since"] = None
+            elif state["compiled"] and state["since"] is None:
+                state["since"] = (now, done)  # the compiles ended with this task
             seen.append((now, done))
             while len(seen) > 2 and now - seen[1][0] >= 30.0:
                 seen.pop(0)
             t0, d0 = seen[0]
             state["compiled"] = state["compiled"] or bool(compiling)
+            ts, ds = state["since"] or (now, done)
             if now - t0 >= 10.0 and done > d0:
                 rate_left = (done - d0) / (now - t0)
-            else:  # (the session's rate is no guide once part of it went to compiling)
-                rate_left = 0.0 if state["compiled"] else rate
+            elif not state["compiled"]:
+                rate_left = rate
+            else:  # the rate since the compiles ended (the session's counts them)
+                rate_left = (done - ds) / (now - ts) if done > ds and now > ts else 0.0
             left = (
                 f"about {_seconds((total - done) / rate_left)} left"
                 if rate_left > 0 and done < total
@@ -1289,6 +1309,11 @@ def main() -> None:
     functions."""
     import gc
 
+    for stream in (sys.stdout, sys.stderr):  # paths, names, a spec's text in any
+        try:  # encoding: what it cannot write is escaped (\xe9), not a traceback
+            stream.reconfigure(errors="backslashreplace")
+        except (AttributeError, ValueError, OSError):
+            pass
     try:
         app(prog_name="pkmctl")
     except OSError as exc:  # (typer lets it through: a traceback of 40 lines)

@@ -666,7 +666,8 @@ def _read(path: Path, **options) -> pa.Table:
     whole or not at all, so something else damaged it: pyarrow said only "Parquet magic
     bytes not found in footer")."""
     try:
-        return pq.read_table(path, **options)
+        with open(path, "rb") as fh:  # (a path went to pyarrow as UTF-8: LANG=C failed)
+            return pq.read_table(fh, **options)
     except (pa.ArrowException, OSError) as exc:
         why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         why = re.sub(r"^Could not open Parquet input source '[^']*': ", "", why)  # (the path)

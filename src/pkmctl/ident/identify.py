@@ -217,15 +217,17 @@ def _read_table(path: Path, what: str = "log") -> tuple[dict, dict[str, int], li
     one), the names that occur more than once (name: count; not read) and the header."""
     where = f"{what} {_printable(str(path))!r}"
     check_log_file(path, what=what)
-    try:
-        if path.suffix.lower() == ".parquet":
-            import pyarrow.parquet as pq
+    try:  # (a file, not its path: pyarrow takes a path as UTF-8, and a non-ASCII one
+        # under LANG=C was "binary data, neither a Parquet file nor a CSV table")
+        with open(path, "rb") as fh:
+            if path.suffix.lower() == ".parquet":
+                import pyarrow.parquet as pq
 
-            table = pq.read_table(path)
-        else:
-            import pyarrow.csv as pacsv
+                table = pq.read_table(fh)
+            else:
+                import pyarrow.csv as pacsv
 
-            table = pacsv.read_csv(path)
+                table = pacsv.read_csv(fh)
     except Exception as exc:  # pyarrow's errors: ArrowInvalid, OSError, ...
         hint = _sniff(path)
         if hint:
