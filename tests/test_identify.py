@@ -299,6 +299,8 @@ def test_sample_rate_cutoff_and_length_are_checked_first(exciting):
     # a tiny cutoff is a huge FIR: the log's length is checked before it is built
     with pytest.raises(IdentificationError, match="too short for cutoff = 0.001 Hz"):
         identify(log, sc, cutoff=1e-3)
+    with pytest.raises(IdentificationError, match="too short for cutoff = 1e-308 Hz"):
+        identify(log, sc, cutoff=1e-308)  # (an OverflowError: an internal error, a fuzzer)
     with pytest.raises(IdentificationError, match="too short for cutoff = 10 Hz: it needs >= 6"):
         identify(synthetic_log(sc, duration=5.0), sc)
     # a median interval a hair over 1 ms is 1 kHz: decimation by 40 at 10 Hz, not 39

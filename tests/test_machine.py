@@ -347,6 +347,12 @@ def test_friction_too_stiff_for_the_rk4_substep_is_refused_with_the_substeps_it_
     base.replace(**{"plant.friction_coulomb": 1e4, "timing.substeps": need})  # accepted
     with pytest.raises(ScenarioError, match=r"^plant.friction_viscous = 1e\+06: must be < "):
         base.replace(**{"plant.friction_viscous": 1e6})
+    # a v_s inside its range (0, 1] so small that F_c / v_s is inf: the same refusal (the
+    # sub-steps it needs overflowed: an internal error, exit 1; a fuzzer)
+    for vs in (1e-308, 5e-324):
+        with pytest.raises(ScenarioError, match=r"^plant.friction_coulomb = 30: must be <= ") as e:
+            base.replace(**{"plant.friction_velocity": vs})
+        assert "1000 sub-steps at most cannot" in str(e.value)
     near = base.replace(**{"plant.friction_coulomb": 0.97 * fc_max})
     fine = near.replace(**{"timing.substeps": 10 * near.timing.substeps})
     a, b = (pkmctl.simulate(s, controller="pd") for s in (near, fine))

@@ -290,6 +290,18 @@ def test_a_step_that_does_not_compile_names_the_part():
 def test_scenario_names_unknown_parts_in_one_line():
     with pytest.raises(pkmctl.ScenarioError, match=r"sensor.kind: 'nope': unknown sensor"):
         pkmctl.Scenario.builtin("paper").replace(**{"sensor.kind": "nope"})
+    # a long kind is cut (a fuzzer's 100,000 characters made a line of 100,200)
+    for field in ("sensor.kind", "plant.kind", "actuators.kind"):
+        with pytest.raises(pkmctl.ScenarioError) as info:
+            pkmctl.Scenario.builtin("paper").replace(**{field: "x" * 100_000})
+        assert len(str(info.value)) < 400 and "'xxx" in str(info.value), str(info.value)[:500]
+    with pytest.raises(pkmctl.ScenarioError) as info:
+        pkmctl.Scenario.from_toml(pkmctl.Scenario.builtin("paper").to_toml().replace(
+            'kind = "sinusoid"', f'kind = "{"y" * 100_000}"', 1))  # fmt: skip
+    assert len(str(info.value)) < 200 and "must be one of sinusoid, fourier" in str(info.value)
+    with pytest.raises(PartError) as info:
+        get_part("sensor", "z" * 100_000)
+    assert len(str(info.value)) < 400
     text = pkmctl.Scenario.builtin("paper").to_toml()
     assert '[plant]\nkind = "rigid"' in text and pkmctl.Scenario.from_toml(text).plant_spec.kind
 

@@ -306,8 +306,10 @@ def get_part(kind: str, name: str) -> Part:
     try:
         return reg[name]
     except (KeyError, TypeError):
+        shown = repr(name)  # (cut: a 100,000-character kind was echoed whole)
+        shown = shown if len(shown) <= 60 else shown[:57] + "..."
         raise PartError(
-            f"{kind} = {name!r}: must be one of {', '.join(sorted(reg))} (a part of your own is "
+            f"{kind} = {shown}: must be one of {', '.join(sorted(reg))} (a part of your own is "
             "registered by importing its module: pkmctl --plugin FILE.py, or a Dask worker's "
             "--preload FILE.py)"
         ) from None

@@ -641,8 +641,12 @@ def observe(
     where = log.where
     # the filters' support, before anything is built (a tiny cutoff is a huge FIR)
     n = log.t.size
-    half = math.ceil(2.0 * fs / cutoff)  # the FIR's half-length (samples)
-    edge = half + math.ceil(6.0 / fd * fs)  # and the differentiating filter's transients
+    # the FIR's half-length (samples), and the differentiating filter's transients (as
+    # floats: a cutoff of 1e-308 made them inf, and ceil raised an OverflowError)
+    half = 2.0 * fs / cutoff
+    edge = half + 6.0 / fd * fs
+    if math.isfinite(edge):
+        half, edge = math.ceil(half), math.ceil(half) + math.ceil(6.0 / fd * fs)
     span = (n - 1) * h
     need = 2 * (edge + 3) * h + usable
     if span < need:

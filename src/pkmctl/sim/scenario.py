@@ -437,8 +437,10 @@ def _check_kind(kind: str, name: str) -> str:
 
     known = names(kind)
     if name not in known:
+        shown = repr(name)  # (cut: a 100,000-character kind was echoed whole)
+        shown = shown if len(shown) <= 60 else shown[:57] + "..."
         raise ValueError(
-            f"{name!r}: unknown {kind} (registered: {', '.join(known)}; a part of your own "
+            f"{shown}: unknown {kind} (registered: {', '.join(known)}; a part of your own "
             "is registered by importing its module: in Python, import it first; on the "
             "command line, pkmctl --plugin FILE.py COMMAND)"
         )
@@ -818,7 +820,8 @@ class Scenario(_Model):
         k = float(np.max(np.linalg.eigvals(np.linalg.solve(M + m_r * JtJ, JtJ)).real))
         if h * c * k <= MAX_FRICTION_STEP:
             return
-        need = math.ceil(t.control_period * c * k / MAX_FRICTION_STEP)
+        need = t.control_period * c * k / MAX_FRICTION_STEP  # (inf for v_s = 1e-308: the
+        need = math.ceil(need) if need <= MAX_SUBSTEPS else MAX_SUBSTEPS + 1  # ceil raised)
         how = (
             f"or raise timing.substeps to >= {need}"
             if need <= MAX_SUBSTEPS
@@ -1224,8 +1227,9 @@ def _one_line(exc: ValidationError) -> str:
     loc = _loc_text(parts)
     if err["type"] == "union_tag_invalid":  # an unknown trajectory kind
         ctx = err.get("ctx", {})
+        tag = repr(ctx.get("tag"))  # (cut: a 100,000-character kind was echoed whole)
         return (
-            f"{loc}.kind = {ctx.get('tag')!r}: must be one of "
+            f"{loc}.kind = {tag if len(tag) <= 60 else tag[:57] + '...'}: must be one of "
             f"{str(ctx.get('expected_tags', '')).replace(chr(39), '')}"
         )
     msg = err["msg"].removeprefix("Value error, ")
