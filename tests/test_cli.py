@@ -251,17 +251,27 @@ def test_console_entry_freezes_the_objects_for_a_quick_exit(monkeypatch, capsys)
     scripts = tomllib.loads((root / "pyproject.toml").read_text())["project"]["scripts"]
     assert scripts == {"pkmctl": "pkmctl.cli:main"}
     assert "main()" in (root / "src" / "pkmctl" / "__main__.py").read_text()
+    import signal
+
     monkeypatch.setattr(sys, "argv", ["pkmctl", "--version"])
+    signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    before = {sig: signal.getsignal(sig) for sig in signals}
     gc.unfreeze()
     try:
         with pytest.raises(SystemExit) as exit_:
             cli.main()
         frozen = gc.get_freeze_count()
+        after = {sig: signal.getsignal(sig) for sig in signals}
     finally:
         gc.unfreeze()
+        for sig, handler in before.items():
+            signal.signal(sig, handler)
     assert exit_.value.code in (0, None)
     assert capsys.readouterr().out.strip() == f"pkmctl {pkmctl.__version__}"
     assert frozen > 10_000  # every object the imports made
+    # its work done and said: a signal in the shutdown was a silent exit 130, or a
+    # traceback of the atexit functions with exit 0 (a tester)
+    assert set(after.values()) == {signal.SIG_IGN}
 
 
 def test_scenario_help_describes_every_built_in():

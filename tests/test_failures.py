@@ -912,12 +912,16 @@ def test_a_spawned_worker_importing_pkmctl_as_it_prepares_keeps_pythons_ctrl_c(t
     assert res.stderr == "", res.stderr
 
 
-@pytest.mark.parametrize("after", ["simulating ", "drawing "])
-def test_sigterm_is_handled_as_ctrl_c(old_results, after):
+@pytest.mark.parametrize(
+    ("sig", "after"),
+    [("SIGTERM", "simulating "), ("SIGTERM", "drawing "), ("SIGHUP", "simulating ")],
+)
+def test_sigterm_is_handled_as_ctrl_c(old_results, sig, after):
     """SIGTERM (kill, a job scheduler's stop) was not handled: the staging folder with all
     written so far stayed behind (9.8 MB for a 0.5 s reproduce), and the figure processes
     too. Now the same clean-up as Ctrl-C, the folder as it was; said and ended as itself:
-    "terminated (SIGTERM)", exit 143 (128 + 15, as a shell reports it; it was 130)."""
+    "terminated (SIGTERM)", exit 143 (128 + 15, as a shell reports it; it was 130). SIGHUP
+    (a terminal closed) too: it left a 34 MB staging folder in OUT (a tester)."""
     env = dict(os.environ, PYTHONPATH=str(SRC))
     proc = subprocess.Popen(
         [sys.executable, "-m", "pkmctl", "reproduce", "--duration", "0.5", "--out",
@@ -932,7 +936,7 @@ def test_sigterm_is_handled_as_ctrl_c(old_results, after):
             line = lines.get(timeout=300)
             assert line is not None, "".join(seen)
             seen.append(line)
-        proc.send_signal(signal.SIGTERM)
+        proc.send_signal(getattr(signal, sig))
         proc.wait(timeout=20)
     finally:
         proc.kill()
@@ -940,8 +944,10 @@ def test_sigterm_is_handled_as_ctrl_c(old_results, after):
         seen.append(line)
     if proc.returncode == 0:  # it had finished first: nothing to check here
         pytest.skip("the run ended before the signal")
-    assert proc.returncode == 143, "".join(seen)
-    assert seen[-1].startswith("terminated (SIGTERM) after ") and "Traceback" not in "".join(seen)
+    number, word = {"SIGTERM": (15, "terminated"), "SIGHUP": (1, "hung up")}[sig]
+    assert proc.returncode == 128 + number, "".join(seen)
+    assert seen[-1].startswith(f"{word} ({sig}) after "), seen[-1]
+    assert "Traceback" not in "".join(seen)
     if "the results are in" in seen[-1]:  # it came as the set was moved in: held till done
         assert (old_results / "report.md").read_text() != "old report, seed 0\n"
     else:

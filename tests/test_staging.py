@@ -46,3 +46,18 @@ def test_a_ctrl_c_held_during_the_renames_comes_after_the_set_is_in_place(tmp_pa
     assert (dest / "a.txt").read_text() == "new"
     assert published(stage)
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["a.txt", "out"]
+
+
+def test_a_folder_named_on_the_way_by_dot_dot_is_not_left_behind(tmp_path):
+    """--out x/../y: x was made on the way (as the path was written) and stayed after a
+    failed run, which removed "x/.." (the non-empty folder above) and stopped there; and
+    after a good one (a fuzzer)."""
+    dest = tmp_path / "x" / ".." / "y"
+    with pytest.raises(RuntimeError), staged_folder(dest) as stage:
+        (stage / "a.txt").write_text("a")
+        raise RuntimeError("the run failed")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    with staged_folder(dest) as stage:
+        (stage / "a.txt").write_text("a")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["y"]
+    assert (tmp_path / "y" / "a.txt").read_text() == "a"

@@ -309,7 +309,10 @@ def staged_folder(dest: str | os.PathLike[str]) -> Iterator[Path]:
     ``dest`` is checked first (:func:`check_output_folder`), so a bad location fails
     before any work. Other entries of an existing ``dest`` are left alone.
     """
-    dest = check_output_folder(dest)
+    dest = given = check_output_folder(dest)
+    # "x/../y" as the system resolves it: made on the way as written, x stayed behind
+    # (a failed run removed "x/..", the non-empty current folder, and stopped there)
+    dest = Path(os.path.realpath(dest))
     parent = _stage_parent(dest)
     made = [f for f in (parent, *parent.parents) if not f.exists()]  # to remove on failure
     prefix = _own_prefix()
@@ -327,7 +330,7 @@ def staged_folder(dest: str | os.PathLike[str]) -> Iterator[Path]:
                 from pkmctl.errors import OutputError
 
                 _remove_empty(made)
-                raise OutputError(f"output folder {str(dest)!r}: {exc.strerror}") from None
+                raise OutputError(f"output folder {str(given)!r}: {exc.strerror}") from None
             _MADE[stage] = made  # discard(stage) removes them too (the CLI's Ctrl-C calls it)
         yield stage
         publish(stage, dest)
@@ -507,8 +510,8 @@ def _merge(stage: Path, dest: Path, trash: Path, done: list[tuple[Path, Path]]) 
 
 @contextmanager
 def _sigint_deferred() -> Iterator[None]:
-    """Hold a Ctrl-C (or a SIGTERM) that arrives inside the block until its end (main
-    thread only), then give it to the handler that was there."""
+    """Hold a Ctrl-C (or a SIGTERM, a SIGHUP) that arrives inside the block until its end
+    (main thread only), then give it to the handler that was there."""
     import signal
     import threading
 
@@ -516,7 +519,7 @@ def _sigint_deferred() -> Iterator[None]:
         yield
         return
     caught: list = []
-    held = (signal.SIGINT, signal.SIGTERM)
+    held = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     previous = {s: signal.signal(s, lambda *a: caught.append(a)) for s in held}
     try:
         yield
