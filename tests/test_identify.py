@@ -478,6 +478,10 @@ def test_identify_output_is_one_runs_and_names_its_log_and_machine(tmp_path, exc
         (["identify", "cols.csv", "--force-lead", "x"], "--force-lead = 'x'"),
         (["excite", "--harmonics", "2"], "--harmonics = 2: must be in [3, 20]"),
         (["excite", "--seed", "-1"], "--seed = -1: must be >= 0"),
+        # (1e-100 Hz was "Singular matrix"; 1e-3 Hz a hint to try another --seed)
+        (["excite", "--base-frequency", "1e-100"],
+         "--base-frequency = 1e-100: a run of --periods = 2 would last 2e+100 s, over "
+         "timing.duration's 3600 s: must be >= 0.0005556 Hz"),
         (["identify", "dup.csv"], "column tau1 occurs 2 times (columns 6, 9)"),
         (["identify", "nohdr.csv"], "the header is missing"),
         (["identify", "zero.csv"], "tau1..tau4 are all zero"),
@@ -831,10 +835,12 @@ def test_excite_names_the_cutoff_its_harmonics_need(tmp_path):
         filter_gain(cut, 1000.0, 12.0) >= MIN_HARMONIC_GAIN > filter_gain(cut - 0.1, 1000.0, 12.0)
     )
     assert cutoff_for(1.0, 1000.0) == 10.0  # the default, when it keeps them
-    r = _run("excite", "--out", "ex.toml", "--harmonics", "3", "--base-frequency", "4",
+    r = _run("excite", "--out", "e x.toml", "--harmonics", "3", "--base-frequency", "4",
              "--periods", "4", cwd=tmp_path)  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert f"identify DIR/pd.parquet --cutoff {cut:g}" in " ".join(r.stdout.split())
+    # the file's name quoted, to paste (it ran "simulate e" for "e x.toml": a tester)
+    assert "pkmctl simulate 'e x.toml' --controller pd" in " ".join(r.stdout.split())
 
 
 def test_excite_on_a_slow_log_names_the_cutoff_identify_allows(tmp_path):

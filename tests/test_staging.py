@@ -61,3 +61,18 @@ def test_a_folder_named_on_the_way_by_dot_dot_is_not_left_behind(tmp_path):
         (stage / "a.txt").write_text("a")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["y"]
     assert (tmp_path / "y" / "a.txt").read_text() == "a"
+
+
+def test_a_tilde_is_the_home_folder(tmp_path, monkeypatch):
+    """--out=~/x (which the shell leaves as it is) and PKMCTL_CACHE_DIR=~/c (a .env file,
+    a Dockerfile's ENV) made a folder named "~" in the current one (a tester)."""
+    from pkmctl import _jit
+    from pkmctl.io.atomic import check_output_file, check_output_folder
+
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.chdir(tmp_path)
+    assert check_output_folder("~/out") == tmp_path / "home" / "out"
+    assert check_output_file("~/a.toml") == tmp_path / "home" / "a.toml"
+    monkeypatch.setenv("PKMCTL_CACHE_DIR", "~/cache")
+    assert _jit._cache_root() == tmp_path / "home" / "cache"
+    assert not (tmp_path / "~").exists()

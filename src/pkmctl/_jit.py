@@ -140,8 +140,8 @@ def cache_root() -> Path:
 
 def _cache_root() -> Path:
     env = os.environ.get("PKMCTL_CACHE_DIR")
-    if env:
-        return Path(env)
+    if env:  # "~/x" from a .env file or a Dockerfile's ENV: a folder "~" here (a tester)
+        return Path(env).expanduser()
     xdg = os.environ.get("XDG_CACHE_HOME")
     return (Path(xdg) if xdg else Path.home() / ".cache") / "pkmctl"
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import shlex
 import warnings
 from pathlib import Path
 from typing import Annotated
@@ -160,6 +161,13 @@ def excite(
         _fail(f"--base-frequency = {base_frequency}: must be in (0, 10] Hz")
     if not 1 <= periods <= 100:
         _fail(f"--periods = {periods}: must be in [1, 100]")
+    if periods / base_frequency > 3600.0:  # (1e-100 Hz: "Singular matrix"; 1e-3 Hz: "try
+        # another --seed", for a run of 2000 s)
+        _fail(
+            f"--base-frequency = {base_frequency:g}: a run of --periods = {periods} would last "
+            f"{periods / base_frequency:.4g} s, over timing.duration's 3600 s: must be >= "
+            f"{periods / 3600.0:.4g} Hz"
+        )
     if seed < 0:
         _fail(f"--seed = {seed}: must be >= 0")
     if not scenario.strip():  # ('' was the prototype, unsaid)
@@ -259,9 +267,9 @@ def excite(
     console.print(
         Text(
             f"wrote {out}: {exc_.duration:g} s; run it with "
-            f"pkmctl simulate {out} --controller pd --out DIR, then pkmctl identify "
-            f"DIR/pd.parquet{raise_cutoff}"
-        )
+            f"pkmctl simulate {shlex.quote(str(out))} --controller pd --out DIR, then pkmctl "
+            f"identify DIR/pd.parquet{raise_cutoff}"  # (quoted: a path with a space ran
+        )  # "simulate sc" when pasted)
     )
     need = minimum_duration(cut, exc_.base.count, fs)
     if exc_.duration < need:

@@ -221,7 +221,7 @@ def check_output_folder(
     text = os.fspath(path)
     if not str(text).strip():
         raise OutputError(f"{what} = {text!r}: empty path (name a folder, e.g. pkmctl-out)")
-    path = Path(text)
+    path = Path(text).expanduser()  # ("--out=~/x", which the shell leaves: a folder "~")
     shown = repr(text if len(text) <= 80 else text[:60] + "..." + text[-10:])
     limit = _name_max(Path("/"))
     for part in path.parts:
@@ -545,7 +545,7 @@ def check_output_file(path: str | os.PathLike[str], *, what: str = "output file"
     text = os.fspath(path)
     if not str(text).strip():
         raise OutputError(f"{what} = {text!r}: empty path")
-    path = Path(text)
+    path = Path(text).expanduser()  # ("--out=~/x", which the shell leaves)
     longest = _name_max(Path("/")) - TEMP_EXTRA
     if len(os.fsencode(path.name)) > longest:  # (242-255 bytes: a traceback after the work)
         raise OutputError(
