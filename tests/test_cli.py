@@ -437,3 +437,45 @@ def test_a_terminal_that_is_not_utf8_gets_the_results_and_no_traceback(tmp_path)
     assert load_result(folder / "pd.json").t.size == 50  # 1 kHz
     r = run("identify", "s é/pd.parquet", "--out", "id")  # read: it is too short
     assert r.returncode == 2 and "too short for --cutoff" in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize(("term", "live"), [("xterm-256color", True), ("dumb", False)])
+def test_a_dumb_terminal_gets_the_plain_progress_lines(term, live):
+    """TERM=dumb on a terminal showed no progress at all (rich draws no live bar there)
+    and hid the compile lines: it gets the plain lines a log gets (a tester)."""
+    import os
+    import pty
+
+    leader, follower = pty.openpty()
+    try:
+        r = subprocess.run(
+            [sys.executable, "-c", "from pkmctl.cli import err_console as e; print(e.is_terminal)"],
+            stdout=subprocess.PIPE, stderr=follower, text=True, check=True,
+            env={**os.environ, "TERM": term},
+        )  # fmt: skip
+    finally:
+        os.close(leader)
+        os.close(follower)
+    assert r.stdout.strip() == str(live)
+
+
+def test_a_home_matplotlib_cannot_write_in_is_no_warning(tmp_path):
+    """A HOME that cannot be written: matplotlib printed a warning of two lines (with the
+    advice to set MPLCONFIGDIR) beside pkmctl's own one-line warning (a tester). The
+    command gives it a temporary folder, removed at exit. (~/.config is a file here, which
+    no user can make a folder in, root included.)"""
+    import os
+
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / ".config").write_text("a file")
+    code = (
+        "import os\nfrom pkmctl.cli import _quiet_matplotlib_home\n_quiet_matplotlib_home()\n"
+        "import matplotlib, matplotlib.font_manager\nprint(os.environ['MPLCONFIGDIR'])\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("MPLCONFIGDIR", "XDG_CONFIG_HOME",
+                                                            "XDG_CACHE_HOME")}  # fmt: skip
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                       env={**env, "HOME": str(home)})  # fmt: skip
+    assert r.stderr == "", r.stderr
+    assert "pkmctl-matplotlib-" in r.stdout and not os.path.exists(r.stdout.strip())

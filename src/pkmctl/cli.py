@@ -123,8 +123,11 @@ app = typer.Typer(
 # NO_COLOR (no-color.org): rich drops the colours but keeps bold and underline; no
 # escape codes at all is what a user who sets it wants.
 _PLAIN = {"color_system": None} if os.environ.get("NO_COLOR") else {}
+# A dumb terminal (TERM=dumb: Emacs' shells, some CI pseudo-terminals) draws no live
+# progress bar: it gets the plain lines a log gets (it showed no progress at all)
+_DUMB = {"force_terminal": False} if os.environ.get("TERM", "") in ("dumb", "unknown") else {}
 console = Console(width=max(Console().width, 110), soft_wrap=True, **_PLAIN)
-err_console = Console(stderr=True, **_PLAIN)
+err_console = Console(stderr=True, **_PLAIN, **_DUMB)
 
 
 def _can_print(text: str) -> bool:
@@ -1330,6 +1333,7 @@ def main() -> None:
     functions."""
     import gc
 
+    _quiet_matplotlib_home()
     for stream in (sys.stdout, sys.stderr):  # paths, names, a spec's text in any
         try:  # encoding: what it cannot write is escaped (\xe9), not a traceback
             stream.reconfigure(errors="backslashreplace")
@@ -1356,6 +1360,29 @@ def main() -> None:
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
                 signal.signal(sig, signal.SIG_IGN)
+
+
+def _quiet_matplotlib_home() -> None:
+    """With a HOME that cannot be written, matplotlib printed a warning of two lines (its
+    config folder, "it is highly recommended to set the MPLCONFIGDIR environment
+    variable") where pkmctl says its own in one: give it a temporary folder, as it would
+    take itself, silently, removed at exit."""
+    if os.environ.get("MPLCONFIGDIR"):
+        return
+    xdg = os.environ.get("XDG_CONFIG_HOME") or os.path.join(os.path.expanduser("~"), ".config")
+    folder = os.path.join(xdg, "matplotlib")
+    try:
+        os.makedirs(folder, exist_ok=True)
+        if os.access(folder, os.W_OK):
+            return
+    except OSError:
+        pass
+    import atexit
+    import shutil
+    import tempfile
+
+    os.environ["MPLCONFIGDIR"] = tmp = tempfile.mkdtemp(prefix="pkmctl-matplotlib-")
+    atexit.register(shutil.rmtree, tmp, ignore_errors=True)
 
 
 def _stdout_failed(exc: OSError) -> bool:
