@@ -459,3 +459,19 @@ def test_mamdani_system_validation():
         fz.Term("p", "trimf", (0, 1))
     system = fz.MamdaniSystem((x,), x, [(("a",), "a")])  # tuples are accepted as rules
     assert system.rules == (fz.Rule((0,), 0, 1.0),)
+
+
+def test_a_grid_near_the_largest_doubles_is_finite_and_silent():
+    """A .fis Range of [-1e308 1] printed numpy's overflow warnings three times (a
+    fuzzer): the grid is scaled first there; elsewhere it is as before, exactly
+    symmetric."""
+    import warnings
+
+    from pkmctl.fuzzy.engine import _grid_points
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        g = _grid_points(-1e308, 1.0, 3)
+        assert np.all(np.isfinite(g)) and g[0] == -1e308 and g[-1] == 1.0
+        assert np.array_equal(_grid_points(-1.0, 1.0, 5), [-1.0, -0.5, 0.0, 0.5, 1.0])
+        assert np.array_equal(_grid_points(-1.7e308, 1.7e308, 3), [-1.7e308, 0.0, 1.7e308])

@@ -123,6 +123,8 @@ BAD = [
     ({"actuators": {"force_limit": -5.0}}, "actuators.force_limit = -5.0"),
     ({"name": "../x\n# heading"}, "name = '../x\\n# heading': must be one line of printable"),
     ({"name": "a\u2028b"}, "name = 'a\\u2028b': must be one line"),  # a line separator
+    # a bidi override reorders what a report shows of the name (a fuzzer)
+    ({"name": "\u202eevil"}, "name = '\\u202eevil': must be one line of printable text"),
 ]
 
 

@@ -297,7 +297,11 @@ class FISTables(NamedTuple):
 def _grid_points(lo: float, hi: float, n: int) -> np.ndarray:
     """n evenly spaced points from lo to hi, exactly symmetric if lo = -hi."""
     k = np.arange(n)
-    return (lo * (n - 1 - k) + hi * k) / (n - 1)
+    with np.errstate(over="ignore", invalid="ignore"):  # (a .fis Range of [-1e308 1]
+        g = (lo * (n - 1 - k) + hi * k) / (n - 1)  # printed numpy's overflow warnings)
+    if not np.all(np.isfinite(g)):  # near the largest doubles: scaled first
+        g = lo / (n - 1) * (n - 1 - k) + hi / (n - 1) * k
+    return g
 
 
 def _grid(var: Variable) -> np.ndarray | None:

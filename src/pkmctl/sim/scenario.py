@@ -689,6 +689,11 @@ def _changed(data: dict[str, Any], changes: dict[str, Any], known: dict | None =
     return data
 
 
+#: Unicode's bidirectional controls (LRM, RLM, ALM, LRE..RLO, LRI..PDI)
+_BIDI = frozenset("\u200e\u200f\u061c" + "".join(map(chr, range(0x202A, 0x202F)))
+                  + "".join(map(chr, range(0x2066, 0x206A))))  # fmt: skip
+
+
 class Scenario(_Model):
     """Every number of one experiment (DESIGN.md §4). Build with :meth:`builtin` or TOML."""
 
@@ -712,11 +717,12 @@ class Scenario(_Model):
     @classmethod
     def _one_line_name(cls, v: str) -> str:
         # the name heads reports and tables: a newline in it broke report.md's heading
-        if any(unicodedata.category(c) in ("Cc", "Zl", "Zp") for c in v):  # also U+0085, U+2028
+        # also U+0085, U+2028, and the bidi controls (U+202E reversed what a report shows)
+        if any(unicodedata.category(c) in ("Cc", "Zl", "Zp") or c in _BIDI for c in v):
             shown = repr(v) if len(repr(v)) <= 60 else repr(v)[:57] + "..."
             raise ValueError(
-                f"= {shown}: must be one line of printable text (no newline, tab or "
-                "control character)"
+                f"= {shown}: must be one line of printable text (no newline, tab, control "
+                "or bidirectional control character)"
             )
         return v
 
