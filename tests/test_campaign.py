@@ -1819,3 +1819,20 @@ def test_a_full_disk_names_the_file_the_runs_kept_and_the_resume(tmp_path, monke
         f"--out {out} --workers 1 --resume completes the campaign"
     )
     assert said in line, line
+
+
+def test_an_empty_or_binary_spec_is_refused_in_one_line(tmp_path):
+    """An empty spec ran a campaign of every key's default (3 runs of 10 s), where an
+    empty scenario file is refused; a binary one gave Python's "'utf-8' codec can't
+    decode byte 0x84 in position 3" (a fuzzer)."""
+    (tmp_path / "empty.toml").write_text(" \n# nothing\n")
+    (tmp_path / "binary.toml").write_bytes(b"a =\x84\x00\xff")
+    for name, said in (
+        ("empty.toml", "empty (no key set; `pkmctl campaign show paper-claims` prints a full one)"),
+        ("binary.toml", "not UTF-8 text (byte 0x84 at offset 3)"),
+    ):
+        res = runner.invoke(app, ["campaign", "run", str(tmp_path / name), "--out",
+                                  str(tmp_path / "c")])  # fmt: skip
+        assert res.exit_code == 2, res.output
+        assert len(res.stderr.strip().splitlines()) == 1 and said in res.stderr, res.stderr
+        assert not (tmp_path / "c").exists()

@@ -444,7 +444,12 @@ class CampaignSpec:
                     f"campaign spec {str(path)!r}: no such file, nor a built-in campaign "
                     f"(choose from {', '.join(BUILTIN_CAMPAIGNS)})"
                 ) from None
-            except (OSError, UnicodeDecodeError) as exc:
+            except UnicodeDecodeError as exc:  # (Python's words: "'utf-8' codec can't ...")
+                raise _fail(
+                    f"campaign spec {str(path)!r}: not UTF-8 text (byte "
+                    f"0x{exc.object[exc.start]:02x} at offset {exc.start})"
+                ) from None
+            except OSError as exc:
                 raise _fail(
                     f"campaign spec {str(path)!r}: {getattr(exc, 'strerror', None) or exc}"
                 ) from None
@@ -457,6 +462,11 @@ class CampaignSpec:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise _fail(f"{where}: {exc}") from None
+        if not data:  # (it ran a campaign of every key's default, unsaid: a fuzzer)
+            raise _fail(
+                f"{where}: empty (no key set; `pkmctl campaign show paper-claims` prints a "
+                "full one)"
+            )
         if path is not None and path.name == "spec.toml":
             from pkmctl.campaign.store import stored_inputs
 
