@@ -479,3 +479,24 @@ def test_a_home_matplotlib_cannot_write_in_is_no_warning(tmp_path):
                        env={**env, "HOME": str(home)})  # fmt: skip
     assert r.stderr == "", r.stderr
     assert "pkmctl-matplotlib-" in r.stdout and not os.path.exists(r.stdout.strip())
+
+
+def test_simulate_says_when_the_drives_spent_time_at_their_limits(tmp_path):
+    """Drives without torque (peak_torque = 1e-300) sank the platform 38 mm, and simulate
+    showed only the error table: the time at the force limit was in the JSON alone (a
+    fuzzer). A line says it beside the table when it passes 1 % of the run."""
+    res = runner.invoke(app, ["simulate", "prototype", "--controller", "pd", "--duration",
+                              "0.2", "--out", str(tmp_path / "p")])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    meta = json.loads((tmp_path / "p" / "pd.json").read_text())["metrics"]
+    force, speed = meta["time_at_force_limit_s"], meta["time_over_speed_limit_s"]
+    assert force > 0.002 and speed > 0.002  # the transient, on the prototype's drives
+    out = " ".join(res.stdout.split())
+    assert (
+        f"note: the drives were at their force limit for {force:.3g} s of the 0.2 s run "
+        f"({100 * force / 0.2:.0f} %; time_at_force_limit_s in the JSON's metrics)"
+    ) in out
+    assert f"over their speed limit for {speed:.3g} s of the 0.2 s run" in out
+    res = runner.invoke(app, ["simulate", "paper", "--controller", "pd", "--duration", "0.2",
+                              "--out", str(tmp_path / "q")])  # fmt: skip
+    assert res.exit_code == 0 and "note:" not in res.stdout, res.stdout

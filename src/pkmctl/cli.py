@@ -728,12 +728,33 @@ def simulate(
     for path in stale:
         path.unlink()
     console.print(_rmse_table({controller: result}, f"RMSE, scenario {sc.name!r}"))
+    for line in _limit_notes(result):
+        console.print(Text(line))
     console.print(
         Text(
             f"wrote {out / paths[0].name} and {out / paths[1].name}"
             + "".join(f"; removed {p.name} of an earlier run" for p in stale)
         )
     )
+
+
+def _limit_notes(result) -> list[str]:
+    """A line for each of the drives' limits the run spent more than 1 % of its time at
+    (force) or over (speed): the errors above are then a saturated machine's, which only
+    the JSON said (a fuzzer's drives without torque sank 38 mm, unsaid)."""
+    from pkmctl.sim.metrics import summary
+
+    m = summary(result)
+    span = result.t[-1] - result.t[0] if result.t.size > 1 else 0.0
+    span = result.scenario.timing.duration if result.loop_metrics is not None else span
+    out = []
+    for key, what in (("time_at_force_limit_s", "at their force limit"),
+                      ("time_over_speed_limit_s", "over their speed limit")):  # fmt: skip
+        t = m.get(key)
+        if t is not None and span > 0 and t > 0.01 * span:
+            out.append(f"note: the drives were {what} for {t:.3g} s of the {span:g} s run "
+                       f"({100 * t / span:.0f} %; {key} in the JSON's metrics)")  # fmt: skip
+    return out
 
 
 @app.command()
