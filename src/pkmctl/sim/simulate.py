@@ -459,7 +459,10 @@ def simulate(
     ``controller`` is any registered controller ("smc", "fsmc", "afsmc", "pd", "ctc",
     or a user's, :func:`pkmctl.register_controller`). Raises
     :class:`~pkmctl.SimulationDiverged` (with the partial result) if the state becomes
-    non-finite or the pose leaves the valid set. ``progress(periods done, periods)`` is
+    non-finite or the pose leaves z > 0, |alpha|, |beta| < pi/2, checked every period.
+    The model's other bounds (limbs over 1 mm, J's conditioning: docs/model.md) are not
+    checked in the loop: a run may pass near a singular pose and end normally (a fuzzer's
+    initial.Xdot = [0, 60, 0] reached alpha = 1.53 rad). ``progress(periods done, periods)`` is
     called as the run goes, from the thread that runs it: about every 1 % of the run
     (:data:`PROGRESS_STEPS`; every :data:`CHUNK_PERIODS` periods for a run logged every
     ``logging.every`` > 1 periods), or every :data:`pkmctl.sim.stepped.PROGRESS_PERIODS`
