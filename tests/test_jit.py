@@ -438,3 +438,26 @@ def test_reproduce_says_it_compiles_a_single_missing_loop(tmp_path, monkeypatch)
     experiment.reproduce(sc, tmp_path / "out", progress=said.append)
     assert "compiling the control loop of fsmc as it runs (once per machine)…" in said, said
     assert "compiled loops found in the cache" not in said
+
+
+def test_a_cache_that_cannot_be_written_still_loads_what_it_holds(tmp_path):
+    """A filled cache made read-only (a container image, a shared site folder) compiled
+    everything again in memory: 22 s for simulate, 60 s for reproduce (a tester). What it
+    holds now loads; what it lacks compiles in memory (not cached). (Tests run as root,
+    whom a mode does not stop: the folder is said unwritable instead.)"""
+    import pkmctl
+
+    pkmctl.simulate("paper", "pd", duration=0.001)  # the cache holds this run's loop
+    code = (
+        "import pkmctl._jit as j\n"
+        "j._writable = lambda path: False\n"
+        "j._writable_once.cache_clear()\n"
+        "import pkmctl\n"
+        "said = []\n"
+        "with j.announce(lambda *e: said.append(e[0])):\n"
+        "    pkmctl.simulate('paper', 'pd', duration=0.001)\n"
+        "print(j.cache_writable(), said.count('start'))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split()  # fmt: skip
+    assert out == ["False", "0"], out  # not writable, and nothing compiled

@@ -402,10 +402,15 @@ class _Compiles:
                 self._flush(kept)
                 if not kept and not _CACHE_WARNED:
                     _CACHE_WARNED.append(True)
+                    held = (
+                        "what it holds for these sources loads, what it lacks"
+                        if _jit.cache_dir().is_dir()
+                        else "compiled code is kept in memory only, and every run"
+                    )
                     _say(
                         f"warning: the compile cache {str(_jit.cache_root())!r} cannot be "
-                        "written: compiled code is kept in memory only, and every run compiles "
-                        "again (set PKMCTL_CACHE_DIR to a writable folder)"
+                        f"written: {held} compiles again (set PKMCTL_CACHE_DIR to a "
+                        "writable folder)"
                     )
                 when = "once per machine; minutes on a first run" if kept else "not cached"
                 self._show(f"compiling {what} ({when})…")
