@@ -1836,3 +1836,16 @@ def test_an_empty_or_binary_spec_is_refused_in_one_line(tmp_path):
         assert res.exit_code == 2, res.output
         assert len(res.stderr.strip().splitlines()) == 1 and said in res.stderr, res.stderr
         assert not (tmp_path / "c").exists()
+
+
+def test_an_empty_name_is_no_folder(tmp_path):
+    """`simulate ""` and `campaign run ""` said "'.': Is a directory" (a fuzzer)."""
+    for args, said in (
+        (["simulate", "", "--out", str(tmp_path / "o")], "scenario = '': must name a built-in"),
+        (["campaign", "run", "", "--out", str(tmp_path / "o")],
+         "campaign spec = '': must name a file or a built-in campaign (paper-claims)"),
+        (["campaign", "show", ""], "campaign spec = '': must name a file"),
+    ):  # fmt: skip
+        res = runner.invoke(app, args)
+        assert res.exit_code == 2 and said in res.stderr, res.stderr
+        assert len(res.stderr.strip().splitlines()) == 1 and not (tmp_path / "o").exists()

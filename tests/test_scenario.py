@@ -342,3 +342,20 @@ def test_a_scenario_is_hashable_as_it_is_frozen():
     longer = paper.replace(**{"timing.duration": 1.0})
     assert longer != paper and longer not in seen
     assert pkmctl.Scenario.from_toml(paper.to_toml()) in seen  # read back: equal, same hash
+
+
+def test_a_toml_error_quotes_the_line_it_points_at(tmp_path):
+    """A key set twice said "Cannot overwrite a value (at line 84, column 11)", naming no
+    key (a fuzzer); the line is quoted now, in a scenario and in a campaign spec."""
+    from pkmctl.campaign.spec import CampaignSpec, SpecError
+
+    text = pkmctl.Scenario.builtin("paper").to_toml()
+    eps = next(line for line in text.splitlines() if line.startswith("eps = "))
+    twice = text.replace(eps, f"{eps}\n{eps}", 1)
+    with pytest.raises(pkmctl.ScenarioError) as info:
+        pkmctl.Scenario.from_toml(twice)
+    assert str(info.value).endswith(f"Cannot overwrite a value (at line "
+                                    f"{twice.splitlines().index(eps) + 2}, column 11): "
+                                    f"{eps!r}"), str(info.value)  # fmt: skip
+    with pytest.raises(SpecError, match=r"\(at line 3, column \d+\): 'seeds = 2'$"):
+        CampaignSpec.from_toml('scenario = "paper"\nseeds = 2\nseeds = 2\n')

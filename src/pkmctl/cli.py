@@ -316,12 +316,14 @@ def _main(
 def _load_scenario(spec: str, changes: dict | None = None):
     """The scenario ``spec`` names, with ``changes`` made before it is validated (a
     file's trajectory is checked over the duration that will run, not the file's)."""
-    from pkmctl.sim.scenario import BUILTINS, Scenario
+    from pkmctl.sim.scenario import BUILTINS, Scenario, ScenarioError
 
+    if not spec.strip():  # (Path("") is ".": "'.': Is a directory")
+        raise ScenarioError(
+            f"scenario = {spec!r}: must name a built-in ({', '.join(BUILTINS)}) or a TOML file"
+        )
     if spec in BUILTINS:
         if Path(spec).is_file():  # (`pkmctl scenario paper > paper`, edited, ran the built-in)
-            from pkmctl.sim.scenario import ScenarioError
-
             raise ScenarioError(
                 f"{spec!r} names both a built-in scenario and a file here: give ./{spec} for "
                 "the file (or rename it to .toml)"
@@ -1022,7 +1024,8 @@ def campaign_run(
     try:
         with compiles.listen():
             spec = _interruptible(
-                lambda: CampaignSpec.from_toml(Path(spec_file)), lambda: "nothing run"
+                lambda: CampaignSpec.from_toml(Path(spec_file) if spec_file.strip() else spec_file),
+                lambda: "nothing run",
             )
     except Exception as exc:
         _campaign_handle(ctx, exc, "reading the spec: nothing run")
@@ -1239,7 +1242,10 @@ def campaign_show(
     from pkmctl.campaign.spec import CampaignSpec
 
     try:
-        spec = _interruptible(lambda: CampaignSpec.from_toml(Path(spec_file)), lambda: "")
+        spec = _interruptible(
+            lambda: CampaignSpec.from_toml(Path(spec_file) if spec_file.strip() else spec_file),
+            lambda: "",
+        )
     except Exception as exc:
         _campaign_handle(ctx, exc, "reading the spec")
     try:

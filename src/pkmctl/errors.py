@@ -62,3 +62,18 @@ class SimulationDiverged(PkmctlError, RuntimeError):
         self.time = time
         self.state = state
         self.partial = partial
+
+
+def toml_error(exc: Exception, text: str) -> str:
+    """A TOML parse error with the line it points at: Python's "Cannot overwrite a value
+    (at line 84, column 11)" named no key (a duplicated ``eps = ...``: a fuzzer)."""
+    import re
+
+    message = str(exc)
+    m = re.search(r"at line (\d+)", message)
+    lines = text.splitlines()
+    if m is None or not 1 <= int(m.group(1)) <= len(lines):
+        return message
+    line = lines[int(m.group(1)) - 1].strip()
+    shown = repr(line if len(line) <= 60 else line[:57] + "...")
+    return f"{message}: {shown}" if line else message

@@ -432,6 +432,11 @@ class CampaignSpec:
         Raises :class:`SpecError` or :class:`~pkmctl.ScenarioError` in one line; every
         cell's scenario is built and validated, so nothing runs from a bad spec.
         """
+        if not str(source).strip():  # (Path("") is ".": "'.': Is a directory")
+            raise _fail(
+                f"campaign spec = {str(source)!r}: must name a file or a built-in campaign "
+                f"({', '.join(BUILTIN_CAMPAIGNS)})"
+            )
         if str(source) in BUILTIN_CAMPAIGNS and not Path(source).exists():
             source = BUILTIN_CAMPAIGNS[str(source)]
         if isinstance(source, Path) or "\n" not in str(source):
@@ -461,7 +466,9 @@ class CampaignSpec:
         try:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
-            raise _fail(f"{where}: {exc}") from None
+            from pkmctl.errors import toml_error
+
+            raise _fail(f"{where}: {toml_error(exc, text)}") from None
         if not data:  # (it ran a campaign of every key's default, unsaid: a fuzzer)
             raise _fail(
                 f"{where}: empty (no key set; `pkmctl campaign show paper-claims` prints a "

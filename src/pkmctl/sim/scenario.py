@@ -905,8 +905,10 @@ class Scenario(_Model):
         try:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
+            from pkmctl.errors import toml_error
+
             raise ScenarioError(
-                f"{where.replace('scenario file', 'scenario TOML')}: {exc}"
+                f"{where.replace('scenario file', 'scenario TOML')}: {toml_error(exc, text)}"
             ) from None
         if not data:  # an empty file is a mistake, not "the defaults, silently"
             raise ScenarioError(
