@@ -500,3 +500,15 @@ def test_simulate_says_when_the_drives_spent_time_at_their_limits(tmp_path):
     res = runner.invoke(app, ["simulate", "paper", "--controller", "pd", "--duration", "0.2",
                               "--out", str(tmp_path / "q")])  # fmt: skip
     assert res.exit_code == 0 and "note:" not in res.stdout, res.stdout
+
+
+def test_help_in_a_narrow_terminal_cuts_nothing():
+    """At 40 columns the help cut option names and defaults with "…" (`--max-residu…`,
+    `[default: pkmctl-o…`: 106 cut lines over the help pages, a tester)."""
+    import os
+
+    env = {**os.environ, "COLUMNS": "40"}
+    for command in (["identify"], ["simulate"], ["campaign", "run"], ["excite"], ["bench"]):
+        r = subprocess.run([sys.executable, "-m", "pkmctl", *command, "--help"], env=env,
+                           capture_output=True, text=True, check=True)  # fmt: skip
+        assert "…" not in r.stdout, (command, r.stdout)

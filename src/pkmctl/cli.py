@@ -127,6 +127,15 @@ _PLAIN = {"color_system": None} if os.environ.get("NO_COLOR") else {}
 # progress bar: it gets the plain lines a log gets (it showed no progress at all)
 _DUMB = {"force_terminal": False} if os.environ.get("TERM", "") in ("dumb", "unknown") else {}
 console = Console(width=max(Console().width, 110), soft_wrap=True, **_PLAIN)
+# Help at 80 columns at least: narrower, Typer cut option names and defaults with "…"
+# (`--max-residu…`, `[default: pkmctl-o…`: 106 cut lines at 40 columns, a tester)
+try:
+    import typer.rich_utils as _typer_rich
+
+    if getattr(_typer_rich, "MAX_WIDTH", 0) is None:
+        _typer_rich.MAX_WIDTH = max(Console().width, 80)
+except ImportError:  # pragma: no cover - a Typer without rich help
+    pass
 err_console = Console(stderr=True, **_PLAIN, **_DUMB)
 
 
