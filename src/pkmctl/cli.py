@@ -1412,12 +1412,10 @@ def _quiet_matplotlib_home() -> None:
         return
     xdg = os.environ.get("XDG_CONFIG_HOME") or os.path.join(os.path.expanduser("~"), ".config")
     folder = os.path.join(xdg, "matplotlib")
-    try:
-        os.makedirs(folder, exist_ok=True)
-        if os.access(folder, os.W_OK):
-            return
-    except OSError:
-        pass
+    while not os.path.exists(folder) and os.path.dirname(folder) != folder:
+        folder = os.path.dirname(folder)  # where matplotlib would make it (made by it)
+    if os.path.isdir(folder) and os.access(folder, os.W_OK | os.X_OK):
+        return
     import atexit
     import shutil
     import tempfile
