@@ -1,6 +1,7 @@
 """Campaigns (issue 11): specs, local and Dask execution, the store, resume, report."""
 
 import contextlib
+import json
 import os
 import re
 import signal
@@ -1849,3 +1850,27 @@ def test_an_empty_name_is_no_folder(tmp_path):
         res = runner.invoke(app, args)
         assert res.exit_code == 2 and said in res.stderr, res.stderr
         assert len(res.stderr.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("seeds", [1, 3, 9])
+def test_a_campaign_that_ran_has_nothing_left_to_compile(tmp_path, monkeypatch, seeds):
+    """With 2-4 seeds the header said "plus compiling ... a minute or more each" on every
+    run, and the progress "the time left once 1 loop compiled": it asked for the lane
+    loop, which a rest of half a batch or less never builds (a tester). The loops asked
+    for are those the tasks run."""
+    from pkmctl.campaign.store import uncompiled_loops
+    from pkmctl.sim import lanes
+
+    spec = CampaignSpec.from_toml(
+        f'scenario = "paper"\ncontrollers = ["pd"]\nseeds = {seeds}\nduration = 0.01\n'
+    )
+    run_campaign(spec, tmp_path / "c", workers=1)
+    assert uncompiled_loops(spec) == 0
+    # a resume with nothing left runs no session (one was recorded each time: a tester)
+    assert run_campaign(spec, tmp_path / "c", workers=1, resume=True).done_now == 0
+    sessions = json.loads((tmp_path / "c" / "campaign.json").read_text())["sessions"]
+    assert len(sessions) == 1
+    # as if no lane loop were compiled: only a campaign whose tasks run one asks for it
+    monkeypatch.setattr(lanes, "lanes_compiled", lambda parts: False)
+    batches = lanes.lane_batches(seeds, lanes.lane_count())
+    assert uncompiled_loops(spec) == (1 if max(batches) > 1 else 0), batches

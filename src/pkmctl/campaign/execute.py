@@ -756,7 +756,8 @@ def _run_locked(spec, out, runs_dir, client, scheduler, workers, progress, on_cl
     before = sum(len(t.runs) for t in tasks if t.index in done and t.index not in erred)
     rerun = sum(len(t.runs) for t in tasks if t.index in erred)
     where = f"dask {scheduler}" if scheduler else f"{workers} local worker" + "s" * (workers > 1)
-    record_session(out, where, parts)
+    if todo:  # (a resume with nothing left to run added a session: docs/campaigns.md
+        record_session(out, where, parts)  # records "each session that ran tasks")
     t0 = time.perf_counter()
     report = _Progress(progress)
     now = failures = n_tasks = 0

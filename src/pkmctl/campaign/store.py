@@ -234,23 +234,35 @@ def uncompiled_combinations(spec: CampaignSpec) -> set[tuple[str, str]]:
     """The campaign's combinations of pkmctl's own parts, as (:func:`machine_key`,
     controller), that have no loop that ran on this machine with these sources: the workers
     compile those first, which :func:`estimate_seconds` leaves out (a tester's estimate
-    of 1.1 s took 250 s on an empty cache). A campaign of several seeds runs them in
-    lanes (:func:`~pkmctl.campaign.execute.run_task`): its lane loop is the one asked for."""
-    from pkmctl.sim.lanes import lanes_compiled
+    of 1.1 s took 250 s on an empty cache). The loops asked for are those its tasks run
+    (:func:`~pkmctl.campaign.execute.run_task`): the lane loop for a batch of several
+    seeds, the single loop for a run alone (a rest of half a batch or less; asking for
+    the lane loop of a campaign of 3 seeds, which never builds it, said "plus
+    compiling" on every run: a tester)."""
+    from pkmctl.sim.lanes import lane_batches, lane_count, lanes_compiled, lanes_supported
     from pkmctl.sim.loop import is_compiled
 
     parts = {(machine_key(spec.cells[i]), c): p for (i, c), p in cell_parts(spec).items()}
-    lanes = len(spec.seeds) > 1
+    needs: dict[tuple[str, str], set[int]] = {}
+    widths: dict[tuple[str, int], set[int]] = {}  # (controller, runs in a task): widths
+    L = lane_count()
+    for t in spec.tasks():
+        key_cell = machine_key(spec.cells[t.runs[0].cell])
+        for c in dict.fromkeys(r.controller for r in t.runs):
+            key = (key_cell, c)
+            k = sum(r.controller == c for r in t.runs)
+            if (c, k) not in widths:
+                n = L if lanes_supported(parts[key]) else 1
+                widths[(c, k)] = {min(w, 2) for w in lane_batches(k, n)}
+            needs.setdefault(key, set()).update(widths[(c, k)])
 
-    def compiled(p) -> bool:
-        if lanes and p["plant"].stepper is None:
-            return lanes_compiled(p)
-        return is_compiled(p)
+    def compiled(p, need: set[int]) -> bool:
+        return all(lanes_compiled(p) if w > 1 else is_compiled(p) for w in need)
 
     return {
         key
         for key, p in parts.items()
-        if all(part.builtin for part in p.values()) and not compiled(p)
+        if all(part.builtin for part in p.values()) and not compiled(p, needs.get(key, {1}))
     }
 
 
