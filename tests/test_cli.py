@@ -512,3 +512,18 @@ def test_help_in_a_narrow_terminal_cuts_nothing():
         r = subprocess.run([sys.executable, "-m", "pkmctl", *command, "--help"], env=env,
                            capture_output=True, text=True, check=True)  # fmt: skip
         assert "…" not in r.stdout, (command, r.stdout)
+
+
+def test_reproduce_removes_a_table_in_the_other_format_of_its_runs(tmp_path):
+    """reproduce into a folder holding timeseries/pd.csv (an earlier run's, saved as CSV)
+    left it beside the new pd.json, which describes pd.parquet (a tester); simulate
+    removed it. Other files there stay."""
+    from pkmctl.experiment import reproduce
+
+    ts = tmp_path / "out" / "timeseries"
+    ts.mkdir(parents=True)
+    (ts / "pd.csv").write_text("t\n0.0\n")
+    (ts / "mine.csv").write_text("kept\n")
+    reproduce(pkmctl.Scenario.builtin("paper", 0.05), tmp_path / "out")
+    assert not (ts / "pd.csv").exists() and (ts / "mine.csv").read_text() == "kept\n"
+    assert (ts / "pd.parquet").is_file() and (ts / "pd.json").is_file()

@@ -202,6 +202,10 @@ def reproduce(
             fh.write(report)
         names.append(stage / "report.md")
         files = [out / p.relative_to(stage) for p in names]
+    for c in CONTROLLER_ORDER:  # a run's table in the other format, an earlier run's,
+        stale = out / "timeseries" / f"{c}.csv"  # beside the json of this one (a tester)
+        if stale.is_file() or stale.is_symlink():
+            stale.unlink()
     t_end = time.perf_counter()
     phases = {
         "before": t_runs - t0,
