@@ -270,3 +270,26 @@ def test_a_save_in_the_other_format_removes_the_earlier_table(runs, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == [
         "other.json", "other.parquet", "pd.json", "pd.parquet"
     ]  # fmt: skip
+
+
+def test_a_resaved_result_keeps_the_software_that_made_it(runs, tmp_path):
+    """load_result dropped the JSON's "software", and save_result wrote the pkmctl saving
+    it: a re-saved result was labelled as made by it (a tester). A loaded result keeps its
+    own; one made before it was recorded saves null."""
+    from pkmctl.io.results import provenance
+
+    _, meta = save_result(runs["seed0"], tmp_path / "a")
+    made = json.loads(meta.read_text())
+    assert made["software"] == provenance() and "software" not in made["info"]
+    old = dict(made, software={"pkmctl": "0.0.1", "kernel_sources": "older"})
+    meta.write_text(json.dumps(old))
+    back = load_result(meta)
+    assert back.info["software"] == {"pkmctl": "0.0.1", "kernel_sources": "older"}
+    _, meta2 = save_result(back, tmp_path / "b", fmt="csv")
+    again = json.loads(meta2.read_text())
+    assert again["software"] == {"pkmctl": "0.0.1", "kernel_sources": "older"}
+    assert "software" not in again["info"]
+    del old["software"]  # made before it was recorded
+    meta.write_text(json.dumps(old))
+    _, meta3 = save_result(load_result(meta), tmp_path / "c")
+    assert json.loads(meta3.read_text())["software"] is None

@@ -180,14 +180,16 @@ def save_result(
         "loop_metrics": None if result.loop_metrics is None else result.loop_metrics.to_dict(),
         "scenario_toml": result.scenario.to_toml(),
         "parts": dict(result.parts),
-        "info": _plain(result.info),
+        "info": _plain({k: v for k, v in result.info.items() if k != "software"}),
         # a part's own logs (their columns' widths) and every part's final state
         "logs": {
             name: int(np.asarray(log).reshape(result.t.size, -1).shape[1])
             for name, log in result.logs.items()
         },  # fmt: skip
         "final_state": _plain(result.final_state),
-        "software": provenance(),
+        # the software that made the run: a loaded result keeps its own (None: made
+        # before it was recorded); a re-save labelled it with the one saving it (a tester)
+        "software": result.info["software"] if "software" in result.info else provenance(),
     }
     fis = result.scenario.fuzzy.fis
     if fis is not None:
@@ -384,7 +386,7 @@ def load_result(json_path: Path) -> Result:
         success=meta["success"],
         message=meta["message"],
         parts=dict(meta.get("parts", {})),
-        info=dict(meta.get("info", {})),
+        info={**meta.get("info", {}), "software": meta.get("software")},
         logs=logs,
         final_state=final_state,
         **fields,
