@@ -732,6 +732,11 @@ def test_max_residual_option_and_refusals_write_nothing(tmp_path, exciting, nois
     r = _run("identify", "run.csv", "--out", "o", cwd=tmp_path)
     assert r.returncode == 2 and len(_error_lines(r)) == 1, r.stderr
     assert "allowed <= --max-residual = 5 %" in r.stderr and "raise --max-residual" in r.stderr
+    # the lead was the default 0, not searched: out-of-step forces are named too, with the
+    # option that searches (a pkmctl log copied without its .json needed -0.25 ms, and the
+    # message named only signs, units, columns and machines: a tester)
+    assert "forces out of step with the lengths by a fraction of a sample" in r.stderr
+    assert "try --force-lead auto;" in r.stderr, r.stderr
     assert not (tmp_path / "o").exists()
     for bad in ("0", "150", "nan"):
         r = _run("identify", "run.csv", "--out", "o", "--max-residual", bad, cwd=tmp_path)

@@ -126,6 +126,7 @@ def _scenario_for(ctx: typer.Context, spec: str | None, log: Path | None):
 def _as_options(message: str) -> str:
     """The library's keywords (``cutoff``, ``force_lead``, ``max_residual``) as the
     command's options."""
+    message = message.replace("force_lead = auto", "--force-lead auto")
     for word, option in (("cutoff", "--cutoff"), ("force_lead", "--force-lead"),
                          ("max_residual", "--max-residual")):  # fmt: skip
         message = message.replace(f"{word} = ", f"{option} = ")

@@ -1131,7 +1131,8 @@ def identify(
     misfit = lead_note(obs)
     far = abs(obs.force_lead) > LEAD_SEARCH / obs.sample_rate
     lead = obs.force_lead if far and not misfit else None
-    _check_fit(where, base, wls, phys_fit, prior, max_residual, mass_ratio, lead, misfit)
+    _check_fit(where, base, wls, phys_fit, prior, max_residual, mass_ratio, lead, misfit,
+               searched=force_lead is None)  # fmt: skip
     return Identification(
         base, obs, ols, wls, cond, phys, phys_fit, vs, time.perf_counter() - t0, notes,
         label, active if physical else (),
@@ -1195,15 +1196,25 @@ def _check_fit(
     mass_ratio: tuple[float, float] | None,
     lead: float | None = None,
     misfit: str = "",
+    searched: bool = True,
 ) -> None:
     """Refuse a fit that no genuine log gives (one line each): a clearly negative WLS mass,
     a relative residual above ``max_residual`` (of the physically consistent fit if there
     is one, else of WLS), an m_platform outside ``mass_ratio`` x the prior's. ``lead``: a
     force lead given that is itself suspect (named among the causes); ``misfit``: the
-    :func:`lead_note` saying it fits much worse than the best near 0 (named first)."""
+    :func:`lead_note` saying it fits much worse than the best near 0 (named first);
+    ``searched`` False: the lead was given (or the default 0), not searched."""
     causes = _LIKELY_CAUSES
     if lead is not None:
         causes += f", or a wrong force_lead = {lead:+.4g} s"
+    elif not searched and not misfit:  # (a genuine pkmctl log, copied without its .json,
+        # needed -0.25 ms; the message named only signs, units, columns and machines, and
+        # the --scenario it advised failed the same way: a tester)
+        causes += (
+            ", or forces out of step with the lengths by a fraction of a sample (a "
+            "controller's logged force acts over the period after it): try force_lead = "
+            "auto"
+        )
     if misfit:
         causes = f"{misfit}; else {causes}"
     if max_residual is not None:
