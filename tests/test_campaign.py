@@ -1874,3 +1874,28 @@ def test_a_campaign_that_ran_has_nothing_left_to_compile(tmp_path, monkeypatch, 
     monkeypatch.setattr(lanes, "lanes_compiled", lambda parts: False)
     batches = lanes.lane_batches(seeds, lanes.lane_count())
     assert uncompiled_loops(spec) == (1 if max(batches) > 1 else 0), batches
+
+
+def test_a_campaign_resumed_by_other_pkmctl_code_says_so(spec_file, tmp_path):
+    """A resume after an upgrade completed the campaign with another version's code, and
+    nothing but campaign.json's sessions said so (a tester). The command and report.md
+    say it now."""
+    out = tmp_path / "c"
+    run_campaign(CampaignSpec.from_toml(spec_file), out, workers=1, stop_after=1)
+    manifest = json.loads((out / "campaign.json").read_text())
+    manifest["sessions"][0]["pkmctl_sources"] = "0123456789abcdef0123"  # as an older one
+    (out / "campaign.json").write_text(json.dumps(manifest))
+    res = runner.invoke(app, ["campaign", "run", str(spec_file), "--out", str(out),
+                              "--workers", "1", "--resume"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    said = "note: its records were made by 2 versions of pkmctl's code: "
+    assert said in res.stderr and "0123456789abcdef0123" in res.stderr, res.stderr
+    res = runner.invoke(app, ["campaign", "report", str(out)])
+    assert res.exit_code == 0, res.output
+    report = " ".join((out / "report" / "report.md").read_text().split())
+    assert "**Note**: its records were made by 2 versions of pkmctl's code" in report
+    fresh = tmp_path / "f"
+    run_campaign(CampaignSpec.from_toml(spec_file), fresh, workers=1)
+    from pkmctl.campaign.store import mixed_versions
+
+    assert mixed_versions(fresh) == ""

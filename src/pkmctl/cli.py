@@ -1206,6 +1206,11 @@ def campaign_run(
             f"{done.errors} failed with an error; records in {out}/runs"
         )
     )
+    if done.done_before:  # a resume after an upgrade mixed two versions' records, unsaid
+        from pkmctl.campaign.store import mixed_versions
+
+        if mixed := mixed_versions(out):
+            _say(f"note: {mixed}")
     if done.errors:  # why, in the words of the errors (a divergence is the metrics' part)
         import shlex
 

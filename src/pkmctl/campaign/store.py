@@ -266,6 +266,28 @@ def uncompiled_combinations(spec: CampaignSpec) -> set[tuple[str, str]]:
     }
 
 
+def mixed_versions(out: str | Path) -> str:
+    """A sentence when the campaign in ``out`` was run by more than one version of pkmctl's
+    code (its sessions' ``pkmctl_sources``; a resume after an upgrade), else "". Records
+    of both are kept and cannot be told apart (a tester: nothing said it)."""
+    try:
+        sessions = json.loads((Path(out) / "campaign.json").read_text(encoding="utf-8"))
+        sessions = sessions.get("sessions", [])
+    except (OSError, ValueError, AttributeError):
+        return ""
+    seen: dict[str, str] = {}
+    for entry in sessions:
+        if isinstance(entry, dict) and entry.get("pkmctl_sources"):
+            seen.setdefault(entry["pkmctl_sources"], str(entry.get("pkmctl", "?")))
+    if len(seen) < 2:
+        return ""
+    named = ", ".join(f"{v} (sources {k})" for k, v in seen.items())
+    return (
+        f"its records were made by {len(seen)} versions of pkmctl's code: {named}, in the "
+        "order of their sessions in campaign.json; run into another folder to keep them apart"
+    )
+
+
 def _part_files(part) -> list[str]:
     """The user's source files of a part: those its compiled loop's cache hashes
     (:attr:`~pkmctl.parts.Part.sources`) and those of its Python functions (``build``,

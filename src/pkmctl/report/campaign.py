@@ -17,7 +17,7 @@ from matplotlib.figure import Figure
 
 from pkmctl.campaign import stats
 from pkmctl.campaign.spec import CampaignSpec, SpecError
-from pkmctl.campaign.store import factor_column, read_records, read_spec
+from pkmctl.campaign.store import factor_column, mixed_versions, read_records, read_spec
 from pkmctl.io.atomic import atomic_write, staged_folder
 
 __all__ = ["REPORT_FILES", "comparison_lines", "write_report"]
@@ -535,6 +535,7 @@ def write_report(out: str | Path, cancel=None) -> list[Path]:
         f"counts only when its interval excludes zero, over at least {stats.MIN_PAIRS} pairs.",
         "",
         *(line for note in spec.fuzzy_offset_notes() for line in (f"**Warning**: {note}.", "")),
+        *((f"**Note**: {mixed}.", "") if (mixed := mixed_versions(out)) else ()),
         "## Which controller is better where",
         "",
     ]
