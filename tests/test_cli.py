@@ -267,7 +267,12 @@ def test_console_entry_freezes_the_objects_for_a_quick_exit(monkeypatch, capsys)
         for sig, handler in before.items():
             signal.signal(sig, handler)
     assert exit_.value.code in (0, None)
-    assert capsys.readouterr().out.strip() == f"pkmctl {pkmctl.__version__}"
+    from pkmctl import _jit
+
+    assert capsys.readouterr().out.strip() == (
+        f"pkmctl {pkmctl.__version__} (sources {_jit.package_stamp()}, kernels "
+        f"{_jit.source_stamp()})"
+    )
     assert frozen > 10_000  # every object the imports made
     # its work done and said: a signal in the shutdown was a silent exit 130, or a
     # traceback of the atexit functions with exit 0 (a tester)

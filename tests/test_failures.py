@@ -690,7 +690,12 @@ def test_non_finite_step_input_raises_and_leaves_the_state(name, bad):
 # ---------------------------------------------------------------- first-run honesty
 def test_version_and_help_texts():
     res = runner.invoke(app, ["--version"])
-    assert res.exit_code == 0 and res.output.strip() == f"pkmctl {pkmctl.__version__}"
+    from pkmctl import _jit
+
+    assert res.exit_code == 0 and res.output.strip() == (
+        f"pkmctl {pkmctl.__version__} (sources {_jit.package_stamp()}, kernels "
+        f"{_jit.source_stamp()})"
+    )
     for args, words in (
         (["scenario", "--help"], ["paper-1khz"]),
         (["reproduce", "--help"], ["paper-1khz", "Parquet"]),

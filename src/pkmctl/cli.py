@@ -271,8 +271,14 @@ def _interruptible(work: Callable[[], T], on_interrupt: Callable[[], str]) -> T:
 def _version(value: bool) -> None:
     if value:
         import pkmctl
+        from pkmctl import _jit
 
-        typer.echo(f"pkmctl {pkmctl.__version__}")
+        # the hashes outputs record ("Made by pkmctl 0.2.0 (sources ..., kernels ...)"):
+        # one version number covers many states of the code (a tester)
+        typer.echo(
+            f"pkmctl {pkmctl.__version__} (sources {_jit.package_stamp()}, kernels "
+            f"{_jit.source_stamp()})"
+        )
         raise typer.Exit()
 
 
