@@ -35,6 +35,7 @@ row count is not ``samples``).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import io
 import json
@@ -113,6 +114,11 @@ def provenance() -> dict:
     sources (``pkmctl_sources``: every module; ``kernel_sources``: the compiled ones, which
     key the disk cache), and Python's, NumPy's and Numba's versions. Only campaign.json
     said which pkmctl made it (a tester)."""
+    return dict(_provenance())
+
+
+@functools.cache
+def _provenance() -> dict:
     import platform
     from importlib.metadata import version
 

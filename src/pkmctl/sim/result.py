@@ -28,8 +28,10 @@ class Result:
     "sensor", "controller", "actuator") to its state array at the end; ``parts`` maps it
     to the part's name. ``success`` is False only for a partial result kept in a
     :class:`~pkmctl.SimulationDiverged`; ``message`` says why. ``info`` holds
-    ``kernel_seconds`` (wall time of the compiled loop) and ``steps`` (control periods
-    run). ``loop_metrics``: the metrics the loop accumulated over every period
+    ``kernel_seconds`` (wall time of the compiled loop), ``steps`` (control periods
+    run) and ``software`` (:func:`pkmctl.io.results.provenance` of the pkmctl that ran
+    it; a loaded result's is what its JSON says, None before 0.2.0). ``loop_metrics``:
+    the metrics the loop accumulated over every period
     (:class:`pkmctl.sim.metrics.LoopMetrics`; what :mod:`pkmctl.sim.metrics` reports when
     the log is decimated).
     """
@@ -58,6 +60,12 @@ class Result:
     message: str = "ok"
     info: dict = field(default_factory=dict)
     loop_metrics: LoopMetrics | None = None
+
+    def __post_init__(self) -> None:
+        if "software" not in self.info:  # what made the run (a loaded result has its own)
+            from pkmctl.io.results import provenance
+
+            self.info["software"] = provenance()
 
     @property
     def every(self) -> int:
