@@ -679,7 +679,7 @@ def simulate(
     """Run one controller on a scenario; write its time series (Parquet by default, or
     CSV) and its metadata (JSON) into OUT, both at once."""
     from pkmctl.io.atomic import check_output_folder, discard, staged_folder
-    from pkmctl.io.results import FORMATS, save_result
+    from pkmctl.io.results import FORMATS, remove_other_formats, save_result
     from pkmctl.sim.simulate import simulate as run
 
     if fmt not in FORMATS:
@@ -745,10 +745,7 @@ def simulate(
     _KEPT["note"] = _kept(out, existed, stage)
     # the run's time series in the other format, of an earlier run, would now disagree
     # with the metadata beside it
-    stale = [out / f"{controller}.{f}" for f in FORMATS if f != fmt]
-    stale = [p for p in stale if p.is_file() or p.is_symlink()]
-    for path in stale:
-        path.unlink()
+    stale = remove_other_formats(out, controller, fmt)
     console.print(_rmse_table({controller: result}, f"RMSE, scenario {sc.name!r}"))
     for line in _limit_notes(result):
         console.print(Text(line))

@@ -28,7 +28,7 @@ import numpy as np
 
 from pkmctl import _jit  # (so spelled: this module holds no compiled code)
 from pkmctl.io.atomic import atomic_write, check_output_folder, staged_folder
-from pkmctl.io.results import save_result
+from pkmctl.io.results import remove_other_formats, save_result
 from pkmctl.sim.loop import is_compiled
 from pkmctl.sim.result import Result
 from pkmctl.sim.scenario import Scenario, ScenarioError
@@ -202,10 +202,8 @@ def reproduce(
             fh.write(report)
         names.append(stage / "report.md")
         files = [out / p.relative_to(stage) for p in names]
-    for c in CONTROLLER_ORDER:  # a run's table in the other format, an earlier run's,
-        stale = out / "timeseries" / f"{c}.csv"  # beside the json of this one (a tester)
-        if stale.is_file() or stale.is_symlink():
-            stale.unlink()
+    for c in CONTROLLER_ORDER:  # an earlier run's table in the other format, beside the
+        remove_other_formats(out / "timeseries", c, "parquet")  # json of this one
     t_end = time.perf_counter()
     phases = {
         "before": t_runs - t0,

@@ -216,11 +216,21 @@ def save_result(
         if exc.filename is not None:
             raise
         raise OSError(exc.errno, exc.strerror or str(exc), str(table_path)) from exc
-    for other in FORMATS:  # (it stayed beside a json of another run; identify trusted it)
-        stale = directory / f"{stem}.{other}"
+    remove_other_formats(directory, stem, fmt)
+    return table_path, json_path
+
+
+def remove_other_formats(directory: Path, stem: str, fmt: str) -> list[Path]:
+    """Remove ``<stem>.<format>`` in ``directory`` for every format but ``fmt``: an earlier
+    run's table, which stayed beside a new ``<stem>.json`` that does not describe it
+    (``identify`` then trusted that json). Returns the files removed."""
+    gone = []
+    for other in FORMATS:
+        stale = Path(directory) / f"{stem}.{other}"
         if other != fmt and (stale.is_file() or stale.is_symlink()):
             stale.unlink()
-    return table_path, json_path
+            gone.append(stale)
+    return gone
 
 
 #: Rows a CSV block formats at once (bounded memory: a 10 s run's file is 330 MB).
