@@ -64,6 +64,13 @@ class SimulationDiverged(PkmctlError, RuntimeError):
         self.partial = partial
 
 
+def short_repr(value, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters ("..." at the end) for a one-line
+    message: a 100,000-character value made a line of 100,200 (a fuzzer)."""
+    shown = repr(value)
+    return shown if len(shown) <= limit else shown[: limit - 3] + "..."
+
+
 def toml_error(exc: Exception, text: str) -> str:
     """A TOML parse error with the line it points at: Python's "Cannot overwrite a value
     (at line 84, column 11)" named no key (a duplicated ``eps = ...``: a fuzzer)."""
@@ -75,5 +82,4 @@ def toml_error(exc: Exception, text: str) -> str:
     if m is None or not 1 <= int(m.group(1)) <= len(lines):
         return message
     line = lines[int(m.group(1)) - 1].strip()
-    shown = repr(line if len(line) <= 60 else line[:57] + "...")
-    return f"{message}: {shown}" if line else message
+    return f"{message}: {short_repr(line)}" if line else message

@@ -88,7 +88,7 @@ from numba.core import types
 from numba.extending import overload
 
 from pkmctl._jit import JIT_OPTIONS, NO_REFCOUNT
-from pkmctl.errors import PkmctlError
+from pkmctl.errors import PkmctlError, short_repr
 
 if TYPE_CHECKING:
     from pkmctl.control.gains import Gains
@@ -306,12 +306,10 @@ def get_part(kind: str, name: str) -> Part:
     try:
         return reg[name]
     except (KeyError, TypeError):
-        shown = repr(name)  # (cut: a 100,000-character kind was echoed whole)
-        shown = shown if len(shown) <= 60 else shown[:57] + "..."
         raise PartError(
-            f"{kind} = {shown}: must be one of {', '.join(sorted(reg))} (a part of your own is "
-            "registered by importing its module: pkmctl --plugin FILE.py, or a Dask worker's "
-            "--preload FILE.py)"
+            f"{kind} = {short_repr(name)}: must be one of {', '.join(sorted(reg))} (a part of "
+            "your own is registered by importing its module: pkmctl --plugin FILE.py, or a "
+            "Dask worker's --preload FILE.py)"
         ) from None
 
 

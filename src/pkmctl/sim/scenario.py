@@ -40,7 +40,7 @@ from pydantic import (
 from pydantic.fields import FieldInfo
 
 from pkmctl.control.gains import BASELINE_GAINS, TABLE3, Gains
-from pkmctl.errors import InvalidPoseError, PkmctlError
+from pkmctl.errors import InvalidPoseError, PkmctlError, short_repr
 from pkmctl.fuzzy import FLC, FuzzySystem, MamdaniSystem
 from pkmctl.fuzzy.engine import FuzzyWarning
 from pkmctl.fuzzy.fis import FISError, read_fis
@@ -437,11 +437,9 @@ def _check_kind(kind: str, name: str) -> str:
 
     known = names(kind)
     if name not in known:
-        shown = repr(name)  # (cut: a 100,000-character kind was echoed whole)
-        shown = shown if len(shown) <= 60 else shown[:57] + "..."
         raise ValueError(
-            f"{shown}: unknown {kind} (registered: {', '.join(known)}; a part of your own "
-            "is registered by importing its module: in Python, import it first; on the "
+            f"{short_repr(name)}: unknown {kind} (registered: {', '.join(known)}; a part of "
+            "your own is registered by importing its module: in Python, import it first; on the "
             "command line, pkmctl --plugin FILE.py COMMAND)"
         )
     return name
@@ -719,9 +717,8 @@ class Scenario(_Model):
         # the name heads reports and tables: a newline in it broke report.md's heading
         # also U+0085, U+2028, and the bidi controls (U+202E reversed what a report shows)
         if any(unicodedata.category(c) in ("Cc", "Zl", "Zp") or c in _BIDI for c in v):
-            shown = repr(v) if len(repr(v)) <= 60 else repr(v)[:57] + "..."
             raise ValueError(
-                f"= {shown}: must be one line of printable text (no newline, tab, control "
+                f"= {short_repr(v)}: must be one line of printable text (no newline, tab, control "
                 "or bidirectional control character)"
             )
         return v
@@ -1235,9 +1232,8 @@ def _one_line(exc: ValidationError) -> str:
     loc = _loc_text(parts)
     if err["type"] == "union_tag_invalid":  # an unknown trajectory kind
         ctx = err.get("ctx", {})
-        tag = repr(ctx.get("tag"))  # (cut: a 100,000-character kind was echoed whole)
         return (
-            f"{loc}.kind = {tag if len(tag) <= 60 else tag[:57] + '...'}: must be one of "
+            f"{loc}.kind = {short_repr(ctx.get('tag'))}: must be one of "
             f"{str(ctx.get('expected_tags', '')).replace(chr(39), '')}"
         )
     msg = err["msg"].removeprefix("Value error, ")
@@ -1264,9 +1260,8 @@ def _one_line(exc: ValidationError) -> str:
             + (", or left out" if optional else "")
         )
     value = err.get("input")
-    shown = repr(value)
-    if len(shown) > 60:
-        shown = shown[:57] + "..."
+    shown = short_repr(value)
+    if shown != repr(value):
         if isinstance(value, list):  # its length, which the cut text hides (35 for 36)
             shown += f" ({len(value)} numbers)"
     more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
