@@ -293,3 +293,28 @@ def test_a_resaved_result_keeps_the_software_that_made_it(runs, tmp_path):
     meta.write_text(json.dumps(old))
     _, meta3 = save_result(load_result(meta), tmp_path / "c")
     assert json.loads(meta3.read_text())["software"] is None
+
+
+def test_reading_the_tables_leaves_an_interpreter_that_exits(runs, tmp_path):
+    """pyarrow given a Python file object (to read a path that is not UTF-8 under
+    LANG=C) aborted the interpreter at exit: "terminate called without an active
+    exception", in 2 of 8 runs here (apache/arrow#34314, #50482). It gets its own file on
+    the path's bytes now. Ten processes, each reading a run's table and a campaign task
+    file as pkmctl does, must all exit 0."""
+    import subprocess
+    import sys
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table, _ = save_result(runs["seed0"], tmp_path)
+    pq.write_table(pa.table({"a": np.arange(100_000.0)}), tmp_path / "task.parquet")
+    code = (
+        "import sys\nfrom pathlib import Path\n"
+        "from pkmctl.campaign.store import _read\nfrom pkmctl.ident.identify import _read_table\n"
+        "_read(Path(sys.argv[2]))\n_read_table(Path(sys.argv[1]))\n"
+    )
+    for _ in range(10):
+        r = subprocess.run([sys.executable, "-c", code, str(table), str(tmp_path / "task.parquet")],
+                           capture_output=True, text=True, timeout=60)  # fmt: skip
+        assert r.returncode == 0, r.stderr

@@ -28,6 +28,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import os
 import re
 from pathlib import Path
 
@@ -700,7 +701,9 @@ def _read(path: Path, **options) -> pa.Table:
     whole or not at all, so something else damaged it: pyarrow said only "Parquet magic
     bytes not found in footer")."""
     try:
-        with open(path, "rb") as fh:  # (a path went to pyarrow as UTF-8: LANG=C failed)
+        # pyarrow's file on the path's bytes (a str path went to pyarrow as UTF-8: LANG=C
+        # failed; a Python file object aborted the interpreter at exit, apache/arrow#50482)
+        with pa.OSFile(os.fsencode(path)) as fh:
             return pq.read_table(fh, **options)
     except (pa.ArrowException, OSError) as exc:
         why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__

@@ -217,9 +217,12 @@ def _read_table(path: Path, what: str = "log") -> tuple[dict, dict[str, int], li
     one), the names that occur more than once (name: count; not read) and the header."""
     where = f"{what} {_printable(str(path))!r}"
     check_log_file(path, what=what)
-    try:  # (a file, not its path: pyarrow takes a path as UTF-8, and a non-ASCII one
-        # under LANG=C was "binary data, neither a Parquet file nor a CSV table")
-        with open(path, "rb") as fh:
+    try:  # (pyarrow's file on the path's bytes: pyarrow takes a str path as UTF-8, and a
+        # non-ASCII one under LANG=C was "binary data, neither a Parquet file nor a CSV
+        # table"; a Python file object aborted the interpreter at exit, apache/arrow#50482)
+        import pyarrow as pa
+
+        with pa.OSFile(os.fsencode(path)) as fh:
             if path.suffix.lower() == ".parquet":
                 import pyarrow.parquet as pq
 

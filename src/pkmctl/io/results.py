@@ -39,6 +39,7 @@ import functools
 import hashlib
 import io
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -258,8 +259,12 @@ def _write_table(path: Path, names: list[str], columns: list[np.ndarray], fmt: s
     table = pa.table(dict(zip(names, columns, strict=True)))
     # Byte-stream-split + zstd suits floating-point series (a standard Parquet encoding):
     # 8x faster to write and 40 % smaller than the dictionary default.
-    with open(path, "wb") as fh:  # (pyarrow takes a path as UTF-8: a non-ASCII folder
-        pq.write_table(  # under LANG=C was a UnicodeEncodeError)
+    # pyarrow's own file on the path's bytes: a str path goes to pyarrow as UTF-8 (a
+    # non-ASCII folder under LANG=C was a UnicodeEncodeError), and a Python file object
+    # makes pyarrow's thread pool call back into Python, which aborted the interpreter at
+    # exit ("terminate called without an active exception": apache/arrow#34314, #50482)
+    with pa.OSFile(os.fsencode(path), "wb") as fh:
+        pq.write_table(
             table,
             fh,
             compression="zstd",
