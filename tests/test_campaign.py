@@ -5,9 +5,9 @@ import json
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -174,12 +174,6 @@ def test_interrupted_then_resumed_equals_uninterrupted(spec_file, reference, tmp
     assert sorted(tasks) == list(range(len(spec.tasks())))
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @contextlib.contextmanager
 def _cluster(n_workers: int, *, deadline_s: float = 180.0, dashboard: bool = False,
              worker_args: tuple[str, ...] = (), pythonpath: tuple[str, ...] = (),
@@ -189,24 +183,31 @@ def _cluster(n_workers: int, *, deadline_s: float = 180.0, dashboard: bool = Fal
     and can kill), each started with ``worker_args`` too (``--preload``) and
     ``pythonpath`` first on its path. Yields (address, worker processes). A watchdog stops
     every process after ``deadline_s``, so a hung campaign fails the test instead of
-    hanging it."""
+    hanging it.
+
+    The scheduler binds ports it chooses itself (port 0) and says its address in a
+    scheduler file. A port chosen here and closed before the scheduler bound it could be
+    taken meanwhile by another test's cluster (its dashboards take random ports): the
+    scheduler then died and the client, talking to an HTTP server, saw "Stream is closed"
+    for a minute (once, on an empty cache, when imports were slow)."""
     pytest.importorskip("distributed")
     from distributed import Client
 
-    port = _free_port()
-    address = f"tcp://127.0.0.1:{port}"
     env = dict(os.environ)
     src = str(Path(pkmctl.__file__).resolve().parents[1])
     env["PYTHONPATH"] = os.pathsep.join([*pythonpath, src, env.get("PYTHONPATH", "")])
     # a task outlives 3 lost workers
     env["DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES"] = str(allowed_failures)
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": env}
+    folder = tempfile.TemporaryDirectory(prefix="pkmctl-cluster-")
+    scheduler_file = Path(folder.name) / "scheduler.json"
     # loopback only: --no-dashboard alone still serves HTTP on 0.0.0.0:8787 (scheduler)
     # and 0.0.0.0 at a random port (each worker)
-    board = ["--dashboard-address", f"127.0.0.1:{_free_port()}"]
     scheduler = subprocess.Popen(
         [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
-         "--port", str(port), *board, *([] if dashboard else ["--no-dashboard"])], **quiet,
+         "--port", "0", "--dashboard-address", "127.0.0.1:0",
+         "--scheduler-file", str(scheduler_file), *([] if dashboard else ["--no-dashboard"])],
+        **quiet,
     )  # fmt: skip
     workers = []
     procs = [scheduler]
@@ -219,6 +220,17 @@ def _cluster(n_workers: int, *, deadline_s: float = 180.0, dashboard: bool = Fal
     watchdog = threading.Timer(deadline_s, stop)
     watchdog.start()
     try:
+        deadline = time.monotonic() + 60
+        address = None
+        while address is None:
+            if scheduler.poll() is not None:
+                raise RuntimeError(f"the test's dask scheduler exited ({scheduler.returncode})")
+            if time.monotonic() > deadline:
+                raise TimeoutError("the test's dask scheduler wrote no address in 60 s")
+            try:
+                address = json.loads(scheduler_file.read_text())["address"]
+            except (OSError, ValueError, KeyError):  # not yet written, or half
+                time.sleep(0.2)
         for _ in range(n_workers):
             workers.append(
                 subprocess.Popen(
@@ -261,6 +273,7 @@ def _cluster(n_workers: int, *, deadline_s: float = 180.0, dashboard: bool = Fal
                 p.wait(10)
             except subprocess.TimeoutExpired:
                 p.kill()
+        folder.cleanup()
 
 
 @pytest.mark.cluster
