@@ -182,3 +182,22 @@ def test_drawn_values_are_named_in_the_fewest_digits_that_tell_them_apart():
         "2.0000000001",
         "2.0000000002",
     ]
+
+
+def test_the_interval_of_a_mean_stays_where_the_metric_can_be():
+    """Two seeds far apart: the widened interval of an RMSE's mean went to -0.004 mm in a
+    tester's summary.csv, a bar off the bottom of a log axis. Every campaign metric is
+    >= 0, so the interval of a mean is cut at 0 (in summary.csv and the figures); a paired
+    difference, which may be negative, keeps its own."""
+    spec = CampaignSpec.from_toml(SPEC.replace("seeds = 8", "seeds = 2"))
+    table = _records(spec, lambda cell, ctrl, seed: [0.001, 0.03][seed])
+    x = np.array([0.001, 0.03])
+    lo, hi = stats.bootstrap_interval(x, seed=1)
+    assert lo < 0 < hi  # what the cut is for
+    for r in stats.cell_stats(spec, table, [METRIC]):
+        assert r["lo"] == 0.0 and r["hi"] > x.mean(), r
+    for r in stats.by_factor(spec, table, METRIC, "payload.mass"):
+        assert r["lo"] == 0.0 and r["hi"] > x.mean(), r
+    d = stats.comparison(spec, _records(spec, lambda c, ctrl, s: [0.001, 0.03][s ^ (ctrl == "pd")]),
+                         "smc", "pd", [METRIC])  # fmt: skip
+    assert min(r["lo"] for r in d) < 0  # differences are not cut
