@@ -201,3 +201,31 @@ def test_the_interval_of_a_mean_stays_where_the_metric_can_be():
     d = stats.comparison(spec, _records(spec, lambda c, ctrl, s: [0.001, 0.03][s ^ (ctrl == "pd")]),
                          "smc", "pd", [METRIC])  # fmt: skip
     assert min(r["lo"] for r in d) < 0  # differences are not cut
+
+
+def test_campaign_figures_draw_each_controller_in_its_reproduce_colour(tmp_path):
+    """A campaign's figure took matplotlib's colour cycle in the spec's order: with
+    controllers ["afsmc", "smc"], AFSMC was orange (FSMC's colour in reproduce's figures)
+    and SMC green (AFSMC's) in the next campaign."""
+    import matplotlib.image
+
+    from pkmctl.report.campaign import _plot, _tick
+    from pkmctl.report.figures import _color, controller_colors
+
+    assert controller_colors(["afsmc", "mine", "smc", "yours"]) == {
+        "afsmc": _color("afsmc"), "smc": _color("smc"), "mine": "C5", "yours": "C6"
+    }  # fmt: skip
+    spec = CampaignSpec.from_toml(
+        SPEC.replace('["pd", "smc"]', '["afsmc", "smc"]').replace('"pd"', '"afsmc"')
+    )
+    table = _records(spec, lambda cell, ctrl, seed: 0.1 + 0.2 * (ctrl == "afsmc") + 0.01 * seed)
+    _plot(spec, table, METRIC, "payload.mass", tmp_path / "f.png")
+    rgb = (matplotlib.image.imread(tmp_path / "f.png")[..., :3] * 255).round()
+
+    def pixels(color):
+        return int((np.abs(rgb - np.array(color)).sum(-1) < 30).sum())
+
+    tab10 = {"smc": (31, 119, 180), "fsmc": (255, 127, 14), "afsmc": (44, 160, 44)}
+    assert pixels(tab10["afsmc"]) > 100 and pixels(tab10["smc"]) > 100
+    assert pixels(tab10["fsmc"]) == 0
+    assert _tick([10.0, 10.0, 10.0]) == "[10, 10, 10]"  # was "[10.0, 10.0, 10.0]", overlapping

@@ -307,23 +307,41 @@ def _metric_label(metric: str) -> str:
     return metric
 
 
+def _tick(x) -> str:
+    """A factor's value under its point: :func:`_level`, a list's numbers as short
+    (``[10, 10, 10]``, not ``[10.0, 10.0, 10.0]``: the ticks of ``disturbance.amplitude``
+    ran into each other)."""
+    if isinstance(x, list):
+        return "[" + ", ".join(_tick(v) for v in x) + "]"
+    return _level(x)
+
+
 def _plot(spec, table, metric: str, factor: str, path: Path) -> int:
-    """One figure: ``metric`` against ``factor``, per controller, with intervals; the
-    points in the order of the factor's values (numbers: ascending). A point whose runs
-    did not all end ok is marked with how many failed (left out of its mean); a value
-    where every run failed is an x on the axis. Returns the runs left out."""
+    """One figure: ``metric`` against ``factor``, per controller (each in its colour of
+    ``reproduce``), with intervals; the points in the order of the factor's values
+    (numbers: ascending, on a log axis when they are positive and span 10x or more). A
+    point whose runs did not all end ok is marked with how many failed (left out of its
+    mean); a value where every run failed is an x on the axis. Returns the runs left
+    out."""
     from matplotlib.transforms import blended_transform_factory
 
+    from pkmctl.report.figures import controller_colors
+    from pkmctl.report.tables import controller_label
+
     rows = stats.by_factor(spec, table, metric, factor)
-    fig = Figure(figsize=(6, 4))
+    fig = Figure(figsize=(7, 4.5))
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     values = list(dict.fromkeys(repr(r["value"]) for r in rows))
     numeric = all(
         isinstance(r["value"], int | float) and not isinstance(r["value"], bool) for r in rows
     )
+    xs_all = [float(r["value"]) for r in rows] if numeric else []
+    if numeric and min(xs_all) > 0 and max(xs_all) >= 10 * min(xs_all):
+        ax.set_xscale("log")  # control periods 80x apart: the smallest was at the left edge
+    colors = controller_colors(spec.controllers)
     on_axis = blended_transform_factory(ax.transData, ax.transAxes)
-    left_out = 0
+    left_out, all_failed = 0, []
     for k, ctrl in enumerate(spec.controllers):
         mine = [r for r in rows if r["controller"] == ctrl]
         if numeric:  # a line in the order of x, not of the cells (one-at-a-time: the centre first)
@@ -336,8 +354,9 @@ def _plot(spec, table, metric: str, factor: str, path: Path) -> int:
             [max(r["mean"] - r["lo"], 0) if math.isfinite(r["lo"]) else 0 for r in mine],
             [max(r["hi"] - r["mean"], 0) if math.isfinite(r["hi"]) else 0 for r in mine],
         ]
-        line = ax.errorbar(xs, ys, yerr=err, marker="o", capsize=3, label=ctrl)
-        color = line[0].get_color()
+        color = colors[ctrl]
+        ax.errorbar(xs, ys, yerr=err, marker="o", capsize=3, color=color,
+                    label=controller_label(ctrl))  # fmt: skip
         for x, r in zip(xs, mine, strict=True):
             if not r["failed"]:
                 continue
@@ -350,23 +369,31 @@ def _plot(spec, table, metric: str, factor: str, path: Path) -> int:
                 y = 0.02 + 0.06 * k
                 ax.plot([x], [y], marker="x", color=color, transform=on_axis,
                         clip_on=False, linestyle="none")  # fmt: skip
-                ax.annotate(f"{ctrl}: all {r['failed']} failed", (x, y), xycoords=on_axis,
-                            xytext=(4, -3), textcoords="offset points", fontsize=7,
-                            color=color)  # fmt: skip
+                all_failed.append((x, y, f"{controller_label(ctrl)}: all {r['failed']} failed",
+                                   color))  # fmt: skip
     if not numeric:
-        ax.set_xticks(range(len(values)), [_level(r["value"]) for r in rows[: len(values)]])
+        labels = [_tick(r["value"]) for r in rows[: len(values)]]
+        long = sum(len(t) for t in labels) > 60 or max(len(t) for t in labels) > 14
+        ax.set_xticks(range(len(values)), labels, rotation=20 if long else 0,
+                      ha="right" if long else "center", fontsize=8)  # fmt: skip
     means = [r["mean"] for r in rows if math.isfinite(r["mean"])]
     if means and min(means) > 0 and max(means) >= 20 * min(means):
         ax.set_yscale("log")  # controllers 20x apart: on a linear axis the best are a line at 0
+    ax.autoscale_view()
+    for x, y, text, color in all_failed:  # inside the axes: at the right, written leftwards
+        right = ax.transAxes.inverted().transform(ax.transData.transform((x, 1.0)))[0] > 0.5
+        ax.annotate(text, (x, y), xycoords=on_axis, xytext=(-6 if right else 4, -3),
+                    textcoords="offset points", fontsize=7, color=color,
+                    ha="right" if right else "left")  # fmt: skip
     unit = _FACTOR_UNITS.get(factor)
     ax.set_xlabel(f"{factor} ({unit})" if unit else factor)
     ax.set_ylabel(f"{_metric_label(metric)}\nmean, 95 % interval")
-    ax.set_title(metric, fontsize=8)  # the record's column, for queries
+    ax.set_title(f"{metric} against {factor}", fontsize=9)  # the record's column, for queries
     ax.legend()
     ax.grid(alpha=0.3)
     fig.tight_layout()
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
+    fig.savefig(buf, format="png", dpi=100)
     with atomic_write(path, "wb") as fh:
         fh.write(buf.getvalue())
     return left_out

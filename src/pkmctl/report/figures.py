@@ -24,7 +24,7 @@ budget so the transient stays resolved.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -68,6 +68,18 @@ def _color(name: str) -> str:
     """A controller's colour: the same in every figure (tab10, in CONTROLLER_ORDER)."""
     i = CONTROLLER_ORDER.index(name) if name in CONTROLLER_ORDER else len(CONTROLLER_ORDER)
     return f"C{i % 10}"
+
+
+def controller_colors(names: Sequence[str]) -> dict[str, str]:
+    """Each of ``names``' colour: the paper's controllers their own (:func:`_color`, as in
+    ``reproduce``), any other the next tab10 colour none of those has, in the order given
+    (a campaign's figures took matplotlib's cycle in the spec's order, so AFSMC was
+    orange, FSMC's colour, in one and blue in the next)."""
+    free = [f"C{i}" for i in range(len(CONTROLLER_ORDER), 10)]
+    others = [n for n in names if n not in CONTROLLER_ORDER]
+    return {
+        n: _color(n) if n in CONTROLLER_ORDER else free[others.index(n) % len(free)] for n in names
+    }
 
 
 _DESIRED_STYLE = {"color": "black", "linestyle": "--", "linewidth": 1.2, "label": "desired"}
