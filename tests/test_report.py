@@ -124,6 +124,59 @@ def test_make_figures_writes_17_pngs_and_nothing_else(figure_dir) -> None:
         assert data.startswith(PNG_SIGNATURE)
 
 
+def _drawn(number: int, pairs: list[tuple[str, Result]]):
+    """Figure ``number`` drawn (not saved): its Figure and renderer."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from pkmctl.report.figures import _DRAW, _FIGSIZE
+
+    spec = next(s for s in FIGURES if s.number == number)
+    fig = Figure(figsize=_FIGSIZE.get(spec.kind, (8.0, 6.0)))
+    FigureCanvasAgg(fig)
+    _DRAW[spec.kind](fig, spec, pairs)
+    return fig, fig.canvas.get_renderer()
+
+
+def test_curves_on_one_another_share_their_line_in_turns() -> None:
+    """Fig. 24: AFSMC's force lies within 0.3 N of FSMC's and was drawn under it, 0 of its
+    pixels visible in the middle panel (a tester), so the paper's comparison of the two
+    could not be seen. Two equal curves now alternate, dashed, and the legend shows every
+    controller's line solid."""
+    import matplotlib.colors
+
+    from pkmctl.report.figures import _color
+
+    r = pkmctl.simulate("paper", controller="fsmc", duration=0.3)
+    other = pkmctl.simulate("paper", controller="pd", duration=0.3)
+    fig, _ = _drawn(24, [("fsmc", r), ("afsmc", r), ("pd", other)])
+    for ax in fig.axes:
+        lines = {ln.get_label(): ln for ln in ax.get_lines()}
+        assert lines["FSMC"].get_linestyle() != lines["AFSMC"].get_linestyle()  # one dashed
+    fig.canvas.draw()
+    rgb = np.asarray(fig.canvas.buffer_rgba())[..., :3].astype(int)
+    box = fig.axes[2].get_window_extent()  # the detail panel, in pixels from the bottom
+    h = rgb.shape[0]
+    panel = rgb[int(h - box.y1) : int(h - box.y0), int(box.x0) : int(box.x1)]
+    for name in ("fsmc", "afsmc"):
+        color = np.array(matplotlib.colors.to_rgb(_color(name))) * 255
+        assert (np.abs(panel - color).sum(-1) < 30).sum() > 100, name  # both seen
+    legend = fig.axes[0].get_legend()
+    assert all(ln.get_linestyle() == "-" for ln in legend.get_lines()[:3])
+
+
+def test_box_figures_keep_each_label_off_the_other_panel() -> None:
+    """Figs. 21-22: the right panel's y label ran over the left panel's frame, pushed
+    left by long symlog tick labels ("-5x10^-4", in runs past 1 s)."""
+    pairs = [("smc", pkmctl.simulate("paper", controller="smc", duration=2.0))]  # -8 px
+    for number in (20, 21, 22):
+        fig, renderer = _drawn(number, pairs)
+        fig.canvas.draw()  # places the labels
+        left, right = fig.axes[:2]
+        label = right.yaxis.label.get_window_extent(renderer)
+        assert label.x0 > left.get_window_extent(renderer).x1, number
+
+
 def test_figure_window_is_the_samples_between_its_ends() -> None:
     import numpy as np
 
