@@ -553,3 +553,24 @@ def test_the_report_says_who_chatters_and_whether_afsmc_is_smoother(
     assert lines[0].startswith("- **SMC chatters**: its chattering index on τ2 7.1e+04 N/s "
                                "and τ4 7.2e+04 N/s is 19.5 × the median")  # fmt: skip
     assert len(lines) == 2 and verdict in lines[1]
+
+
+def test_machine_captions_say_no_negative_zero(tmp_path) -> None:
+    """A caption read "alpha = -0.0 deg" at the largest tilt of a tester's run."""
+    from pkmctl.experiment import _machine_section
+
+    X = np.array([0.7, np.radians(-0.04), np.radians(12.25)])
+    text = _machine_section([(tmp_path / "m.png", "largest tilt", 1.0, X)], "", tmp_path)
+    assert "alpha = 0.0 deg, beta = 12.2 deg" in text, text
+
+
+def test_a_panel_the_run_is_too_short_for_shows_no_axes_ticks(results) -> None:
+    """Under 1 s, the after-1-s panels were empty axes with 0-1 ticks and data labels
+    ("z error (mm)", "t (s)") around "run shorter than 1 s": they read as data."""
+    pairs = list(results.items())  # 0.3 s runs
+    for number, ax_index in ((17, 1), (20, 1)):
+        fig, _ = _drawn(number, pairs)
+        ax = fig.axes[ax_index]
+        assert len(ax.get_xticks()) == len(ax.get_yticks()) == 0, number
+        assert ax.get_xlabel() == ax.get_ylabel() == "", number
+        assert any("1 s" in t.get_text() or "no samples" in t.get_text() for t in ax.texts)

@@ -286,7 +286,7 @@ def _machine_images(results: dict[str, Result], folder: Path) -> tuple[list[Path
 def _machine_section(images, note: str, out: Path) -> str:
     lines = ["", "## The machine", "", note, ""]
     for path, name, t, X in images:
-        a, b = np.degrees(X[1:3])
+        a, b = (round(float(v), 1) + 0.0 for v in np.degrees(X[1:3]))  # + 0.0: no "-0.0"
         x = f"z = {X[0]:.3f} m, alpha = {a:.1f} deg, beta = {b:.1f} deg"
         lines.append(f"![{name}]({path.relative_to(out).as_posix()}) {name}, t = {t:.3f} s: {x}")
         lines.append("")

@@ -16,7 +16,8 @@ from pkmctl.io.results import provenance, provenance_line
 
 __all__ = ["OUTPUT_NAMES", "remove_stale", "write_identification"]
 
-_AXES = (("z", "N"), ("alpha", "N m"), ("beta", "N m"))
+#: The figures' three axes, in the style of reproduce's ("α (°)", "t (s)").
+_AXES = (("Jᵀτ, z", "N"), ("Jᵀτ, α", "N·m"), ("Jᵀτ, β", "N·m"))
 
 #: Every file ``pkmctl identify`` may write into its folder: a run removes those of an
 #: earlier run it does not write itself (and never any other file).
@@ -63,12 +64,12 @@ def _figures(idn: Identification, folder: Path, validation: dict | None, source:
 
     fig, axs = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
     for a, (ax, (name, unit)) in enumerate(zip(axs, _AXES, strict=True)):
-        ax.plot(obs.t, obs.y[:, a], color="0.2", lw=1.2, label="measured J^T tau")
+        ax.plot(obs.t, obs.y[:, a], color="0.2", lw=1.2, label="measured Jᵀτ")
         ax.plot(obs.t, yhat[:, a], color="C1", lw=0.9, ls="--", label="predicted (WLS)")
-        ax.set_ylabel(f"{name} [{unit}]")
+        ax.set_ylabel(f"{name} ({unit})")
     axs[0].legend(loc="upper right", fontsize=8)
-    axs[0].set_title(f"Identification data ({Path(source).name}): measured and predicted J^T tau")
-    axs[-1].set_xlabel("t [s]")
+    axs[0].set_title(f"Identification data ({Path(source).name}): measured and predicted Jᵀτ")
+    axs[-1].set_xlabel("t (s)")
     fig.tight_layout()
     save(fig, "fit.png")
 
@@ -76,11 +77,12 @@ def _figures(idn: Identification, folder: Path, validation: dict | None, source:
     for a, (ax, (name, unit)) in enumerate(zip(axs, _AXES, strict=True)):
         ax.plot(obs.t, obs.y[:, a] - yhat[:, a], color="C3", lw=0.8)
         ax.axhline(0.0, color="0.5", lw=0.5)
-        ax.set_ylabel(f"{name} [{unit}]")
+        ax.set_ylabel(f"{name} ({unit})")
     axs[0].set_title(
-        f"Residuals (WLS) on {Path(source).name}, RMS {', '.join(f'{v:.3g}' for v in idn.wls.rms)}"
+        f"Residuals (WLS) on {Path(source).name}, RMS "
+        + ", ".join(f"{v:.3g} {u}" for v, (_, u) in zip(idn.wls.rms, _AXES, strict=True))
     )
-    axs[-1].set_xlabel("t [s]")
+    axs[-1].set_xlabel("t (s)")
     fig.tight_layout()
     save(fig, "residuals.png")
 
@@ -113,13 +115,13 @@ def _figures(idn: Identification, folder: Path, validation: dict | None, source:
             ax.plot(vo.t, vo.y[:, a], color="0.2", lw=1.2, label="measured")
             ax.plot(vo.t, validation["predicted"][:, a], color="C2", lw=0.9, ls="--",
                     label="predicted")  # fmt: skip
-            ax.set_ylabel(f"{name} [{unit}]")
+            ax.set_ylabel(f"{name} ({unit})")
         axs[0].legend(loc="upper right", fontsize=8)
         axs[0].set_title(
             f"Validation on {_tail(validation['source'])} (estimate from {_tail(source)}): "
             f"relative error {100 * validation['relative_error']:.3g} %"
         )
-        axs[-1].set_xlabel("t [s]")
+        axs[-1].set_xlabel("t (s)")
         fig.tight_layout()
         save(fig, "validation.png")
     return out

@@ -301,6 +301,16 @@ def _shared_styles(drawn: list[tuple[str, np.ndarray, np.ndarray]]) -> dict[str,
     return styles
 
 
+def _empty(ax: Axes, text: str) -> None:
+    """A panel with nothing to show in this run: ``text`` in a frame, without the axes'
+    0-1 ticks and labels (they read as data)."""
+    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.set_xlabel("")
+    ax.set_ylabel("")
+
+
 def _legend_above(ax: Axes) -> None:
     """The legend in one row over a band of headroom added above the curves: placed
     "best" inside, it covered the last second of every curve (Figs. 10, 11, 17)."""
@@ -380,14 +390,11 @@ def _draw_error(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) 
             bottom.set_ylim(bottom=floor)
         bottom.set_xlim(RMSE_AFTER_S, t_end)
         bottom.set_title(f"t ≥ {RMSE_AFTER_S:g} s: |error| (log scale)", **_TITLE)
+        bottom.set_ylabel(ylabel)
+        bottom.set_xlabel("t (s)")
     else:
-        bottom.text(
-            0.5, 0.5, f"run shorter than {RMSE_AFTER_S:g} s", ha="center", va="center",
-            transform=bottom.transAxes,
-        )  # fmt: skip
+        _empty(bottom, f"run shorter than {RMSE_AFTER_S:g} s")
         bottom.set_title(f"t ≥ {RMSE_AFTER_S:g} s", **_TITLE)
-    bottom.set_ylabel(ylabel)
-    bottom.set_xlabel("t (s)")
 
 
 def _box_stats(name: str, data: np.ndarray) -> dict:
@@ -478,7 +485,9 @@ def _draw_box(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) ->
                     lin = _symlog(ax, small, 1.0)
                     title += f" (symlog: linear within ±{lin:g})"
         else:
-            ax.text(0.5, 0.5, "no samples", ha="center", va="center", transform=ax.transAxes)
+            _empty(ax, "no samples")
+            ax.set_title(title, **_TITLE)
+            continue
         ax.axhline(0.0, color="black", linewidth=0.6)
         ax.grid(True, axis="y", alpha=0.3)
         ax.set_ylabel(ylabel)
@@ -519,8 +528,8 @@ def _draw_force(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) 
         bottom.set_title(f"detail: {lo:.4g}-{hi:.4g} s", **_TITLE)
     else:
         for ax in (middle, bottom):
-            ax.text(0.5, 0.5, "run too short", ha="center", va="center", transform=ax.transAxes)
-    for ax in (top, middle, bottom):
+            _empty(ax, "run too short")
+    for ax in (top, middle, bottom) if t_end > _FORCE_SPLIT else (top,):
         ax.set_ylabel(ylabel)
         ax.set_xlabel("t (s)")  # three time ranges: each axis says it is time
 
