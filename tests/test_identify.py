@@ -418,6 +418,9 @@ def test_excite_and_identify_commands(tmp_path, exciting, proto):
     assert "Warning" not in r.stderr, r.stderr
     sc = pkmctl.Scenario.from_toml(tmp_path / "ex.toml")
     assert sc.trajectory.kind == "fourier" and len(sc.trajectory.a[0]) == 4
+    # what SLSQP's path depends on beyond the command (its threads changed the design)
+    second = (tmp_path / "ex.toml").read_text().splitlines()[1]
+    assert second.startswith("# designed with pkmctl ") and " thread" in second, second
     _, exc_sc = exciting
     _write_csv(tmp_path / "run.csv", synthetic_log(exc_sc, tau_noise=1.0, quantise=True))
     _write_csv(tmp_path / "val.csv", synthetic_log(proto, duration=6.0, tau_noise=1.0))

@@ -178,7 +178,7 @@ def excite(
     except Exception as exc:
         _handle(ctx, exc)
     base, _ = _scenario_for(ctx, scenario, None)
-    from pkmctl.ident.excite import FORCE_MARGIN, SPEED_MARGIN, design_excitation
+    from pkmctl.ident.excite import FORCE_MARGIN, SPEED_MARGIN, design_excitation, design_software
     from pkmctl.ident.identify import (
         DEFAULT_CUTOFF,
         MIN_HARMONIC_GAIN,
@@ -234,6 +234,8 @@ def excite(
             fh.write(
                 f"# pkmctl excite --scenario {scenario} --harmonics {harmonics} "
                 f"--base-frequency {base_frequency:g} --periods {periods} --seed {seed}\n"
+                f"# designed with {design_software()}: SLSQP's path, and so the design, "
+                "changes with them (docs/identification.md)\n"
             )
             fh.write(sc.to_toml())
     except OSError as exc:

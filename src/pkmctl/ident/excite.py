@@ -166,6 +166,31 @@ def _split(J: np.ndarray, F: np.ndarray) -> np.ndarray:
     return np.einsum("nij,nj->ni", J, np.linalg.solve(JtJ, F[..., None])[..., 0])
 
 
+def design_software() -> str:
+    """What the design's path depends on besides its inputs: pkmctl's, SciPy's and the
+    BLAS libraries' versions and threads, e.g. "pkmctl 0.2.0, SciPy 1.17.1, BLAS
+    openblas 0.3.31 SkylakeX 2 threads". SciPy's SLSQP takes another path when OpenBLAS
+    starts with one thread (``OPENBLAS_NUM_THREADS=1``, ``OMP_NUM_THREADS=1``, one CPU):
+    the last bits of its steps differ and the restarts end elsewhere (cond 4,621 against
+    5,017 by default, a tester), even on an objective that calls no BLAS."""
+    import scipy
+    from threadpoolctl import threadpool_info
+
+    import pkmctl
+
+    blas = sorted(
+        {
+            f"{i.get('internal_api')} {i.get('version')} {i.get('architecture', '')} "
+            f"{i.get('num_threads')} thread{'s' if i.get('num_threads') != 1 else ''}"
+            for i in threadpool_info()
+            if i.get("user_api") == "blas"
+        }
+    )
+    return f"pkmctl {pkmctl.__version__}, SciPy {scipy.__version__}, BLAS " + (
+        "; ".join(" ".join(b.split()) for b in blas) or "unknown"
+    )
+
+
 def design_excitation(
     scenario: Scenario,
     *,
