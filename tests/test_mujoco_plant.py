@@ -134,3 +134,36 @@ def test_a_run_on_the_mujoco_plant_leaves_its_compiled_marker():
     assert precompile(sc, ["smc"]) == []
     # the closed-form plant's loop is another function, with its own marker
     assert resolve_parts(sc, "smc")["plant"].stepper is not None
+
+
+def test_a_sub_step_over_half_the_closures_time_constant_is_refused():
+    """MuJoCo raises a solref time constant under two steps to two steps, silently: at a
+    1 ms sub-step the unforced machine gained 2.6e-4 J in 0.3 s (a tester's oracle)."""
+    from pkmctl.plants import mujoco as mj
+
+    sc = pkmctl.Scenario.builtin("paper").replace(**{"timing.control_period": 1e-3})
+    with pytest.raises(
+        pkmctl.ScenarioError,
+        match=r"^timing\.substeps = 1: with plant\.kind = 'mujoco' the RK4 sub-step "
+        r"\(timing\.control_period / substeps = 0\.001 s\) must be <= 0\.00025 s, .*"
+        r"set timing\.substeps >= 4$",
+    ):
+        _on_mujoco(sc)
+    _on_mujoco(sc.replace(**{"timing.substeps": 4}))  # 0.25 ms: allowed
+    robot = pkmctl.Mechanism.paper()
+    with pytest.raises(ValueError, match=r"^timestep = 0\.001: must be <= 0\.00025 s, half"):
+        mj.build_mjcf(robot, timestep=1e-3)
+    mj.build_mjcf(robot, timestep=2.5e-4)
+    # why: stepped at 1 ms, closures of time constant 0.5 ms move exactly as at 2 ms
+    import mujoco
+
+    qpos = []
+    for tc in (5e-4, 2e-3):
+        model = mj.build_model(robot, timestep=2.5e-4, solref=(tc, 1.0))
+        model.opt.timestep = 1e-3
+        data = mujoco.MjData(model)
+        for _ in range(50):  # the machine falling from home: the closures take the load
+            mujoco.mj_step(model, data)
+        qpos.append(data.qpos.copy())
+    assert np.array_equal(qpos[0], qpos[1])
+    assert np.abs(qpos[0]).max() > 1e-3  # it moved
