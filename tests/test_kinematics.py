@@ -50,6 +50,34 @@ def test_forward_inverse_property(robot, z, a, b):
     np.testing.assert_allclose(robot.forward_kinematics(robot.inverse_kinematics(X)), X, atol=1e-9)
 
 
+def test_forward_kinematics_of_rounded_lengths_is_their_least_squares_pose(robot):
+    """Encoder counts (62.5 nm) fit no pose: forward_kinematics raised "did not converge"
+    on 200 of 200 such sets (a tester), at a converged least-squares pose. It now names
+    them as lengths no pose has, and ``least_squares=True`` gives the pose nearest them:
+    scipy's least_squares on the same residual is the oracle."""
+    from scipy.optimize import least_squares
+
+    res = 0.01 / 160000
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        X = np.array([rng.uniform(0.5, 0.9), *rng.uniform(-0.5, 0.5, 2)])
+        q = res * np.round(robot.inverse_kinematics(X) / res)
+        with pytest.raises(
+            pkmctl.ConvergenceError,
+            match=r"^no pose has the limb lengths q = "
+            r".*: the nearest misses them by .* m \(tol 1e-12 m\); for measured "
+            r"or rounded lengths, forward_kinematics\(q, least_squares=True\)",
+        ):
+            robot.forward_kinematics(q)  # fmt: skip
+        Xls = robot.forward_kinematics(q, least_squares=True)
+        oracle = least_squares(lambda x, q=q: robot.inverse_kinematics(x) - q, X, xtol=1e-15,
+                               ftol=1e-15, gtol=1e-15, method="lm").x  # fmt: skip
+        np.testing.assert_allclose(Xls, oracle, rtol=0, atol=1e-10)
+        assert np.abs(Xls - X).max() < 1e-6  # rounding moves the pose by ~0.1 um
+    with pytest.raises(pkmctl.ConvergenceError, match="did not converge"):  # far from any
+        robot.forward_kinematics(np.array([3.0, 0.5, 0.1, 0.5]), least_squares=True)
+
+
 def test_forward_kinematics_no_convergence(robot):
     # Lengths no pose can have (limb 1 far longer than limb 3 allows).
     with pytest.raises(pkmctl.ConvergenceError, match="residual") as info:
