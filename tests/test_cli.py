@@ -59,6 +59,20 @@ def test_reproduce_end_to_end(tmp_path):
                      r"[\d.]+ s for the report$", said[0]), said  # fmt: skip
 
 
+def test_reproduce_says_why_the_machine_has_no_pictures(tmp_path, monkeypatch):
+    """Without MuJoCo (or an offscreen GL), reproduce said "rendering the machine" and
+    nothing more: only report.md told why it had no pictures (a tester)."""
+    from pkmctl import experiment
+
+    why = "No images of the machine: pkmctl.plants.mujoco needs MuJoCo: pip install x."
+    monkeypatch.setattr(experiment, "_machine_images", lambda results, folder: ([], why))
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["reproduce", "--out", str(out), "--duration", "0.01"])
+    assert res.exit_code == 0, res.output
+    assert f"note: {why}" in res.stderr.splitlines(), res.stderr
+    assert why in (out / "report.md").read_text()
+
+
 def test_reproduce_phases_add_up(tmp_path):
     from pkmctl.experiment import reproduce
 

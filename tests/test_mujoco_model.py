@@ -187,6 +187,10 @@ def test_mujoco_model_command_writes_a_loadable_model(tmp_path):
     assert (model.nv, model.neq, model.nu) == (14, 4, 4)
     assert np.isclose(model.dof_armature.max(), 2.77e-5 * (2 * np.pi / 0.01) ** 2)
     assert [p.name for p in tmp_path.joinpath("m").iterdir()] == ["pkm.xml"]  # no temp left
+    slow = tmp_path / "slow.toml"
+    slow.write_text(
+        pkmctl.Scenario.builtin("paper").replace(**{"timing.control_period": 1e-3}).to_toml()
+    )
     for args, match in (
         (["--out", str(tmp_path)], "is a folder"),
         (["--out", "/proc/no/such/pkm.xml"], "'/proc' is not writable"),
@@ -209,6 +213,10 @@ def test_mujoco_model_command_writes_a_loadable_model(tmp_path):
         (
             ["--out", str(out), "--scenario", "prototype"],  # the scenario's 30 N
             "plant.friction_coulomb = 30.0: MuJoCo's dry friction (frictionloss)",
+        ),
+        (  # a 1 ms step: MuJoCo would raise the closures' 0.5 ms time constant to 2 ms
+            ["--out", str(out), "--scenario", str(slow)],
+            "timing.control_period / timing.substeps = 0.001: must be <= 0.00025 s, half",
         ),
     ):
         res = runner.invoke(app, ["mujoco-model", *args])

@@ -646,6 +646,8 @@ def reproduce(
         f"{ph['report']:.1f} s for the report"
     ))  # fmt: skip
     console.print(Text(f"report: {out / 'report.md'}"))
+    for note in output.notes:  # (README: "without it they say so in one line")
+        _say(f"note: {note}")
 
 
 @app.command()

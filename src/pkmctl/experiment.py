@@ -64,6 +64,9 @@ class ReproduceOutput:
     #: times, on however many cores), ``"figures"`` (from the end of the runs until the
     #: figures and the machine's images are written), ``"report"`` (the rest).
     phases: dict[str, float] = field(default_factory=dict)
+    #: What the user should hear of beside the results: why the machine has no pictures
+    #: (MuJoCo, or an offscreen GL backend, missing; report.md says it too).
+    notes: list[str] = field(default_factory=list)
 
 
 #: The poses :func:`_machine_images` renders, by name (figures/machine_<name>.png).
@@ -212,7 +215,8 @@ def reproduce(
         "figures": t_report - t_figures,
         "report": t_end - t_report,
     }
-    return ReproduceOutput(results=results, files=files, wall_time_s=t_end - t0, phases=phases)
+    return ReproduceOutput(results=results, files=files, wall_time_s=t_end - t0, phases=phases,
+                           notes=[] if images else [note])  # fmt: skip
 
 
 def _run_all(

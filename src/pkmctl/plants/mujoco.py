@@ -394,6 +394,7 @@ SCENARIO_FIELDS = {
     "friction_coulomb": "plant.friction_coulomb",
     "payload_mass": "payload.mass",
     "payload_offset": "payload.offset",
+    "timestep": "timing.control_period / timing.substeps",
 }
 
 
