@@ -80,7 +80,7 @@ import sysconfig
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from types import CodeType, ModuleType
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, TypeVar
 
 import numpy as np
 from numba import njit
@@ -930,8 +930,31 @@ def _others(kind: str, main_role: str) -> str:
     return ", ".join(r for r in ROLES[kind] if r != main_role) or "none"
 
 
-def _decorator(kind: str, main_role: str):
-    def register(name: str, *, params: type, build: Callable | None = None, **options):
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+class _Decorate(Protocol):
+    def __call__(self, fn: _F, /) -> _F: ...
+
+
+class _Register(Protocol):
+    """``register_<kind>(name, params=P, ...)``: a decorator that returns its function
+    unchanged (so a user's annotated step function keeps its types)."""
+
+    def __call__(
+        self,
+        name: str,
+        *,
+        params: type,
+        build: Callable[..., Any] | None = None,
+        **options: Any,
+    ) -> _Decorate: ...
+
+
+def _decorator(kind: str, main_role: str) -> _Register:
+    def register(
+        name: str, *, params: type, build: Callable[..., Any] | None = None, **options: Any
+    ) -> _Decorate:
         extra = {r: options.pop(r) for r in list(options) if r in ROLES[kind]}
         allowed = set(inspect.signature(_register_part).parameters) - {"kind", "name", "functions"}
         unknown = sorted(set(options) - allowed)
@@ -942,7 +965,7 @@ def _decorator(kind: str, main_role: str):
                 f"{', '.join(ROLES[kind])}"
             )
 
-        def deco(fn):
+        def deco(fn: _F, /) -> _F:
             _register(kind, name, {main_role: fn, **extra}, params=params, build=build, **options)
             return fn
 

@@ -27,10 +27,11 @@ import numbers
 import threading
 import time
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numba
 import numpy as np
+from numpy.typing import ArrayLike
 
 from pkmctl._jit import specialise
 from pkmctl.control.gains import Gains
@@ -40,6 +41,9 @@ from pkmctl.fuzzy import FLC, FuzzySystem, MamdaniSystem
 from pkmctl.fuzzy.term import term_system
 from pkmctl.model.mechanism import Mechanism
 from pkmctl.parts import PartContext, controller_step, get_part, global_values, names
+
+if TYPE_CHECKING:
+    from pkmctl.sim.scenario import Scenario
 
 _HALF_PI = math.pi / 2
 
@@ -178,7 +182,7 @@ class Controller:
                                 values=global_values([self.part]))  # fmt: skip
 
     @classmethod
-    def from_scenario(cls, scenario, name: str | None = None) -> Controller:
+    def from_scenario(cls, scenario: Scenario | str, name: str | None = None) -> Controller:
         """Controller ``name`` exactly as a simulation of ``scenario`` builds it: the
         controllers' model (``[controller_model]``, with its rotor inertia and friction
         feed-forward), gains, control period and fuzzy system. For a hardware loop on
@@ -274,7 +278,9 @@ class Controller:
             raw=st.copy(),
         )
 
-    def step(self, X, Xdot, X_d, Xdot_d, Xddot_d) -> np.ndarray:
+    def step(
+        self, X: ArrayLike, Xdot: ArrayLike, X_d: ArrayLike, Xdot_d: ArrayLike, Xddot_d: ArrayLike
+    ) -> np.ndarray:
         """One control period: the task-space force F (3,) (N, N m, N m on z, alpha,
         beta) for the measured (X, Xdot), m and rad, m/s and rad/s. One call is one
         control period of the controller's ``period``: a missed period is not made up.

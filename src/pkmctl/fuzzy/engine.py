@@ -21,7 +21,7 @@ import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import KW_ONLY, dataclass, field
-from typing import NamedTuple
+from typing import NamedTuple, overload
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -506,6 +506,10 @@ class MamdaniSystem:
         arrs = np.broadcast_arrays(*arrs)
         return np.stack([a.reshape(-1) for a in arrs], axis=1), arrs[0].shape
 
+    @overload
+    def __call__(self, *x: float) -> float: ...
+    @overload
+    def __call__(self, *x: ArrayLike) -> float | np.ndarray: ...
     def __call__(self, *x: ArrayLike) -> float | np.ndarray:
         """Crisp output for inputs of any broadcastable shapes.
 

@@ -84,12 +84,12 @@ def _columns(result: Result) -> tuple[list[str], list[np.ndarray]]:
     for name, _, cols in _FIELDS:
         names += list(cols)
         blocks.append(getattr(result, name))
-    if result.q_measured is not None and not np.array_equal(result.q_measured, result.q):
+    if not np.array_equal(result.q_measured, result.q):
         names += list(_MEASURED)  # what an encoder gave (pkmctl identify reads these)
         blocks.append(result.q_measured)
     for name, cols in _SEEN:
         seen, true = getattr(result, name), getattr(result, name.removesuffix("_measured"))
-        if seen is not None and not np.array_equal(seen, true):
+        if not np.array_equal(seen, true):
             names += list(cols)
             blocks.append(seen)
     if result.theta_hat is not None:
@@ -147,7 +147,11 @@ def provenance_line() -> str:
 
 
 def save_result(
-    result: Result, directory: Path, stem: str | None = None, *, fmt: str = "parquet"
+    result: Result,
+    directory: str | os.PathLike[str],
+    stem: str | None = None,
+    *,
+    fmt: str = "parquet",
 ) -> tuple[Path, Path]:
     """Write the time series (``<stem>.parquet`` or ``.csv``) and ``<stem>.json``, both or
     neither: on any error, Ctrl-C included, the folder keeps its previous files. Then the
@@ -325,7 +329,7 @@ def _scenario(meta: dict) -> Scenario:
     return Scenario.from_toml(text)
 
 
-def load_result(json_path: Path) -> Result:
+def load_result(json_path: str | os.PathLike[str]) -> Result:
     """Read a result written by :func:`save_result` (give the ``.json`` path)."""
     json_path = Path(json_path)
     try:

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from pkmctl._jit import kernel
 from pkmctl.errors import ConvergenceError, InvalidPoseError
@@ -360,7 +361,7 @@ class Mechanism:
         _, _, G = _dynamics_batch(self._geom, self.theta, Xb, np.zeros_like(Xb))
         return G[0] if single else G
 
-    def inverse_dynamics(self, X, Xdot, Xddot) -> np.ndarray:
+    def inverse_dynamics(self, X: ArrayLike, Xdot: ArrayLike, Xddot: ArrayLike) -> np.ndarray:
         """M Xddot + C Xdot + G, (3,) or (N, 3): the force F the plant needs (no disturbance)."""
         Xb, single = _as_batch(X, "X")
         Xdb, Xddb = _like(Xdot, Xb, "Xdot"), _like(Xddot, Xb, "Xddot")
@@ -368,7 +369,9 @@ class Mechanism:
         F = _inverse_dynamics_batch(self._geom, self.theta, Xb, Xdb, Xddb)
         return F[0] if single else F
 
-    def regressor(self, X, Xdot, Xr_dot, Xr_ddot) -> np.ndarray:
+    def regressor(
+        self, X: ArrayLike, Xdot: ArrayLike, Xr_dot: ArrayLike, Xr_ddot: ArrayLike
+    ) -> np.ndarray:
         """Regressor Y (3, 36) or (N, 3, 36): Y Theta = M Xr_ddot + C(X, Xdot) Xr_dot + G."""
         Xb, single = _as_batch(X, "X")
         args = [
@@ -379,7 +382,12 @@ class Mechanism:
         return Y[0] if single else Y
 
     def extended_regressor(
-        self, X, Xdot, Xr_dot, Xr_ddot, friction_velocity: float = 1e-3
+        self,
+        X: ArrayLike,
+        Xdot: ArrayLike,
+        Xr_dot: ArrayLike,
+        Xr_ddot: ArrayLike,
+        friction_velocity: float = 1e-3,
     ) -> np.ndarray:
         """Extended regressor Y_ext (3, 48) or (N, 3, 48) of DESIGN.md §7.
 

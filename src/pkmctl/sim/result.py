@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -22,9 +23,9 @@ class Result:
     by the actuators); ``q``, ``q_desired``, ``tau``, ``tau_desired`` (N, 4) (q the true
     limb lengths); ``disturbance`` (N, 3) the tau_d' acting over each period;
     ``X_measured``, ``Xdot_measured`` (N, 3) and ``q_measured`` (N, 4): what the sensor
-    gave the controller; ``theta_hat`` (N, 36) for AFSMC, (N, 48) for afsmc-ext, else
-    None; ``logs`` any other
-    per-period log of a part, by name. ``final_state`` maps each part kind ("plant",
+    gave the controller (the true arrays where none are given); ``theta_hat`` (N, 36)
+    for AFSMC, (N, 48) for afsmc-ext, else None; ``logs`` any other per-period log of a
+    part, by name. ``final_state`` maps each part kind ("plant",
     "sensor", "controller", "actuator") to its state array at the end; ``parts`` maps it
     to the part's name. ``success`` is False only for a partial result kept in a
     :class:`~pkmctl.SimulationDiverged`; ``message`` says why. ``info`` holds
@@ -50,18 +51,23 @@ class Result:
     tau_desired: np.ndarray
     disturbance: np.ndarray
     theta_hat: np.ndarray | None = None
-    X_measured: np.ndarray | None = None
-    Xdot_measured: np.ndarray | None = None
-    q_measured: np.ndarray | None = None
-    logs: dict = field(default_factory=dict)
-    final_state: dict = field(default_factory=dict)
-    parts: dict = field(default_factory=dict)
+    # arrays always (DESIGN.md §11): None given means the truth (__post_init__), as
+    # load_result reads a file that did not save them
+    X_measured: np.ndarray = None  # type: ignore[assignment]
+    Xdot_measured: np.ndarray = None  # type: ignore[assignment]
+    q_measured: np.ndarray = None  # type: ignore[assignment]
+    logs: dict[str, np.ndarray] = field(default_factory=dict)
+    final_state: dict[str, np.ndarray] = field(default_factory=dict)
+    parts: dict[str, str] = field(default_factory=dict)
     success: bool = True
     message: str = "ok"
-    info: dict = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
     loop_metrics: LoopMetrics | None = None
 
     def __post_init__(self) -> None:
+        for name in ("X_measured", "Xdot_measured", "q_measured"):
+            if getattr(self, name) is None:  # a sensor that saw the truth
+                object.__setattr__(self, name, getattr(self, name.removesuffix("_measured")))
         if "software" not in self.info:  # what made the run (a loaded result has its own)
             from pkmctl.io.results import provenance
 

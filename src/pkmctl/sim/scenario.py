@@ -26,6 +26,7 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import tomli_w
+from numpy.typing import ArrayLike
 from pydantic import (
     BaseModel,
     BeforeValidator,
@@ -999,7 +1000,9 @@ class Scenario(_Model):
         """The true mechanism."""
         return self.mechanism.build()
 
-    def payload_forces(self, X, Xd=None, Xdd=None) -> np.ndarray:
+    def payload_forces(
+        self, X: ArrayLike, Xd: ArrayLike | None = None, Xdd: ArrayLike | None = None
+    ) -> np.ndarray:
         """The payload's share of the true plant's generalised forces, M_p Xdd + C_p(X, Xd)
         Xd + G_p (N, 3) at poses X (N, 3), rates Xd and accelerations Xdd (zeros if not
         given): what Theta's machine (:meth:`plant`) leaves out of the plant the loop runs

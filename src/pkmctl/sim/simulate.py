@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
+from typing import Any, Literal, overload
 
 import numpy as np
 
@@ -766,17 +767,45 @@ def _result(prep: Prepared, parts: dict[str, Part], run: _Run, out) -> Result:
     return result
 
 
+@overload
+def simulate_many(
+    scenario: Scenario | str,
+    controller: str = ...,
+    *,
+    seeds: Iterable[int],
+    duration: float | None = ...,
+    workers: int | None = ...,
+    keep: Literal["results"] = ...,
+    lanes: int | None = ...,
+    diverged: Literal["raise", "keep"] = ...,
+) -> list[Result]: ...
+
+
+@overload
+def simulate_many(
+    scenario: Scenario | str,
+    controller: str = ...,
+    *,
+    seeds: Iterable[int],
+    duration: float | None = ...,
+    workers: int | None = ...,
+    keep: Literal["metrics"],
+    lanes: int | None = ...,
+    diverged: Literal["raise", "keep"] = ...,
+) -> list[dict[str, Any]]: ...
+
+
 def simulate_many(
     scenario: Scenario | str,
     controller: str = "afsmc",
     *,
-    seeds,
+    seeds: Iterable[int],
     duration: float | None = None,
     workers: int | None = None,
     keep: str = "results",
     lanes: int | None = None,
     diverged: str = "raise",
-) -> list:
+) -> list[Result] | list[dict[str, Any]]:
     """Run one scenario for several disturbance seeds, in SIMD lanes and parallel threads.
 
     The scenario, its desired trajectory and desired forces are prepared once. The seeds
