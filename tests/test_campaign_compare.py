@@ -229,3 +229,16 @@ def test_campaign_figures_draw_each_controller_in_its_reproduce_colour(tmp_path)
     assert pixels(tab10["afsmc"]) > 100 and pixels(tab10["smc"]) > 100
     assert pixels(tab10["fsmc"]) == 0
     assert _tick([10.0, 10.0, 10.0]) == "[10, 10, 10]"  # was "[10.0, 10.0, 10.0]", overlapping
+
+
+def test_a_log_axis_only_when_every_interval_is_above_zero():
+    """An interval cut at 0 is a bar to the bottom of a log axis, drawn as if it went on
+    (a review of the cut): the axis stays linear then."""
+    from pkmctl.report.campaign import _log_y
+
+    row = {"mean": 1.0, "lo": 0.5, "hi": 2.0}
+    far = {"mean": 100.0, "lo": 50.0, "hi": 200.0}
+    assert _log_y([row, far])
+    assert not _log_y([{**row, "lo": 0.0}, far])
+    assert not _log_y([row, {**far, "mean": 10.0}])  # 10x apart: linear
+    assert _log_y([{**row, "lo": math.nan}, far])  # no interval (1 run): no say

@@ -190,3 +190,12 @@ def test_forward_kinematics_names_a_bad_option(kw, error, message):
     q = robot.inverse_kinematics(np.array([0.7, 0.1, 0.1]))
     with pytest.raises(error, match=message):
         robot.forward_kinematics(q, **kw)
+
+
+def test_forward_kinematics_at_a_tolerance_below_rounding_returns_the_pose(robot):
+    """Exact lengths with tol = 1e-16 were called lengths "no pose has" (a review): the
+    residual 1.1e-16 m is their rounding, not an inconsistency."""
+    X = np.array([0.7, 0.1, -0.2])
+    np.testing.assert_allclose(
+        robot.forward_kinematics(robot.inverse_kinematics(X), tol=1e-16), X, atol=1e-12
+    )

@@ -574,3 +574,19 @@ def test_a_panel_the_run_is_too_short_for_shows_no_axes_ticks(results) -> None:
         assert len(ax.get_xticks()) == len(ax.get_yticks()) == 0, number
         assert ax.get_xlabel() == ax.get_ylabel() == "", number
         assert any("1 s" in t.get_text() or "no samples" in t.get_text() for t in ax.texts)
+
+
+def test_curves_a_decade_apart_on_a_log_panel_keep_their_own_line() -> None:
+    """On the |error| panels (log axis) SMC's 5e-5 deg beta error was dashed as sharing
+    FSMC's 6e-4, within 1 % of the panel's linear range (a review)."""
+    from pkmctl.report.figures import _shared_styles
+
+    t = np.linspace(0.0, 1.0, 200)
+    rng = np.random.default_rng(0)
+    big, mid = 1e-1 * (1 + rng.random(200)), 6e-4 * (1 + rng.random(200))
+    small = 5e-5 * (1 + rng.random(200))
+    drawn = [("pd", t, big), ("fsmc", t, mid), ("smc", t, small)]
+    assert _shared_styles(drawn)["smc"] != "-"  # on a linear axis they do lie together
+    assert set(_shared_styles(drawn, log=True).values()) == {"-"}
+    same = [("fsmc", t, mid), ("afsmc", t, mid * (1 + 1e-4))]
+    assert _shared_styles(same, log=True)["afsmc"] != "-"  # equal ones still share

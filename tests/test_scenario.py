@@ -359,3 +359,43 @@ def test_a_toml_error_quotes_the_line_it_points_at(tmp_path):
                                     f"{eps!r}"), str(info.value)  # fmt: skip
     with pytest.raises(SpecError, match=r"\(at line 3, column \d+\): 'seeds = 2'$"):
         CampaignSpec.from_toml('scenario = "paper"\nseeds = 2\nseeds = 2\n')
+
+
+def test_scenarios_share_no_section():
+    """Every scenario without a [gains] section had one default GainsSpec (hashable, so
+    pydantic did not copy it): `builtin("prototype").gains.lam[0] = 5` changed "paper"'s
+    gains and the scenario of a finished run (a tester)."""
+    a = pkmctl.Scenario.builtin("prototype")
+    b = pkmctl.Scenario.builtin("paper")
+    for name in pkmctl.Scenario.model_fields:
+        x, y = getattr(a, name), getattr(b, name)
+        assert x is not y or isinstance(x, str | int | float | type(None)), name
+    a.gains.lam[0] = 5.0
+    assert pkmctl.Scenario.builtin("paper").gains.lam[0] == 50.0 == pkmctl.Scenario().gains.lam[0]
+
+
+def test_the_mujoco_step_limit_needs_no_mujoco(tmp_path):
+    """The sub-step refusal read its limit from a module that needs MuJoCo: without it a
+    1 ms step was accepted (a campaign client without MuJoCo, workers with it), and
+    reading a scenario imported MuJoCo and set MUJOCO_GL (a review)."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import os, sys; sys.modules['mujoco'] = None\n"
+        "import pkmctl\n"
+        "sc = pkmctl.Scenario.builtin('paper')\n"
+        "try:\n"
+        "    sc.replace(**{'plant.kind': 'mujoco', 'timing.control_period': 1e-3})\n"
+        "except pkmctl.ScenarioError as e:\n"
+        "    print('refused:', e)\n"
+        "sc.replace(**{'plant.kind': 'mujoco'})\n"
+        "print('MUJOCO_GL' in os.environ)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert lines[0].startswith("refused: timing.substeps = 1: with plant.kind = 'mujoco'"), lines
+    assert lines[1] == "False"

@@ -355,3 +355,29 @@ def test_simulate_many_metrics_mode_equals_full_results(paper):
         assert m["rmse"] == summary(r)["rmse"] and m["max_error"] == summary(r)["max_error"]
     with pytest.raises(ValueError, match="keep = 'all'"):
         simulate_many(paper, "afsmc", seeds=[1], duration=0.05, keep="all")
+
+
+def test_simulate_many_returns_at_an_error_without_waiting_for_running_batches(monkeypatch):
+    """A Ctrl-C (or a diverged run, raised) came back only when the batches already
+    running had ended, their compiled loops not interruptible: 14 s after the signal for
+    16 runs of 60 s (a tester). It now returns at once; those batches end in the
+    background."""
+    import threading
+    import time
+
+    from pkmctl.sim import simulate as sim
+
+    started = threading.Event()
+
+    def one_fails_one_runs(*args, **kwargs):
+        if not started.is_set():
+            started.set()
+            time.sleep(0.2)  # the other batch is running by now
+            raise RuntimeError("stop here")
+        time.sleep(3.0)  # a long run, its loop not interruptible
+
+    monkeypatch.setattr(sim, "run_prepared", one_fails_one_runs)
+    t0 = time.perf_counter()
+    with pytest.raises(RuntimeError, match="stop here"):
+        pkmctl.simulate_many("paper", "pd", seeds=range(2), duration=0.01, workers=2, lanes=1)
+    assert time.perf_counter() - t0 < 1.5  # not the 3 s of the other batch

@@ -58,6 +58,12 @@ def my_law(p: MyLaw, state: A, work: A, y: A, ref: A, F: A) -> None:
 
 
 step: Callable[[MyLaw, A, A, A, A, A], None] = my_law  # still the typed function
+q = pkmctl.Mechanism.paper().inverse_kinematics([0.7, 0.0, 0.0])  # lists, as they run
+X = pkmctl.Mechanism.paper().forward_kinematics(list(q), least_squares=True)
+
+
+def forward(keep: str) -> list[pkmctl.Result] | list[dict[str, Any]]:
+    return pkmctl.simulate_many(scenario, "pd", seeds=[1], keep=keep)  # a str passed on
 """
 
 
@@ -89,3 +95,24 @@ def test_a_result_given_no_measured_arrays_has_the_true_ones():
     r = pkmctl.simulate("paper", controller="pd", duration=0.01)
     bare = dataclasses.replace(r, X_measured=None, Xdot_measured=None, q_measured=None)
     assert bare.X_measured is r.X and bare.Xdot_measured is r.Xdot and bare.q_measured is r.q
+
+
+def test_the_reprs_a_notebook_shows_are_short():
+    """The dataclass reprs showed every array: an Identification was 108,480 characters,
+    an Excitation wrote np.float64(...) for each number; a controller said only
+    '<... AFSMC object at 0x...>' (a tester)."""
+    import pkmctl
+    from pkmctl.ident.excite import design_excitation
+    from pkmctl.ident.identify import identify
+    from pkmctl.ident.synthetic import synthetic_log
+
+    sc = pkmctl.Scenario.builtin("prototype")
+    exc = design_excitation(sc, harmonics=3, base_frequency=0.125, periods=1, restarts=1)
+    text = repr(exc)
+    assert text.startswith("Excitation(3 harmonics of 0.125 Hz") and "np.float64" not in text
+    log = synthetic_log(exc.scenario(sc), tau_noise=1.0)  # 8 s
+    idn = identify(log, sc)
+    text = repr(idn)
+    assert len(text) < 400 and "base parameters" in text and "cond" in text, text
+    c = pkmctl.Controller.from_scenario("paper", "pd")
+    assert repr(c) == "PD(name='pd', period=5e-05 s, 0 steps taken)"

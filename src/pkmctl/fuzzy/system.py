@@ -36,7 +36,7 @@ import dataclasses
 import math
 import warnings
 from dataclasses import KW_ONLY, dataclass, field
-from typing import NamedTuple, overload
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -254,10 +254,6 @@ class FuzzySystem:
             )
         return out
 
-    @overload
-    def __call__(self, *x: float) -> float: ...
-    @overload
-    def __call__(self, *x: ArrayLike) -> float | np.ndarray: ...
     def __call__(self, *x: ArrayLike) -> float | np.ndarray:
         """Outputs for inputs of any broadcastable shapes: a float (scalar inputs) or an
         array of the broadcast shape for one output; shape (*broadcast, n_outputs) for

@@ -69,6 +69,16 @@ class Excitation:
     seconds: float
     base: BaseParameters
 
+    def __repr__(self) -> str:
+        # the dataclass's wrote each number as np.float64(...) and the whole trajectory
+        tr = self.trajectory
+        return (
+            f"Excitation({len(tr.a[0])} harmonics of {tr.base_frequency:g} Hz, "
+            f"{self.duration:g} s: cond(W_b) {self.cond:.4g} (eq. 54: {self.cond_paper:.4g}), "
+            f"peak force {self.peak_force:.4g} of {self.force_limit:.4g} N, peak speed "
+            f"{self.peak_speed:.3g} of {self.speed_limit:.3g} m/s)"
+        )
+
     def scenario(self, base: Scenario) -> Scenario:
         """``base`` with this trajectory, its duration, at rest at X(0)."""
         tr = self.trajectory  # at rest at its offset at t = 0 (the design's constraints;

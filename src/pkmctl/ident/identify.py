@@ -868,6 +868,16 @@ class Identification:
     active_bounds: tuple[str, ...] = ()  # of the physically consistent fit, e.g. "Fc1 = 0"
     compile_seconds: float = 0.0  # compiling kernels it needed (once per machine), not in seconds
 
+    def __repr__(self) -> str:
+        # the dataclass's showed every array of the observation: 108,480 characters
+        rms = ", ".join(f"{v:.3g}" for v in self.wls.rms)
+        return (
+            f"Identification({self.scenario or 'log'!r}: {self.base.count} base parameters "
+            f"from {self.observation.t.size} samples, cond {self.cond:.4g}, WLS residual RMS "
+            f"[{rms}] (N, N m, N m), {100 * self.wls.relative_error:.3g} %; "
+            f"{len(self.notes)} notes; {self.seconds:.2f} s)"
+        )
+
     def controller_model(self) -> dict:
         """A scenario ``[controller_model]`` block with the physically consistent estimate."""
         if self.physical is None:

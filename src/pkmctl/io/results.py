@@ -378,12 +378,13 @@ def load_result(json_path: str | os.PathLike[str]) -> Result:
     for name, width, _ in _FIELDS:
         fields[name] = data[:, col : col + width]
         col += width
-    fields["q_measured"] = fields["q"]  # the truth, unless the sensor's own was saved
+    # (the truth where the sensor's own was not saved: Result fills in what is None)
+    fields["q_measured"] = None
     if names[col : col + 4] == list(_MEASURED):
         fields["q_measured"] = data[:, col : col + 4]
         col += 4
     for name, cols in _SEEN:
-        fields[name] = fields[name.removesuffix("_measured")]
+        fields[name] = None
         if names[col : col + 3] == list(cols):
             fields[name] = data[:, col : col + 3]
             col += 3

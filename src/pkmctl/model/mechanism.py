@@ -229,24 +229,24 @@ class Mechanism:
         return float(self.theta[0::4].sum())
 
     # ------------------------------------------------------------------ kinematics
-    def check_pose(self, X: np.ndarray) -> None:
+    def check_pose(self, X: ArrayLike) -> None:
         """Raise :class:`InvalidPoseError` unless every pose of X (3,) or (N, 3) is valid."""
         Xb, _ = _as_batch(X, "X")
         _check_poses(self._geom, Xb)
 
-    def inverse_kinematics(self, X: np.ndarray) -> np.ndarray:
+    def inverse_kinematics(self, X: ArrayLike) -> np.ndarray:
         """Limb lengths q (4,) or (N, 4) of pose(s) X (eq. 4)."""
         Xb, single = _as_batch(X, "X")
         q, _ = _check_poses(self._geom, Xb)
         return q[0] if single else q
 
-    def jacobian(self, X: np.ndarray) -> np.ndarray:
+    def jacobian(self, X: ArrayLike) -> np.ndarray:
         """Limb Jacobian J = dq/dX (4, 3) or (N, 4, 3), with qdot = J Xdot (eq. 8)."""
         Xb, single = _as_batch(X, "X")
         _, J = _check_poses(self._geom, Xb)
         return J[0] if single else J
 
-    def condition_number(self, X: np.ndarray) -> np.ndarray | float:
+    def condition_number(self, X: ArrayLike) -> np.ndarray | float:
         """2-norm condition number of J (sigma_max / sigma_min), float or (N,)."""
         Xb, single = _as_batch(X, "X")
         _check_basic(Xb)
@@ -254,7 +254,7 @@ class Mechanism:
         c = np.linalg.cond(J)
         return float(c[0]) if single else c
 
-    def checked_condition_numbers(self, X: np.ndarray) -> np.ndarray:
+    def checked_condition_numbers(self, X: ArrayLike) -> np.ndarray:
         """:meth:`check_pose` and :meth:`condition_number` of poses X (N, 3) in one pass
         (one SVD per pose, not two): raises as :meth:`check_pose`, else returns (N,)."""
         Xb, _ = _as_batch(X, "X")
@@ -262,8 +262,8 @@ class Mechanism:
 
     def forward_kinematics(
         self,
-        q: np.ndarray,
-        guess: np.ndarray | None = None,
+        q: ArrayLike,
+        guess: ArrayLike | None = None,
         *,
         tol: float = 1e-12,
         max_iter: int = 100,
@@ -321,6 +321,9 @@ class Mechanism:
                 if least_squares and nearest:
                     out[n] = X - step
                     continue
+                if nearest and res <= 16 * np.finfo(float).eps * np.abs(qb[n]).max():
+                    out[n] = X  # reached to rounding: a tol below it cannot be met
+                    continue
                 if nearest:
                     raise ConvergenceError(
                         f"no pose has the limb lengths q = {qb[n].tolist()}: the nearest "
@@ -339,14 +342,14 @@ class Mechanism:
         return out[0] if single else out
 
     # ------------------------------------------------------------------ dynamics
-    def mass_matrix(self, X: np.ndarray) -> np.ndarray:
+    def mass_matrix(self, X: ArrayLike) -> np.ndarray:
         """Mass matrix M(X), (3, 3) or (N, 3, 3)."""
         Xb, single = _as_batch(X, "X")
         _check_poses(self._geom, Xb)
         M, _, _ = _dynamics_batch(self._geom, self.theta, Xb, np.zeros_like(Xb))
         return M[0] if single else M
 
-    def coriolis_matrix(self, X: np.ndarray, Xdot: np.ndarray) -> np.ndarray:
+    def coriolis_matrix(self, X: ArrayLike, Xdot: ArrayLike) -> np.ndarray:
         """Coriolis/centrifugal matrix C(X, Xdot), (3, 3) or (N, 3, 3); Mdot - 2C is skew."""
         Xb, single = _as_batch(X, "X")
         Xdb = _like(Xdot, Xb, "Xdot")
@@ -354,7 +357,7 @@ class Mechanism:
         _, C, _ = _dynamics_batch(self._geom, self.theta, Xb, Xdb)
         return C[0] if single else C
 
-    def gravity(self, X: np.ndarray) -> np.ndarray:
+    def gravity(self, X: ArrayLike) -> np.ndarray:
         """Gravity vector G(X) = dV/dX, (3,) or (N, 3)."""
         Xb, single = _as_batch(X, "X")
         _check_poses(self._geom, Xb)
@@ -408,7 +411,7 @@ class Mechanism:
         Y = extended_regressor_batch(self._geom, Xb, *args, float(friction_velocity))
         return Y[0] if single else Y
 
-    def actuator_forces(self, X: np.ndarray, F: np.ndarray) -> np.ndarray:
+    def actuator_forces(self, X: ArrayLike, F: ArrayLike) -> np.ndarray:
         """Minimum-norm actuator forces tau_a = J (J^T J)^-1 F, (4,) or (N, 4)."""
         Xb, single = _as_batch(X, "X")
         Fb = _like(F, Xb, "F")

@@ -75,6 +75,7 @@ import numpy as np
 from pkmctl.errors import InvalidPoseError
 from pkmctl.model.kinematics import LIMB_ANGLES_DEG
 from pkmctl.model.mechanism import Mechanism
+from pkmctl.plants import MUJOCO_SOLREF, mujoco_max_timestep
 
 #: The loop's status code (pkmctl.sim.loop.STATUS) for a stepper whose state blew up.
 STEPPER_BLEW_UP = 4
@@ -104,7 +105,7 @@ SPR_LIMBS = (1, 3)
 TIMESTEP = 5e-5
 #: Equality-constraint softness: (time constant s, damping ratio), and MuJoCo's stiffest
 #: impedance (its mjMAXIMP = 0.9999) at every violation.
-SOLREF = (5e-4, 1.0)
+SOLREF = MUJOCO_SOLREF
 SOLIMP = (0.9999, 0.9999, 1e-3, 0.5, 2.0)
 
 
@@ -271,11 +272,7 @@ def build_mjcf(
         raise ValueError(f"screw_lead = {screw_lead!r}: must be finite and > 0")
     if not (np.isfinite(timestep) and timestep > 0.0):
         raise ValueError(f"timestep = {timestep!r}: must be finite and > 0 (s)")
-    if timestep > solref[0] / 2 * (1 + 1e-9):
-        # MuJoCo raises a time constant under two steps to two steps (its "refsafe"),
-        # silently: at 1 ms the closures then took up their load 4x slower, the unforced
-        # machine gained 2.6e-4 J in 0.3 s and its pose left the closed form's by 1.2e-8
-        # (a tester's oracle; 8e-11 J on the closed form)
+    if timestep > mujoco_max_timestep(solref):
         raise ValueError(
             f"timestep = {timestep:g}: must be <= {solref[0] / 2:g} s, half the closures' "
             f"time constant (solref {solref[0]:g} s), which MuJoCo would raise to twice "

@@ -316,6 +316,17 @@ def _tick(x) -> str:
     return _level(x)
 
 
+def _log_y(rows: list[dict]) -> bool:
+    """Whether a figure's y axis is logarithmic: means 20 or more times apart, and every
+    interval above 0 (an interval cut at 0, of 2 seeds, is a bar to the axis's bottom on
+    a log scale, drawn as if it went on: the review of the cut)."""
+    means = [r["mean"] for r in rows if math.isfinite(r["mean"])]
+    low = [r["lo"] for r in rows if math.isfinite(r["lo"])]
+    return (
+        bool(means) and min(means) > 0 and max(means) >= 20 * min(means) and all(v > 0 for v in low)
+    )
+
+
 def _plot(spec, table, metric: str, factor: str, path: Path) -> int:
     """One figure: ``metric`` against ``factor``, per controller (each in its colour of
     ``reproduce``), with intervals; the points in the order of the factor's values
@@ -376,8 +387,7 @@ def _plot(spec, table, metric: str, factor: str, path: Path) -> int:
         long = sum(len(t) for t in labels) > 60 or max(len(t) for t in labels) > 14
         ax.set_xticks(range(len(values)), labels, rotation=20 if long else 0,
                       ha="right" if long else "center", fontsize=8)  # fmt: skip
-    means = [r["mean"] for r in rows if math.isfinite(r["mean"])]
-    if means and min(means) > 0 and max(means) >= 20 * min(means):
+    if _log_y(rows):
         ax.set_yscale("log")  # controllers 20x apart: on a linear axis the best are a line at 0
     ax.autoscale_view()
     for x, y, text, color in all_failed:  # inside the axes: at the right, written leftwards

@@ -241,13 +241,17 @@ def _plot_lines(
     desired: tuple[np.ndarray, np.ndarray] | None,
     lo: float = 0.0,
     hi: float = math.inf,
+    log: bool = False,
 ) -> None:
+    """The curves (and the desired one, dashed on top) between t = lo and hi; ``log``:
+    the panel's y axis will be logarithmic (which curves lie on one another is judged
+    there)."""
     thinned = [(name, *_thin(*_window(t, y, lo, hi))) for name, t, y in curves]
     # the widest band underneath: a thinned curve alternates each bin's min and max, a band
     # as wide as its ripple; drawn in controller order, PD's band hid SMC's, FSMC's, AFSMC's
     width = [float(np.mean(np.abs(np.diff(yw)))) if yw.size > 1 else 0.0 for _, _, yw in thinned]
     rank = np.argsort(np.argsort(-np.nan_to_num(np.array(width), nan=np.inf)))
-    styles = _shared_styles([thinned[i] for i in np.argsort(rank)])
+    styles = _shared_styles([thinned[i] for i in np.argsort(rank)], log=log)
     for (name, tw, yw), z in zip(thinned, rank, strict=True):
         ax.plot(tw, yw, color=_color(name), linewidth=1.0, label=controller_label(name),
                 zorder=2.0 + 0.01 * z, linestyle=styles[name])  # fmt: skip
@@ -266,7 +270,9 @@ _COINCIDE = 0.01
 _DASH = 4.0
 
 
-def _shared_styles(drawn: list[tuple[str, np.ndarray, np.ndarray]]) -> dict[str, object]:
+def _shared_styles(
+    drawn: list[tuple[str, np.ndarray, np.ndarray]], log: bool = False
+) -> dict[str, object]:
     """The line style of each curve, given in drawing order: solid, but curves that lie
     on one another (half their samples or more within :data:`_COINCIDE` of the panel's
     range) share their line in turns, each dashed in its own slot over the first, solid
@@ -274,6 +280,10 @@ def _shared_styles(drawn: list[tuple[str, np.ndarray, np.ndarray]]) -> dict[str,
     50 ms), against a range of 61 N: drawn over it, FSMC's hid it (0 green pixels in the
     middle panel), and the paper's comparison of the two could not be seen."""
     styles: dict[str, object] = {name: "-" for name, _, _ in drawn}
+    if log:  # on a log axis, a decade apart is apart however small both are (a review:
+        # SMC's 5e-5 deg beta error was dashed as on FSMC's 6e-4)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            drawn = [(n, t, np.log10(np.where(y > 0, y, np.nan))) for n, t, y in drawn]
     finite = [yw[np.isfinite(yw)] for _, _, yw in drawn]
     data = np.concatenate(finite) if finite else np.empty(0)
     if data.size == 0:
@@ -382,8 +392,8 @@ def _draw_error(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) 
         # |error| on a log axis: errors 1,000 times apart (SMC's and CTC's β) are all seen,
         # where a linear zoom fitted to the largest showed the others as a line at 0
         mags = [(n, t, np.abs(e)) for n, t, e in curves]
-        _plot_lines(bottom, mags, None, RMSE_AFTER_S)
         tops = [float(np.max(_window(t, e, RMSE_AFTER_S)[1], initial=0.0)) for _, t, e in mags]
+        _plot_lines(bottom, mags, None, RMSE_AFTER_S, log=max(tops) > 0)
         if max(tops) > 0:
             bottom.set_yscale("log")
             floor = min(v for v in tops if v > 0) * 1e-2  # zero crossings: spikes below

@@ -20,8 +20,8 @@ sub-step keeps that sub-step's state, as the single loop does when it stops inte
 (tests/test_lanes.py); not bit for bit, since the lane model kernels have their own order
 of sums and their own cos and sin (docs/performance.md). A sensor that quantises (the
 prototype's encoder) turns such a last-bit difference into a count sooner or later, and
-the runs then part: over 10 s of ``prototype`` the states passed 1e-12 after 6-8.5 s,
-and a limb force then differed by 1e-4 relative (docs/campaigns.md).
+the runs then part as two seeds' noise would: over 10 s of ``prototype`` 7 runs of 8
+parted after 6.5-9 s, a limb force then differing by up to 100 N (docs/campaigns.md).
 """
 
 from __future__ import annotations

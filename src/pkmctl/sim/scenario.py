@@ -698,19 +698,23 @@ class Scenario(_Model):
 
     name: str = Field("custom", min_length=1, max_length=100)
     description: str = ""
-    mechanism: MechanismSpec = MechanismSpec()
-    controller_model: ControllerModelSpec = ControllerModelSpec()
-    gains: GainsSpec = GainsSpec()
-    fuzzy: FuzzySpec = FuzzySpec()
-    trajectory: AnyTrajectory = TrajectorySpec()
-    initial: InitialSpec = InitialSpec()
-    disturbance: DisturbanceSpec = DisturbanceSpec()
-    timing: TimingSpec = TimingSpec()
-    logging: LoggingSpec = LoggingSpec()
-    actuators: ActuatorSpec = ActuatorSpec()
-    plant_spec: PlantSpec = Field(PlantSpec(), alias="plant")
-    payload: PayloadSpec = PayloadSpec()
-    sensor: SensorSpec = SensorSpec()
+    # each scenario its own sections: a default instance (hashable, so pydantic does not
+    # copy it) was every scenario's without that section, lists included, and
+    # `builtin("prototype").gains.lam[0] = 5` changed "paper"'s gains and the scenario
+    # recorded in finished results (a tester)
+    mechanism: MechanismSpec = Field(default_factory=MechanismSpec)
+    controller_model: ControllerModelSpec = Field(default_factory=ControllerModelSpec)
+    gains: GainsSpec = Field(default_factory=GainsSpec)
+    fuzzy: FuzzySpec = Field(default_factory=FuzzySpec)
+    trajectory: AnyTrajectory = Field(default_factory=TrajectorySpec)
+    initial: InitialSpec = Field(default_factory=InitialSpec)
+    disturbance: DisturbanceSpec = Field(default_factory=DisturbanceSpec)
+    timing: TimingSpec = Field(default_factory=TimingSpec)
+    logging: LoggingSpec = Field(default_factory=LoggingSpec)
+    actuators: ActuatorSpec = Field(default_factory=ActuatorSpec)
+    plant_spec: PlantSpec = Field(default_factory=PlantSpec, alias="plant")
+    payload: PayloadSpec = Field(default_factory=PayloadSpec)
+    sensor: SensorSpec = Field(default_factory=SensorSpec)
 
     @field_validator("name")
     @classmethod
@@ -803,17 +807,12 @@ class Scenario(_Model):
 
     def _check_mujoco_step(self, h: float) -> None:
         """Refuse a ``mujoco`` plant whose RK4 sub-step ``h`` is over half its closures'
-        time constant (plants.mujoco.SOLREF): MuJoCo raises such a time constant to two
-        steps, silently, and the closures then lag. At 1 ms (``substeps = 1`` at 1 kHz) the
-        unforced machine gained 2.6e-4 J in 0.3 s and its pose left the closed form's by
-        1.2e-8, growing as h^2 (a tester's oracle; the closed form kept 8e-11 J). Without
-        MuJoCo there is nothing to check here: the run says MuJoCo is missing."""
-        try:
-            from pkmctl.plants.mujoco import SOLREF
-        except ImportError:
-            return
-        most = SOLREF[0] / 2
-        if h > most * (1 + 1e-9):
+        time constant (:func:`pkmctl.plants.mujoco_max_timestep`), with or without MuJoCo
+        here (a campaign's client may have none, its workers MuJoCo)."""
+        from pkmctl.plants import mujoco_max_timestep
+
+        most = mujoco_max_timestep()
+        if h > most:
             need = math.ceil(self.timing.control_period / most * (1 - 1e-9))
             raise ValueError(
                 f"timing.substeps = {self.timing.substeps}: with plant.kind = 'mujoco' the "

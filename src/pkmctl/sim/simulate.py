@@ -795,6 +795,20 @@ def simulate_many(
 ) -> list[dict[str, Any]]: ...
 
 
+@overload
+def simulate_many(
+    scenario: Scenario | str,
+    controller: str = ...,
+    *,
+    seeds: Iterable[int],
+    duration: float | None = ...,
+    workers: int | None = ...,
+    keep: str = ...,
+    lanes: int | None = ...,
+    diverged: str = ...,
+) -> list[Result] | list[dict[str, Any]]: ...
+
+
 def simulate_many(
     scenario: Scenario | str,
     controller: str = "afsmc",
@@ -898,8 +912,18 @@ def simulate_many(
                 out[i] = {"seed": int(s), **summary(r, source="loop")}
         return out
 
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        return [r for rs in pool.map(batch, chunks) for r in rs]
+    # not `with`: its exit waits for the batches running, whose compiled loops cannot be
+    # interrupted, so a Ctrl-C (or a run that diverged, raised) came back only when they
+    # had ended: 14 s after the signal for 16 runs of 60 s (a tester). Now it returns at
+    # once, the queue dropped; the batches running end in the background.
+    pool = ThreadPoolExecutor(max_workers=workers)
+    try:
+        out = [r for rs in pool.map(batch, chunks) for r in rs]
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
+    return out
 
 
 def _is_int(v) -> bool:
