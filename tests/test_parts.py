@@ -737,3 +737,27 @@ def test_array_arithmetic_in_a_step_is_named_an_allocation():
     msg = str(info.value)
     assert msg.startswith("the part controller 'test-slice-copy' does not compile: "), msg
     assert "(a step must not allocate: no array arithmetic or copies, loop over the elements" in msg
+
+
+def test_a_notebook_cell_that_registers_a_part_can_run_again():
+    """A function with no file (an ipykernel cell) had no stamp, so running the cell again
+    was refused as a name clash, and only a kernel restart helped (a tester). The code
+    itself is now its stamp: the same cell again registers again, an edited one is
+    refused."""
+    import pkmctl
+
+    cell = (
+        "from typing import NamedTuple\n"
+        "import pkmctl\n"
+        "class NbLaw(NamedTuple):\n"
+        "    k: float\n"
+        "@pkmctl.register_controller('x-nb-law', params=NbLaw, build=lambda ctx: NbLaw(1.0))\n"
+        "def law(p, state, work, y, ref, F):\n"
+        "    for i in range(3):\n"
+        "        F[i] = {gain} * p.k * (ref[i] - y[i])\n"
+    )
+    name = "/tmp/ipykernel_1/cell.py"  # as ipykernel names a cell: no such file
+    exec(compile(cell.format(gain="2.0"), name, "exec"), {})
+    exec(compile(cell.format(gain="2.0"), name, "exec"), {})  # the same cell, run again
+    with pytest.raises(pkmctl.PartError, match="already registered"):
+        exec(compile(cell.format(gain="3.0"), name, "exec"), {})  # edited

@@ -399,3 +399,28 @@ def test_the_mujoco_step_limit_needs_no_mujoco(tmp_path):
     lines = out.stdout.splitlines()
     assert lines[0].startswith("refused: timing.substeps = 1: with plant.kind = 'mujoco'"), lines
     assert lines[1] == "False"
+
+
+def test_a_field_set_in_place_says_how_to_change_a_scenario():
+    """Assigning a field gave pydantic's four-line error with a URL, no word of replace."""
+    sc = pkmctl.Scenario.builtin("paper")
+    with pytest.raises(
+        TypeError,
+        match=r"^GainsSpec\.lam = \[1, 2, 3\]: a scenario cannot be "
+        r"changed in place; make a changed copy with scenario\.replace",
+    ):
+        sc.gains.lam = [1, 2, 3]  # fmt: skip
+    assert sc.replace(name="x").name == "x"
+
+
+def test_simulate_takes_a_toml_file_as_the_cli_does(tmp_path):
+    """simulate("my.toml") said "unknown built-in", and a Path was a TypeError."""
+    path = tmp_path / "my.toml"
+    path.write_text(pkmctl.Scenario.builtin("paper").replace(name="mine").to_toml())
+    for given in (path, str(path)):
+        assert pkmctl.simulate(given, "pd", duration=0.01).scenario.name == "mine"
+    with pytest.raises(pkmctl.ScenarioError, match="no.toml"):
+        pkmctl.simulate(str(tmp_path / "no.toml"), "pd")
+    from pkmctl.fuzzy.fis import FISError
+
+    assert issubclass(FISError, pkmctl.PkmctlError)  # `except pkmctl.PkmctlError` catches it

@@ -360,8 +360,10 @@ def _source_stamp(functions: dict[str, Callable]) -> tuple | None:
     the text of each file they are read from (and of the user's modules they reach,
     :func:`user_sources`), now: equal for the same module imported again, also from a
     copy of its file (Dask's ``--preload FILE.py`` imports the file, then reloads the
-    copy it made). None if a function has no file (typed at a prompt) or one cannot be
-    read: then a second registration of the name is never taken for the first one."""
+    copy it made). A function with no file (a notebook cell, a prompt) is stamped by its
+    code object instead: running the same cell again registers it again, where it was
+    refused and took a kernel restart (a tester); an edited cell is another text. None if
+    a file cannot be read: then a second registration is never taken for the first."""
     files: set[str] = set()
     try:
         pys = {role: getattr(fn, "py_func", fn) for role, fn in functions.items()}
@@ -370,8 +372,9 @@ def _source_stamp(functions: dict[str, Callable]) -> tuple | None:
                                for role, py in pys.items()))  # fmt: skip
         for py in pys.values():
             files |= user_sources(py)
-        if not files:
-            return None
+        if not files:  # the code itself (with its file name: ipykernel's is the cell's hash)
+            codes = (hashlib.sha256(marshal.dumps(py.__code__)).hexdigest() for py in pys.values())
+            return modules, ("code", *sorted(codes))
         digests = []
         for f in files:
             with open(f, "rb") as fh:

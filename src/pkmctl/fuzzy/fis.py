@@ -44,6 +44,7 @@ import os
 import re
 from pathlib import Path
 
+from pkmctl.errors import PkmctlError
 from pkmctl.fuzzy.engine import MF_KINDS, MamdaniSystem, Rule, Term, Variable
 from pkmctl.fuzzy.mf import MF_TYPES
 from pkmctl.fuzzy.system import FuzzyRule, FuzzySystem, SugenoTerm
@@ -108,7 +109,7 @@ def _shorten(text: str, limit: int = _MAX_CHARS) -> str:
     return text
 
 
-class FISError(ValueError):
+class FISError(PkmctlError, ValueError):
     """A .fis file that is malformed or uses a feature pkmctl does not support.
 
     Attributes ``source`` (file name or ``"<string>"``), ``lineno`` (1-based; 0 when

@@ -94,6 +94,14 @@ class _Model(BaseModel):
         extra="forbid", strict=True, frozen=True, populate_by_name=True, allow_inf_nan=False
     )
 
+    def __setattr__(self, name: str, value: Any) -> None:
+        # pydantic's refusal was four lines with a URL, and no word of replace (a tester)
+        raise TypeError(
+            f"{type(self).__name__}.{name} = {short_repr(value)}: a scenario cannot be "
+            "changed in place; make a changed copy with scenario.replace(**{'section.field': "
+            "value}) (e.g. 'gains.lam')"
+        )
+
     def __hash__(self) -> int:
         # frozen, yet pydantic's hash of its values failed on the lists ("unhashable type:
         # 'list'"): a scenario could not be a dict key or in a set. Equal models have

@@ -12,6 +12,7 @@ import math
 import os
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any, Literal, overload
 
 import numpy as np
@@ -42,7 +43,7 @@ from pkmctl.sim.loop import (
     run_parts,
 )
 from pkmctl.sim.result import Result
-from pkmctl.sim.scenario import Scenario, ScenarioError, reference_outside
+from pkmctl.sim.scenario import BUILTINS, Scenario, ScenarioError, reference_outside
 from pkmctl.sim.stepped import run_stepped
 
 __all__ = [
@@ -347,18 +348,24 @@ def _chunk(scenario: Scenario, plant: Mechanism, k0: int, k1: int):
     return reference, q_des, _disturbance_index(k0, k1, Tc, hold)
 
 
-def _resolve(scenario: Scenario | str, duration: float | None) -> Scenario:
-    """The scenario (a built-in's name or a Scenario) with ``duration`` if given."""
+def _resolve(scenario: Scenario | str | os.PathLike[str], duration: float | None) -> Scenario:
+    """The scenario (a built-in's name, a .toml file or a Scenario) with ``duration`` if
+    given."""
     if duration is not None and (
         isinstance(duration, bool)
         or not isinstance(duration, int | float | np.integer | np.floating)
     ):  # float("0.1") took a string the scenario itself refuses
         raise TypeError(f"duration = {duration!r}: must be a number of seconds")
-    if isinstance(scenario, str):
+    if isinstance(scenario, os.PathLike) or (
+        isinstance(scenario, str) and scenario not in BUILTINS and scenario.endswith(".toml")
+    ):  # a file, as the CLI's NAME|FILE ("unknown built-in" for "my.toml": a tester)
+        scenario = Scenario.from_toml(Path(scenario))
+    elif isinstance(scenario, str):
         return Scenario.builtin(scenario, None if duration is None else float(duration))
     if not isinstance(scenario, Scenario):
         raise TypeError(
-            f"scenario: expected a pkmctl.Scenario or a built-in name, got {scenario!r}"
+            f"scenario: expected a pkmctl.Scenario, a built-in name or a .toml file, got "
+            f"{scenario!r}"
         )
     if duration is not None:
         return scenario.replace(**{"timing.duration": float(duration)})
@@ -448,7 +455,7 @@ def _machine_parts(scenario: Scenario) -> dict[str, Part]:
 
 
 def simulate(
-    scenario: Scenario | str,
+    scenario: Scenario | str | os.PathLike[str],
     controller: str = "afsmc",
     *,
     duration: float | None = None,
@@ -457,8 +464,10 @@ def simulate(
 ) -> Result:
     """Run one closed-loop experiment; ``duration`` and ``seed`` override the scenario's.
 
-    ``controller`` is any registered controller ("smc", "fsmc", "afsmc", "pd", "ctc",
-    or a user's, :func:`pkmctl.register_controller`). Raises
+    ``scenario``: a :class:`Scenario`, a built-in's name, or a ``.toml`` file (a path, or
+    a name ending in ``.toml``), as the CLI takes them. ``controller`` is any registered
+    controller ("smc", "fsmc", "afsmc", "pd", "ctc", or a user's,
+    :func:`pkmctl.register_controller`). Raises
     :class:`~pkmctl.SimulationDiverged` (with the partial result) if the state becomes
     non-finite or the pose leaves z > 0, |alpha|, |beta| < pi/2, checked every period.
     The model's other bounds (limbs over 1 mm, J's conditioning: docs/model.md) are not
@@ -769,7 +778,7 @@ def _result(prep: Prepared, parts: dict[str, Part], run: _Run, out) -> Result:
 
 @overload
 def simulate_many(
-    scenario: Scenario | str,
+    scenario: Scenario | str | os.PathLike[str],
     controller: str = ...,
     *,
     seeds: Iterable[int],
@@ -783,7 +792,7 @@ def simulate_many(
 
 @overload
 def simulate_many(
-    scenario: Scenario | str,
+    scenario: Scenario | str | os.PathLike[str],
     controller: str = ...,
     *,
     seeds: Iterable[int],
@@ -797,7 +806,7 @@ def simulate_many(
 
 @overload
 def simulate_many(
-    scenario: Scenario | str,
+    scenario: Scenario | str | os.PathLike[str],
     controller: str = ...,
     *,
     seeds: Iterable[int],
@@ -810,7 +819,7 @@ def simulate_many(
 
 
 def simulate_many(
-    scenario: Scenario | str,
+    scenario: Scenario | str | os.PathLike[str],
     controller: str = "afsmc",
     *,
     seeds: Iterable[int],
