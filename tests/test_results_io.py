@@ -318,3 +318,16 @@ def test_reading_the_tables_leaves_an_interpreter_that_exits(runs, tmp_path):
         r = subprocess.run([sys.executable, "-c", code, str(table), str(tmp_path / "task.parquet")],
                            capture_output=True, text=True, timeout=60)  # fmt: skip
         assert r.returncode == 0, r.stderr
+
+
+def test_to_arrow_is_the_table_save_result_writes(tmp_path):
+    """A notebook had to write Parquet and read it back to get a Result into pandas or
+    polars (a tester): ``to_arrow`` gives the same table without the file."""
+    import pyarrow.parquet as pq
+
+    import pkmctl
+
+    r = pkmctl.simulate("prototype", "afsmc", duration=0.01)  # measured columns, theta_hat
+    table, _ = pkmctl.save_result(r, tmp_path)
+    assert r.to_arrow().equals(pq.read_table(table))
+    assert "q1_m" in r.to_arrow().column_names and "theta_hat0" in r.to_arrow().column_names

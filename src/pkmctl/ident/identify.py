@@ -872,7 +872,7 @@ class Identification:
         # the dataclass's showed every array of the observation: 108,480 characters
         rms = ", ".join(f"{v:.3g}" for v in self.wls.rms)
         return (
-            f"Identification({self.scenario or 'log'!r}: {self.base.count} base parameters "
+            f"Identification({self.scenario or 'a log'}: {self.base.count} base parameters "
             f"from {self.observation.t.size} samples, cond {self.cond:.4g}, WLS residual RMS "
             f"[{rms}] (N, N m, N m), {100 * self.wls.relative_error:.3g} %; "
             f"{len(self.notes)} notes; {self.seconds:.2f} s)"

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from pkmctl.sim.metrics import LoopMetrics
 from pkmctl.sim.scenario import Scenario
+
+if TYPE_CHECKING:
+    import pyarrow as pa
 
 __all__ = ["Result"]
 
@@ -77,6 +80,18 @@ class Result:
     def every(self) -> int:
         """Control periods per logged sample (the scenario's ``logging.every``)."""
         return int(self.scenario.logging.every)
+
+    def to_arrow(self) -> pa.Table:
+        """The time series as a pyarrow Table, the columns ``save_result`` writes (their
+        names and meaning: docs/architecture.md), without a file:
+        ``result.to_arrow().to_pandas()``, ``polars.from_arrow(result.to_arrow())``. A
+        notebook had to write Parquet and read it back (a tester)."""
+        import pyarrow as pa
+
+        from pkmctl.io.results import _columns
+
+        names, columns = _columns(self)
+        return pa.table(columns, names=names)
 
     def rmse(self) -> dict[str, float]:
         """RMSE over all control samples (eq. 55-57): z in mm, angles in degrees, q in m."""
