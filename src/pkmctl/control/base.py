@@ -177,15 +177,15 @@ class Controller:
         self._state = self._initial.copy()
         self._steps = 0
         self._lock = threading.Lock()
+        self._new_buffers()
+        self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False,
+                                values=global_values([self.part]))  # fmt: skip
 
     def __repr__(self) -> str:
         return (
             f"{type(self).__name__}(name={self.name!r}, period={self.period:g} s, "
             f"{self._steps} steps taken)"
         )
-        self._new_buffers()
-        self._step = specialise(_entry, (self.part.params,), self.part.sources, refcount=False,
-                                values=global_values([self.part]))  # fmt: skip
 
     @classmethod
     def from_scenario(cls, scenario: Scenario | str, name: str | None = None) -> Controller:
