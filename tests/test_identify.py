@@ -275,7 +275,20 @@ def test_lengths_that_fit_no_pose_of_the_geometry_are_refused(exciting):
     with pytest.raises(IdentificationError, match="do not fit the geometry of scenario") as info:
         identify(swapped, sc)
     msg = str(info.value)
-    assert "residual 0." in msg and "at data row" in msg and "\n" not in msg
+    assert "the worst 0." in msg and "from data row" in msg and "\n" not in msg
+    # where it starts, not the worst row: an encoder wrap at 6.000 s was named at 6.772 s
+    log = _clean(sc)
+    k = log.t.size // 2
+    wrap = _with(log, q=lambda q: np.vstack([q[:k], q[k:] + [0.0, -0.01, 0.0, 0.0]]))
+    with pytest.raises(
+        IdentificationError,
+        match=rf"from data row {k + 1} \(t = "
+        rf"{log.t[k]:.6g} s\): \d+ rows, the worst .* m, most on q2 ",
+    ):
+        identify(wrap, sc)  # fmt: skip
+    mm = _with(log, q=lambda q: 1e3 * q)
+    with pytest.raises(IdentificationError, match=r"in millimetres\? \(q must be in metres\)"):
+        identify(mm, sc)
     other = sc.replace(**{"mechanism.r_b": sc.mechanism.r_b + 0.01})  # another machine
     with pytest.raises(IdentificationError, match="do not fit the geometry"):
         identify(_clean(other), sc)
@@ -970,3 +983,22 @@ def test_excite_predicts_the_forces_of_the_payload_too(proto):
     assert np.abs(at_rest).max() > np.abs(bare).max() + 100.0  # 60 kg: ~150 N a limb more
     assert e.peak_force >= np.abs(at_rest).max()
     assert e.peak_force <= 0.5 * e.force_limit
+
+
+def test_csv_files_as_other_tools_write_them_are_named(tmp_path):
+    """A European CSV (';' and decimal commas), a log cut in its last line and t in ms
+    got pyarrow's bare parse error or a rate message with no word of units (a tester)."""
+    from pkmctl.ident.identify import read_log
+
+    head = "t;q1;q2;q3;q4;tau1;tau2;tau3;tau4\n"
+    (tmp_path / "eu.csv").write_text(head + "0;0,7;0,7;0,7;0,7;1,0;1,0;1,0;1,0\n" * 3)
+    with pytest.raises(IdentificationError, match=r"separated by ';' \(the header: 't;q1;"):
+        read_log(tmp_path / "eu.csv")
+    rows = "".join(f"{k / 1000},0.7,0.7,0.7,0.7,1,1,1,1\n" for k in range(20))
+    (tmp_path / "cut.csv").write_text("t,q1,q2,q3,q4,tau1,tau2,tau3,tau4\n" + rows + "0.02,0.7,0.")
+    with pytest.raises(
+        IdentificationError,
+        match=r"the last line \(data row 21\) is incomplete, "
+        r"3 of 9 columns: the file was cut short",
+    ):
+        read_log(tmp_path / "cut.csv")  # fmt: skip

@@ -411,7 +411,7 @@ def identify(
         raise
     except MemoryError:
         _fail(
-            f"out of memory identifying from {log} (about 1.2 kB per sample): cut the log, or "
+            f"out of memory identifying from {log} (about 2.3 kB per sample): cut the log, or "
             f"resample it to a lower rate (>= 50 x --cutoff); {_untouched(out, existed)}"
         )
     except Exception as exc:

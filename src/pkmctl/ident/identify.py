@@ -209,6 +209,33 @@ def _sniff(path: Path) -> str:
             "the first line is a comment ('#...'): remove it; the first line must name the "
             "columns t, q1..q4, tau1..tau4"
         )
+    first = text.lstrip().splitlines()[0] if text.strip() else ""
+    for sep, name in ((";", "';'"), ("\t", "tabs")):
+        if sep in first and "," not in first:  # (a European CSV: ';' and decimal commas)
+            return (
+                f"the columns are separated by {name} (the header: {_printable(first, 60)!r}); "
+                "identify reads comma-separated values with '.' decimals"
+            )
+    return ""
+
+
+def _parse_failure(path: Path, message: str) -> str:
+    """What a CSV parse error means, where pyarrow's words do not say it ("" if not): a
+    last line cut short (a log copied while written), memory exhausted."""
+    if "malloc" in message and "failed" in message:
+        raise MemoryError(message)  # the command's out-of-memory line, not "unreadable"
+    if "Expected" in message and "columns, got" in message:
+        try:
+            with open(path, "rb") as fh:
+                lines = fh.read().rstrip(b"\r\n").splitlines()
+        except OSError:
+            return ""
+        if len(lines) > 2 and lines[-1].count(b",") < lines[0].count(b","):
+            return (
+                f"the last line (data row {len(lines) - 1}) is incomplete, "
+                f"{lines[-1].count(b',') + 1} of {lines[0].count(b',') + 1} columns: the "
+                "file was cut short (copied while written?); remove that line"
+            )
     return ""
 
 
@@ -232,10 +259,10 @@ def _read_table(path: Path, what: str = "log") -> tuple[dict, dict[str, int], li
 
                 table = pacsv.read_csv(fh)
     except Exception as exc:  # pyarrow's errors: ArrowInvalid, OSError, ...
-        hint = _sniff(path)
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        hint = _sniff(path) or _parse_failure(path, first)
         if hint:
             raise IdentificationError(f"{where}: {hint}") from None
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise IdentificationError(
             f"{where}: not a readable Parquet or CSV table ({_printable(first, 80)})"
         ) from None
@@ -483,19 +510,31 @@ def _forward_kinematics(
     q = np.ascontiguousarray(log.q, dtype=float)
     bad, worst = fk_batch(mech.geometry, q, mech.home.copy(), 1e-13, 1e-15, 50, X)
     if bad >= 0:
+        home = float(np.mean(mech.inverse_kinematics(mech.home)))
+        units = (  # lengths in mm read as m: 714 m limbs (a tester)
+            f"; lengths of {np.median(q[bad]):.4g} m where the machine's are ~{home:.2g} m: "
+            "in millimetres? (q must be in metres)"
+            if np.median(q[bad]) > 100 * home
+            else ""
+        )
         raise IdentificationError(
             f"{log.where}: forward kinematics failed at t = {log.t[bad]:.6g} s "
-            f"(q = {q[bad].tolist()} m): not lengths of {machine}, or a singular pose"
+            f"(q = {q[bad].tolist()} m): not lengths of {machine}, or a singular pose{units}"
         )
     if worst > max_residual:
         qx, _ = limbs_batch(mech.geometry, X)
-        res = np.abs(qx - q).max(axis=1)
-        k = int(np.argmax(res))
+        dev = np.abs(qx - q)
+        res = dev.max(axis=1)
+        over = np.flatnonzero(res > max_residual)
+        k = int(over[0])  # where it starts: an encoder wrap at 6.000 s was named at 6.772 s,
+        # the worst row (a tester)
         raise IdentificationError(
             f"{log.where}: the lengths do not fit the geometry of {machine}: forward-"
-            f"kinematics residual {res[k]:.3g} m at data row {k + 1} (t = {log.t[k]:.6g} s), "
-            f"more than the {max_residual:.3g} m quantisation and sensor noise explain "
-            "(q columns swapped or in other units, or another machine: give its --scenario)"
+            f"kinematics residuals over the {max_residual:.3g} m quantisation and sensor "
+            f"noise explain from data row {k + 1} (t = {log.t[k]:.6g} s): {over.size} rows, "
+            f"the worst {res.max():.3g} m, most on q{int(np.argmax(dev[over].max(axis=0))) + 1}"
+            " (a jump or glitch in a length column, q columns swapped or in other units, or "
+            "another machine: give its --scenario)"
         )
     return X, float(worst)
 
@@ -602,6 +641,11 @@ def _check_rate(log: Log, cutoff: float, diff_cutoff: float | None) -> tuple[flo
                 f"{DIFF_CUTOFF_RATIO:g} x the sample rate, must be >= {MIN_POSE_TO_CUTOFF:g} x "
                 f"the cutoff); at {cutoff:g} Hz the log must be sampled at >= "
                 f"{cutoff * MIN_POSE_TO_CUTOFF / DIFF_CUTOFF_RATIO:.4g} Hz"
+                + (  # a machine's log at 1 Hz over hours: t in ms (a tester's log said 1 Hz)
+                    "; t in milliseconds? (t must be in seconds)"
+                    if fs <= 2.0 and log.t[-1] - log.t[0] > 600.0
+                    else ""
+                )
             )
     else:
         fd = diff_cutoff
