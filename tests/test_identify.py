@@ -1002,3 +1002,21 @@ def test_csv_files_as_other_tools_write_them_are_named(tmp_path):
         r"3 of 9 columns: the file was cut short",
     ):
         read_log(tmp_path / "cut.csv")  # fmt: skip
+
+
+def test_forces_clipped_by_the_logger_are_noted(exciting):
+    """Forces clipped at +-280 N in 1-9 % of the samples passed every check and gave a
+    platform of 1.2 kg for 12.75 (a tester). No check can tell them from the machine, but
+    a column sitting exactly at its extremes is said; a clean log says nothing of it."""
+    from pkmctl.ident.identify import _clipped
+
+    _, sc = exciting
+    log = _clean(sc)
+    assert _clipped(log.tau) == ""
+    top = np.quantile(np.abs(log.tau[:, 2]), 0.97)
+    clipped = _with(log, tau=lambda tau: np.column_stack(
+        [tau[:, :2], np.clip(tau[:, 2], -top, top), tau[:, 3:]]))  # fmt: skip
+    said = _clipped(clipped.tau)
+    assert said.startswith("tau3 is exactly ") and " % of the samples" in said, said
+    notes = identify(clipped, sc, force_lead=None).notes
+    assert any(n.startswith("tau3 is exactly") and "clips the force" in n for n in notes), notes
