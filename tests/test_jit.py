@@ -212,6 +212,7 @@ def test_a_cache_that_cannot_be_written_is_said_once_and_not_called_cached(tmp_p
     lines = []
     monkeypatch.setattr(cli, "_say", lines.append)
     monkeypatch.setattr(cli, "_CACHE_WARNED", [])
+    monkeypatch.setattr(cli, "_COMPILED", set())
     monkeypatch.setattr(_jit, "cache_writable", lambda: False)
     compiles = cli._Compiles()
     with compiles.listen():  # one group's kernels one after another: said once, summed
@@ -234,6 +235,40 @@ def test_a_cache_that_cannot_be_written_is_said_once_and_not_called_cached(tmp_p
     monkeypatch.setattr(workers, "spawn_pool", no_pool)
     paper = pkmctl.Scenario.builtin("paper")
     assert precompile(paper, ["smc", "fsmc"], workers=2) == []  # nothing could be shared
+
+
+def test_each_group_of_kernels_is_named_and_a_later_compile_is_more_of_it(monkeypatch):
+    """A first reproduce said "compiling the model kernels" three times: the kinematics,
+    then the fuzzy engine's kernels, then one more fuzzy kernel after the report."""
+    from pkmctl import _jit, cli
+    from pkmctl._jit import announce
+
+    def fuzzy_like(x):
+        return 3.0 * x
+
+    fuzzy_like.__module__ = "pkmctl.fuzzy.engine"
+    heard = []
+    with announce(lambda event, what, seconds: heard.append(what)):
+        assert njit(cache=False)(fuzzy_like)(1.0) == 3.0
+    assert heard == ["the fuzzy kernels"] * 2
+    lines = []
+    monkeypatch.setattr(cli, "_say", lines.append)
+    monkeypatch.setattr(cli, "_COMPILED", set())
+    monkeypatch.setattr(_jit, "cache_writable", lambda: True)
+    for what in ("the model kernels", "the fuzzy kernels", "the model kernels",
+                 "the control loop", "the control loop"):  # fmt: skip
+        compiles = cli._Compiles()
+        with compiles.listen():  # a listener per step, as reproduce has
+            compiles("start", what, 0.0)
+            compiles("end", what, 1.0)
+    said = [line.split(" (")[0] for line in lines]
+    assert said == [
+        "compiling the model kernels", "compiled the model kernels in 1.0 s",
+        "compiling the fuzzy kernels", "compiled the fuzzy kernels in 1.0 s",
+        "compiling more of the model kernels", "compiled more of the model kernels in 1.0 s",
+        "compiling the control loop", "compiled the control loop in 1.0 s",
+        "compiling the control loop", "compiled the control loop in 1.0 s",
+    ]  # fmt: skip
 
 
 _HELPER = """

@@ -390,6 +390,16 @@ def _as_typed(exc: Exception, seed, duration) -> Exception:
 
 #: whether this process said that the compile cache cannot be written (said once)
 _CACHE_WARNED: list[bool] = []
+#: the groups of kernels this process has said it compiled: a group compiled again later
+#: (a kernel first called by a later step) is "more of" it, not a second first compile
+_COMPILED: set[str] = set()
+
+
+def _more(what: str) -> str:
+    # (a second control loop is another loop, not more of the first)
+    return f"more of {what}" if what in _COMPILED and what.endswith("kernels") else what
+
+
 #: the :class:`_Compiles` listening now
 _LISTENING: list = []
 
@@ -430,7 +440,7 @@ class _Compiles:
                         "writable folder)"
                     )
                 when = "once per machine; minutes on a first run" if kept else "not cached"
-                self._show(f"compiling {what} ({when})…")
+                self._show(f"compiling {_more(what)} ({when})…")
             else:
                 self.done += 1
                 before = self.pending[1] if self.pending and self.pending[0] == what else 0.0
@@ -458,7 +468,8 @@ class _Compiles:
             what, seconds = self.pending
             self.pending = None
             where = "saved in the cache for later runs" if kept else "not cached"
-            self._show(f"compiled {what} in {seconds:.1f} s ({where})")
+            self._show(f"compiled {_more(what)} in {seconds:.1f} s ({where})")
+            _COMPILED.add(what)
 
     @contextlib.contextmanager
     def listen(self):
