@@ -136,6 +136,18 @@ def test_a_save_over_a_pair_replaces_both_and_follows_the_umask(runs, tmp_path):
     _same(load_result(meta), runs["seed9long"])
 
 
+def test_a_pair_whose_names_just_fit_can_be_saved_again(runs, tmp_path):
+    """A 233-character stem was saved once and then never again: the name the old file
+    is kept by while the new one is renamed in was 4 bytes over the limit (a tester)."""
+    from pkmctl.io.atomic import TEMP_EXTRA, _name_max
+
+    stem = "x" * (_name_max(tmp_path) - TEMP_EXTRA - len(".parquet"))
+    save_result(runs["seed0"], tmp_path, stem)
+    table, meta = save_result(runs["seed9long"], tmp_path, stem)
+    _same(load_result(meta), runs["seed9long"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"{stem}.json", f"{stem}.parquet"]
+
+
 def test_a_ctrl_c_held_while_the_pair_is_renamed_goes_to_the_handler_that_was_there(
     runs, tmp_path, monkeypatch
 ):

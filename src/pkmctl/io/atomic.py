@@ -179,20 +179,28 @@ def _aside(target: Path) -> tuple[Path, bool]:
     file renamed."""
     import secrets
 
-    old = target.with_name(f".{target.name}.old-{secrets.token_hex(4)}.tmp")
-    try:
-        os.link(target, old, follow_symlinks=False)
-    except OSError:
-        os.rename(target, old)
-        return old, False
-    return old, True
+    while True:
+        # no longer than atomic_write's temporary name (TEMP_EXTRA): a file whose name
+        # just fitted was written once and then could not be replaced (a tester)
+        old = target.with_name(f".{target.name}.old{secrets.token_hex(3)[:5]}.tmp")
+        try:
+            os.link(target, old, follow_symlinks=False)
+        except FileExistsError:
+            continue  # (another writer's name: never rename over it)
+        except OSError:
+            if old.exists() or old.is_symlink():
+                continue
+            os.rename(target, old)
+            return old, False
+        return old, True
 
 
 # ---------------------------------------------------------------- a set of files at once
 _STAGE_PREFIX = ".pkmctl-"
 
 
-#: What atomic_write's temporary name adds to a file's: "." + name + "." + 8 + ".tmp".
+#: What atomic_write's temporary name adds to a file's: "." + name + "." + 8 + ".tmp";
+#: the name a replaced file is kept by meanwhile adds as much (``_aside``).
 TEMP_EXTRA = 14
 
 
