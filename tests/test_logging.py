@@ -198,11 +198,37 @@ def test_campaign_paths_honour_decimation():
 
 def test_windows_the_loop_did_not_accumulate_are_refused():
     r = pkmctl.simulate(_scenario(**{"timing.duration": 0.3, "logging.every": 10}), "smc")
-    with pytest.raises(ValueError, match=r"t_from = 0.1: the log is decimated"):
+    with pytest.raises(ValueError, match=r"t_from = 0.1: the loop accumulated .*one period in 10"):
         metrics.rmse(r, t_from=0.1)
     with pytest.raises(ValueError, match="logged one row every 10 periods"):
         metrics.rmse(r, source="log")
     assert metrics.rmse(r, t_from=0.2) == metrics.rmse(r, t_from=0.2, source="loop")
+    # a log of every period: the loop's windows are not all there is (it said "the log
+    # is decimated"; a tester)
+    full = pkmctl.simulate(_scenario(**{"timing.duration": 0.3}), "smc")
+    with pytest.raises(ValueError, match=r"0.1: the loop .* only; source='log' gives any"):
+        metrics.rmse(full, t_from=0.1, source="loop")
+    assert metrics.rmse(full, t_from=0.1)["z_mm"] > 0
+
+
+@pytest.mark.parametrize("source", ["log", "loop"])
+@pytest.mark.parametrize("metric", ["rmse", "max_error", "mean_error"])
+def test_a_window_after_the_last_sample_is_one_line_from_either_source(metric, source):
+    """max_error gave numpy's "zero-size array to reduction operation maximum", and
+    mean_error NaN with two warnings, where rmse said "no samples after it" (a tester)."""
+    import warnings
+
+    r = pkmctl.simulate(_scenario(**{"timing.duration": 0.3}), "smc")
+    call = getattr(metrics, metric)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for t_from in (0.2, 0.2999):  # the last sample (t = 0.29995) alone in the latter
+            assert np.isfinite(list(call(r, t_from=t_from, source="log").values())).all()
+        with pytest.raises(ValueError, match=r"^t_from = 1.0: no samples after it$"):
+            call(r, t_from=1.0, source=source)  # a window of the loop's, after the end
+        with pytest.raises(ValueError, match=r"^t_from = 0.5: "):
+            call(r, t_from=0.5, source=source)
+        assert call(r, t_from=0.2, source="auto") == call(r, t_from=0.2, source="log")
 
 
 # ------------------------------------------------------------------ the stepped driver

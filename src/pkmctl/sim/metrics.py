@@ -109,7 +109,7 @@ class LoopMetrics:
             if abs(w - t_from) <= _SAME_TIME:
                 return i
         raise ValueError(
-            f"t_from = {t_from:g}: the log is decimated and the loop accumulated the metrics "
+            f"t_from = {t_from:g}: the loop accumulated the metrics "
             f"from t = {', '.join(f'{w:g}' for w in self.windows)} s only"
         )
 
@@ -189,14 +189,17 @@ def _every(result) -> int:
     return int(getattr(result, "every", 1))
 
 
-def _errors(result, t_from: float = 0.0) -> np.ndarray:
-    """(N, 7) errors [z (mm), alpha (deg), beta (deg), q1..q4 (m)] from t_from on."""
+def _errors(result, t_from: float = 0.0, *, samples: bool = False) -> np.ndarray:
+    """(N, 7) errors [z (mm), alpha (deg), beta (deg), q1..q4 (m)] from t_from on;
+    ``samples``: refuse N = 0."""
     # into one array, not np.hstack: its row-by-row copy cost 5x the subtractions
     e = np.empty((result.t.size, 7))
     np.subtract(result.X_desired, result.X, out=e[:, :3])
     np.subtract(result.q_desired, result.q, out=e[:, 3:])
     if result.t.size and result.t[0] < t_from - _SAME_TIME:  # else every sample: no copy
         e = e[result.t >= t_from - _SAME_TIME]
+    if samples and e.shape[0] == 0:
+        raise _no_samples(t_from)
     e *= ERROR_SCALE
     return e
 
@@ -205,10 +208,27 @@ def _keyed(values: np.ndarray) -> dict[str, float]:
     return dict(zip(RMSE_KEYS, values.tolist(), strict=True))
 
 
-def _loop_window(result, t_from: float) -> tuple[LoopMetrics, int, int]:
+def _no_samples(t_from: float) -> ValueError:
+    # (max_error and mean_error had no check: numpy's "zero-size array to reduction
+    # operation", or NaN with warnings; a tester)
+    return ValueError(f"t_from = {t_from}: no samples after it")
+
+
+def _loop_window(result, t_from: float, *, samples: bool = False) -> tuple[LoopMetrics, int, int]:
+    """The loop's accumulators, the row of ``t_from``'s window and its periods;
+    ``samples``: refuse a window with none."""
     lm = result.loop_metrics
-    i = lm.window(t_from)
-    return lm, i, int(lm.count[i])
+    try:
+        i = lm.window(t_from)
+    except ValueError as exc:  # why the log cannot give it, or that it can
+        every = _every(result)
+        why = (f"the log keeps one period in {every} (logging.every)" if every > 1
+               else "source='log' gives any t_from")  # fmt: skip
+        raise ValueError(f"{exc}; {why}") from None
+    n = int(lm.count[i])
+    if samples and n == 0:
+        raise _no_samples(t_from)
+    return lm, i, n
 
 
 def sample_count(result, *, t_from: float = 0.0, source: str = "auto") -> int:
@@ -222,34 +242,25 @@ def sample_count(result, *, t_from: float = 0.0, source: str = "auto") -> int:
 def rmse(result, *, t_from: float = 0.0, source: str = "auto") -> dict[str, float]:
     """RMSE over the control samples at t >= t_from (eq. 55-57; Table 4's units)."""
     if _use_loop(result, source, t_from):
-        lm, i, n = _loop_window(result, t_from)
-        if n == 0:
-            raise ValueError(f"t_from = {t_from}: no samples after it")
+        lm, i, n = _loop_window(result, t_from, samples=True)
         return _keyed(np.sqrt(lm.sum_squared_error[i] / n))
-    e = _errors(result, t_from)
-    if e.shape[0] == 0:
-        raise ValueError(f"t_from = {t_from}: no samples after it")
-    return _keyed(np.sqrt(np.mean(e**2, axis=0)))
+    return _keyed(np.sqrt(np.mean(_errors(result, t_from, samples=True) ** 2, axis=0)))
 
 
 def max_error(result, *, t_from: float = 0.0, source: str = "auto") -> dict[str, float]:
     """Largest |error| at t >= t_from, same keys and units as :func:`rmse`."""
     if _use_loop(result, source, t_from):
-        lm, i, n = _loop_window(result, t_from)
-        if n == 0:
-            raise ValueError(f"t_from = {t_from}: no samples after it")
+        lm, i, _ = _loop_window(result, t_from, samples=True)
         return _keyed(lm.max_abs_error[i])
-    e = _errors(result, t_from)
-    return _keyed(np.max(np.abs(e), axis=0))
+    return _keyed(np.max(np.abs(_errors(result, t_from, samples=True)), axis=0))
 
 
 def mean_error(result, *, t_from: float = 0.0, source: str = "auto") -> dict[str, float]:
     """Mean (signed) error at t >= t_from, same keys and units as :func:`rmse`."""
     if _use_loop(result, source, t_from):
-        lm, i, n = _loop_window(result, t_from)
-        return _keyed(lm.sum_error[i] / n if n else np.full(7, np.nan))
-    e = _errors(result, t_from)
-    return _keyed(np.mean(e, axis=0))
+        lm, i, n = _loop_window(result, t_from, samples=True)
+        return _keyed(lm.sum_error[i] / n)
+    return _keyed(np.mean(_errors(result, t_from, samples=True), axis=0))
 
 
 def chattering_index(result, *, source: str = "auto") -> np.ndarray:
