@@ -86,6 +86,19 @@ def reference(spec_file, tmp_path_factory):
             "factors.'payload.mass': a draw of its normal distribution (seed 1) is outside the "
             "field's range: payload.mass = -0.80",
         ),
+        # over an integer or a vector: "outside the field's range ... narrow the
+        # distribution", which no narrowing mends (a tester)
+        (
+            '[factors."sensor.counts_per_rev"]\ndistribution = "uniform"\nlow = 1000.0\n'
+            "high = 2000.0\nsamples = 2\n",
+            "factors.'sensor.counts_per_rev': a distribution draws one real number a cell, "
+            "and this field takes an integer (now 160000): give its values instead",
+        ),
+        (
+            '[factors."disturbance.amplitude"]\ndistribution = "uniform"\nlow = 0.0\n'
+            "high = 1.0\nsamples = 3\n",
+            "this field takes a list of 3 numbers (now [2.0, 2.0, 2.0])",
+        ),
     ],
 )
 def test_bad_specs_fail_in_one_line_before_anything_runs(tmp_path, change, expected):

@@ -254,6 +254,34 @@ def _factor_values(path: str, body: Any, runs_per_cell: int = 1) -> tuple[list, 
     return draws.tolist(), {}
 
 
+def _check_drawn_kinds(base, factors: dict) -> None:
+    """Refuse a distribution over a field that takes an integer or a list: every draw is
+    one real number, and was refused as "outside the field's range; narrow the
+    distribution", which no narrowing mends (a tester)."""
+    for path, body in factors.items():
+        if not (isinstance(body, dict) and "distribution" in body):
+            continue
+        now: Any = base
+        for name in path.split("."):
+            now = getattr(now, name, None)
+        if isinstance(now, bool) or now is None or isinstance(now, float):
+            continue
+        if isinstance(now, int | np.integer):
+            kind = "an integer"
+        elif isinstance(now, list | tuple | np.ndarray):
+            kind = f"a list of {len(now)} numbers"
+        else:
+            continue
+        raise _fail(
+            f"factors.{path!r}: a distribution draws one real number a cell, and this field "
+            f"takes {kind} (now {_shown(now)}): give its values instead (values = [...])"
+        )
+
+
+def _shown(value) -> str:
+    return repr(value.tolist() if isinstance(value, np.ndarray) else value)
+
+
 def _same(a, b) -> bool:
     """Two factor values that make the same cell (5 and 5.0 do; True and 1 do not)."""
     if isinstance(a, bool) or isinstance(b, bool):
@@ -547,6 +575,7 @@ class CampaignSpec:
         per_cell = len(controllers) * len(seeds)
         parsed = {p: _factor_values(p, body, per_cell) for p, body in factors.items()}
         _check_fields(parsed)
+        _check_drawn_kinds(base, factors)
         if fis_files is None:
             fis_files = _fis_files(parsed, folder or Path.cwd())
         _same_fis_twice(factors, parsed, fis_files)
