@@ -263,10 +263,18 @@ def test_write_fis_and_unwritable_names(tmp_path, flc):
     with pytest.raises(ValueError, match="cannot be written"):
         fis.to_fis_text(fz.MamdaniSystem((x,), x, [fz.Rule((0,), 0)]))
     # a term's name too: it was written, and the file could not be read back
-    for bad in ("it's low", "two\nlines"):
+    for bad in ("it's low", "two\nlines", "", " "):  # (an empty one too; a tester)
         y = fz.Variable("y", (0.0, 1.0), (fz.Term(bad, "trimf", (0, 0.5, 1)),))
         with pytest.raises(ValueError, match="cannot be written"):
             fis.to_fis_text(fz.MamdaniSystem((y,), y, [fz.Rule((0,), 0)]))
+    for bad in ("", " "):  # an input or output with no name
+        z = fz.Variable(bad, (0.0, 1.0), (fz.Term("a", "trimf", (0, 0.5, 1)),))
+        y = fz.Variable("y", (0.0, 1.0), (fz.Term("a", "trimf", (0, 0.5, 1)),))
+        for system in (fz.MamdaniSystem((z,), y, [fz.Rule((0,), 0)]),
+                       fz.MamdaniSystem((y,), z, [fz.Rule((0,), 0)])):  # fmt: skip
+            with pytest.raises(ValueError, match="no name cannot be written"):
+                fis.write_fis(system, tmp_path / "nameless.fis")
+    assert not (tmp_path / "nameless.fis").exists()
 
 
 def test_odd_text_reads_with_its_line_numbers(tmp_path):

@@ -562,10 +562,15 @@ def to_fis_text(system: MamdaniSystem | FuzzySystem) -> str:
     g = system if isinstance(system, FuzzySystem) else FuzzySystem.from_mamdani(system)
     names = [g.name] + [v.name for v in (*g.inputs, *g.outputs)]
     names += [t.name for v in (*g.inputs, *g.outputs) for t in v.terms]
-    for name in names:  # read_fis could not read them back
+    for i, name in enumerate(names):  # read_fis could not read them back
         if "'" in name or any(c in name for c in "\n\r\x85\u2028\u2029"):
             raise ValueError(
                 f"name {name!r} cannot be written to a .fis file (no quote or line break)"
+            )
+        if i and not name.strip():  # (a system's name may be empty; a tester)
+            raise ValueError(
+                f"name {name!r}: a variable or term with no name cannot be written to a "
+                ".fis file (read_fis refuses it)"
             )
     out = [
         "[System]",
