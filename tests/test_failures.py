@@ -126,6 +126,27 @@ def test_out_name_too_long_is_refused(tmp_path):
     assert "longer than" in line and not leftovers(tmp_path)
 
 
+def test_the_name_limit_is_the_output_file_systems(tmp_path, monkeypatch):
+    """The limit was read from "/", whatever file system the output is on (eCryptfs
+    allows 143 bytes; a code reader)."""
+    real = os.pathconf
+    small = tmp_path / "small"
+    small.mkdir()
+
+    def pathconf(path, name):
+        inside = Path(path) == small or small in Path(path).parents
+        return 143 if inside and name == "PC_NAME_MAX" else real(path, name)
+
+    monkeypatch.setattr(os, "pathconf", pathconf)
+    name = "x" * 150
+    line = one_line(runner.invoke(app, ["reproduce", "--out", str(small / "new" / name)]), 2)
+    assert "is longer than 143 bytes" in line and not leftovers(tmp_path)
+    line = one_line(runner.invoke(app, ["excite", "--out", str(small / (name + ".toml"))]), 2)
+    assert "the name is too long (at most 129 bytes" in line
+    elsewhere = ["reproduce", "--out", str(tmp_path / name), "--duration", "-1"]
+    assert one_line(runner.invoke(app, elsewhere), 2).startswith("error: --duration")
+
+
 @pytest.mark.parametrize("command", [["excite"], ["mujoco-model"]])
 def test_an_out_file_that_is_a_pipe_or_its_name_too_long_is_refused(tmp_path, command):
     """A FIFO (or, as root, /dev/null) at --out was replaced by a regular file; a name of

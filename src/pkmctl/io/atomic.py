@@ -205,6 +205,12 @@ TEMP_EXTRA = 14
 
 
 def _name_max(folder: Path) -> int:
+    """The longest file name (bytes) in ``folder``, or in the nearest folder above it
+    that exists: the file system the path is on (it was read from "/", whose limit a
+    mounted file system, 143 bytes on eCryptfs, need not share)."""
+    folder = Path(os.path.abspath(folder))
+    while not os.path.isdir(folder) and folder != folder.parent:  # (False if too long)
+        folder = folder.parent
     try:
         return os.pathconf(folder, "PC_NAME_MAX")
     except (OSError, ValueError):
@@ -231,7 +237,7 @@ def check_output_folder(
         raise OutputError(f"{what} = {text!r}: empty path (name a folder, e.g. pkmctl-out)")
     path = Path(text).expanduser()  # ("--out=~/x", which the shell leaves: a folder "~")
     shown = repr(text if len(text) <= 80 else text[:60] + "..." + text[-10:])
-    limit = _name_max(Path("/"))
+    limit = _name_max(path)
     for part in path.parts:
         if len(os.fsencode(part)) > limit:  # before any stat(), which would fail unclearly
             raise OutputError(
@@ -554,7 +560,7 @@ def check_output_file(path: str | os.PathLike[str], *, what: str = "output file"
     if not str(text).strip():
         raise OutputError(f"{what} = {text!r}: empty path")
     path = Path(text).expanduser()  # ("--out=~/x", which the shell leaves)
-    longest = _name_max(Path("/")) - TEMP_EXTRA
+    longest = _name_max(path.parent) - TEMP_EXTRA
     if len(os.fsencode(path.name)) > longest:  # (242-255 bytes: a traceback after the work)
         raise OutputError(
             f"{what} {text[:60]!r}...: the name is too long (at most {longest} bytes: the "
