@@ -938,21 +938,16 @@ def test_a_spawned_worker_importing_pkmctl_as_it_prepares_keeps_pythons_ctrl_c(t
     assert res.stderr == "", res.stderr
 
 
-@pytest.mark.parametrize(
-    ("sig", "after"),
-    [("SIGTERM", "simulating "), ("SIGTERM", "drawing "), ("SIGHUP", "simulating ")],
-)
-def test_sigterm_is_handled_as_ctrl_c(old_results, sig, after):
-    """SIGTERM (kill, a job scheduler's stop) was not handled: the staging folder with all
-    written so far stayed behind (9.8 MB for a 0.5 s reproduce), and the figure processes
-    too. Now the same clean-up as Ctrl-C, the folder as it was; said and ended as itself:
-    "terminated (SIGTERM)", exit 143 (128 + 15, as a shell reports it; it was 130). SIGHUP
-    (a terminal closed) too: it left a 34 MB staging folder in OUT (a tester)."""
+def _signal_reproduce(out: Path, sig: str, after: str, *, hangup):
+    """A 0.5 s reproduce into ``out`` sent ``sig`` once it has said ``after``; started
+    with SIGHUP set to ``hangup``: a test run under nohup passed SIG_IGN on, and the
+    SIGHUP case skipped itself as "the run ended before the signal" (pkmctl rightly keeps
+    an ignored SIGHUP ignored)."""
     env = dict(os.environ, PYTHONPATH=str(SRC))
     proc = subprocess.Popen(
-        [sys.executable, "-m", "pkmctl", "reproduce", "--duration", "0.5", "--out",
-         str(old_results)],
+        [sys.executable, "-m", "pkmctl", "reproduce", "--duration", "0.5", "--out", str(out)],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGHUP, hangup),
     )  # fmt: skip
     lines: queue.Queue = queue.Queue()
     threading.Thread(target=_read_lines, args=(proc.stderr, lines), daemon=True).start()
@@ -963,13 +958,35 @@ def test_sigterm_is_handled_as_ctrl_c(old_results, sig, after):
             assert line is not None, "".join(seen)
             seen.append(line)
         proc.send_signal(getattr(signal, sig))
-        proc.wait(timeout=20)
+        proc.wait(timeout=60)
     finally:
         proc.kill()
     while (line := lines.get(timeout=10)) is not None:
         seen.append(line)
+    return proc, seen
+
+
+def test_an_ignored_sighup_stays_ignored(old_results):
+    """Under nohup (SIGHUP ignored) a hang-up does not stop the run: it ends and writes."""
+    proc, seen = _signal_reproduce(old_results, "SIGHUP", "simulating ", hangup=signal.SIG_IGN)
+    assert proc.returncode == 0, "".join(seen)
+    assert (old_results / "report.md").read_text() != "old report, seed 0\n"
+    assert not leftovers(old_results.parent)
+
+
+@pytest.mark.parametrize(
+    ("sig", "after"),
+    [("SIGTERM", "simulating "), ("SIGTERM", "drawing "), ("SIGHUP", "simulating ")],
+)
+def test_sigterm_is_handled_as_ctrl_c(old_results, sig, after):
+    """SIGTERM (kill, a job scheduler's stop) was not handled: the staging folder with all
+    written so far stayed behind (9.8 MB for a 0.5 s reproduce), and the figure processes
+    too. Now the same clean-up as Ctrl-C, the folder as it was; said and ended as itself:
+    "terminated (SIGTERM)", exit 143 (128 + 15, as a shell reports it; it was 130). SIGHUP
+    (a terminal closed) too: it left a 34 MB staging folder in OUT (a tester)."""
+    proc, seen = _signal_reproduce(old_results, sig, after, hangup=signal.SIG_DFL)
     if proc.returncode == 0:  # it had finished first: nothing to check here
-        pytest.skip("the run ended before the signal")
+        pytest.skip(f"{sig} after {after!r}: the run ended before the signal")
     number, word = {"SIGTERM": (15, "terminated"), "SIGHUP": (1, "hung up")}[sig]
     assert proc.returncode == 128 + number, "".join(seen)
     assert seen[-1].startswith(f"{word} ({sig}) after "), seen[-1]
