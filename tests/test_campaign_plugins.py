@@ -82,9 +82,9 @@ def test_a_resume_with_an_edited_plugin_part_is_refused(tmp_path, monkeypatch):
     check_store(out, spec, resume=True)  # the same source: a resume goes on
     plugin.write_text(plugin.read_text().replace("GAIN = 1.0e4", "GAIN = 2.0e4"))  # edited
     expected = (
-        f"--resume: controller {name!r}: its source changed since the campaign in "
-        f"{str(out)!r} started ({plugin.name}); its records would mix two versions of it: "
-        f"restore the source, or run the campaign into another --out"
+        f"--resume: controller {name!r}: its source, or a value its code reads, changed "
+        f"since the campaign in {str(out)!r} started ({plugin.name}); its records would mix "
+        f"two versions of it: restore them, or run the campaign into another --out"
     )
     with pytest.raises(SpecError) as err:
         run_campaign(spec, out, workers=1, resume=True)
@@ -94,6 +94,28 @@ def test_a_resume_with_an_edited_plugin_part_is_refused(tmp_path, monkeypatch):
     assert res.exit_code == 2, res.output
     assert res.stderr.strip().splitlines()[-1] == f"error: {expected}"
     assert list((out / "runs").iterdir()) == []
+
+
+def test_a_resume_after_a_value_imported_by_the_part_changed_is_refused(tmp_path, monkeypatch):
+    """Gains imported from a helper module (``from gains import GAIN``) and read by the
+    part's from_context: editing the helper changed no hashed source, and a resume mixed
+    two versions of the controller in one campaign, exit 0 (a tester)."""
+    monkeypatch.setenv(ENV, "")
+    helper = "gains_" + uuid.uuid4().hex[:10]
+    (tmp_path / f"{helper}.py").write_text("GAIN = 1.0e4\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    source = LAW.replace("GAIN = 1.0e4", f"from {helper} import GAIN")
+    plugin, name = _plugin(tmp_path, source)
+    spec = CampaignSpec.from_toml(_spec(tmp_path, ["pd", name]))
+    out = tmp_path / "c"
+    open_store(out, spec, resume=False)
+    check_store(out, spec, resume=True)  # nothing changed: a resume goes on
+    # a new process after the helper's edit: the plugin imports the new value
+    monkeypatch.setattr(sys.modules[plugin.stem], "GAIN", 2.0e4)
+    with pytest.raises(SpecError, match=f"controller {name!r}: its source, or a value its"):
+        check_store(out, spec, resume=True)
+    monkeypatch.setattr(sys.modules[plugin.stem], "GAIN", 1.0e4)
+    check_store(out, spec, resume=True)  # restored: it goes on
 
 
 def test_a_part_that_does_not_compile_stops_the_campaign_before_any_record(tmp_path, monkeypatch):

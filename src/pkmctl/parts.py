@@ -607,7 +607,7 @@ def user_sources(fn: Callable) -> set[str]:
 _SIMPLE = (bool, int, float, complex, str, bytes, type(None), np.generic)
 
 
-def global_values(parts: Iterable[Part]) -> str:
+def global_values(parts: Iterable[Part], *, functions: Iterable[Callable] = ()) -> str:
     """A digest of what the user's parts compile in besides their files' text, for the
     cache key of their loop (with :func:`user_sources`): Numba freezes a global value a
     compiled function reads (a number, string, tuple or array, read from the
@@ -615,7 +615,8 @@ def global_values(parts: Iterable[Part]) -> str:
     value must be another loop. Covers the globals and closure values each step function
     reads, and those of the user's own functions it calls, transitively; and the code
     of a function with no file on disk (typed at a prompt, ``python -c``). Built-in
-    parts add nothing."""
+    parts add nothing. ``functions``: more to cover the same way (a campaign adds each
+    part's Python functions, ``build`` among them, whose values make its bundles)."""
     h = hashlib.sha256()
     seen: set[int] = set()
 
@@ -681,6 +682,10 @@ def global_values(parts: Iterable[Part]) -> str:
             continue
         for fn in (*part.functions.values(), *(part.lanes or {}).values()):
             visit(getattr(fn, "py_func", fn))
+    for fn in functions:
+        fn = getattr(fn, "py_func", getattr(fn, "__func__", fn))
+        if inspect.isfunction(fn) and users(fn):
+            visit(fn)
     return h.hexdigest()[:16] if seen else ""
 
 

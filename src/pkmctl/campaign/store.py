@@ -297,8 +297,24 @@ def _part_files(part) -> list[str]:
 
     from pkmctl.parts import user_sources
 
-    package = Path(__file__).resolve().parents[1]
     files = set(part.sources)
+    for fn in _python_functions(part):
+        try:
+            file = inspect.getsourcefile(fn) or ""
+        except TypeError:
+            continue
+        if file:
+            files |= user_sources(fn)
+    return sorted(files)
+
+
+def _python_functions(part) -> list:
+    """A user part's own Python functions (``build``, ``work``, ``report``...): not
+    compiled, but they make its bundles and info."""
+    import inspect
+
+    package = Path(__file__).resolve().parents[1]
+    out = []
     for fn in (part.build, part.make_work, part.initial_state, part.state_size, part.log_size,
                part.report, part.limits, part.memory, part.stepper, part.lane_work,
                part.lane_ok):  # fmt: skip
@@ -308,10 +324,10 @@ def _part_files(part) -> list[str]:
         try:
             file = inspect.getsourcefile(fn) or ""
         except TypeError:
-            continue
-        if file and not Path(file).resolve().is_relative_to(package):
-            files |= user_sources(fn)
-    return sorted(files)
+            file = ""
+        if not (file and Path(file).resolve().is_relative_to(package)):
+            out.append(fn)
+    return out
 
 
 def user_parts(spec: CampaignSpec) -> dict[str, dict]:
@@ -344,7 +360,10 @@ def part_digest(part) -> dict:
             digests.append(hashlib.sha256(Path(f).read_bytes()).hexdigest())
         except OSError:
             digests.append("unreadable:" + Path(f).name)
-    h = hashlib.sha256("\0".join([*sorted(digests), global_values([part])]).encode())
+    # the values its functions read too: gains imported from a helper module ("from
+    # gains import K1") changed between a campaign's sessions unseen (a tester)
+    values = global_values([part], functions=_python_functions(part))
+    h = hashlib.sha256("\0".join([*sorted(digests), values]).encode())
     return {"sha256": h.hexdigest()[:16], "files": files}
 
 
@@ -358,9 +377,9 @@ def _check_parts(out: Path, old: dict, parts: dict[str, dict]) -> None:
         kind, name = key.split(" ", 1)
         files = ", ".join(Path(f).name for f in now["files"]) or "no file"
         raise SpecError(
-            f"--resume: {kind} {name!r}: its source changed since the campaign in "
-            f"{str(out)!r} started ({files}); its records would mix two versions of it: "
-            f"restore the source, or run the campaign into another --out"
+            f"--resume: {kind} {name!r}: its source, or a value its code reads, changed "
+            f"since the campaign in {str(out)!r} started ({files}); its records would mix "
+            f"two versions of it: restore them, or run the campaign into another --out"
         )
 
 
