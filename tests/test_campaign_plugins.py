@@ -22,6 +22,7 @@ from pkmctl.cli import app
 from pkmctl.plugins import ENV
 
 runner = CliRunner()
+SRC = Path(pkmctl.__file__).resolve().parents[1]
 
 LAW = """
 from typing import NamedTuple
@@ -116,6 +117,56 @@ def test_a_resume_after_a_value_imported_by_the_part_changed_is_refused(tmp_path
         check_store(out, spec, resume=True)
     monkeypatch.setattr(sys.modules[plugin.stem], "GAIN", 1.0e4)
     check_store(out, spec, resume=True)  # restored: it goes on
+
+
+_API_RUN = """
+import sys
+from pkmctl.campaign import CampaignSpec
+from pkmctl.campaign.execute import run_campaign
+from pkmctl.campaign.store import read_records
+
+if __name__ == "__main__":
+    import {module}  # registered here only, as a notebook's import does
+    done = run_campaign(CampaignSpec.from_toml(sys.argv[1]), sys.argv[2], workers=2)
+    rows = read_records(sys.argv[2], timing=False).to_pylist()
+    print(sorted({{(r["controller"], r["status"]) for r in rows}}))
+"""
+
+
+def test_from_python_local_workers_import_the_module_that_registered_the_part(
+    tmp_path, monkeypatch
+):
+    """run_campaign(workers=2) from a script that imports its part's module (no
+    --plugin): every run of the part was an error record, its hint naming --plugin."""
+    monkeypatch.delenv(ENV, raising=False)
+    module = "law_" + uuid.uuid4().hex[:10]
+    name = module.replace("_", "-")
+    (tmp_path / f"{module}.py").write_text(LAW.replace("NAME", name))
+    script = tmp_path / "run.py"
+    script.write_text(_API_RUN.format(module=module))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), str(SRC)]))
+    env.pop(ENV, None)
+    res = subprocess.run([sys.executable, str(script), str(_spec(tmp_path, ["pd", name])),
+                          str(tmp_path / "c")], env=env, capture_output=True, text=True,
+                         timeout=600)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == str(sorted({(name, "ok"), ("pd", "ok")})), res.stdout
+    # defined at a prompt or in a notebook cell: no worker can import it, said up front
+    code = LAW.replace("NAME", "typed-law") + (
+        "\nfrom pkmctl.campaign import CampaignSpec\n"
+        "from pkmctl.campaign.execute import run_campaign\n"
+        f"run_campaign(CampaignSpec.from_toml({str(_spec(tmp_path, ['typed-law']))!r}), "
+        f"{str(tmp_path / 'd')!r}, workers=2)\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, timeout=600)  # fmt: skip
+    assert res.returncode == 1
+    assert res.stderr.strip().splitlines()[-1] == (
+        "pkmctl.campaign.spec.SpecError: controller 'typed-law' is registered in a notebook "
+        "or at a prompt, which worker processes cannot import: define it in a module and "
+        "import that, or run with workers=1"
+    ), res.stderr
+    assert not (tmp_path / "d").exists()
 
 
 def test_a_part_that_does_not_compile_stops_the_campaign_before_any_record(tmp_path, monkeypatch):

@@ -308,8 +308,8 @@ def get_part(kind: str, name: str) -> Part:
     except (KeyError, TypeError):
         raise PartError(
             f"{kind} = {short_repr(name)}: must be one of {', '.join(sorted(reg))} (a part of "
-            "your own is registered by importing its module: pkmctl --plugin FILE.py, or a "
-            "Dask worker's --preload FILE.py)"
+            "your own is registered by importing its module: pkmctl --plugin FILE.py, a "
+            "Dask worker's --preload FILE.py, or an import in Python)"
         ) from None
 
 

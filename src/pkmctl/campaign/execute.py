@@ -23,6 +23,7 @@ import contextlib
 import math
 import os
 import socket
+import sys
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -379,8 +380,9 @@ def _local_results(spec: CampaignSpec, tasks: list[Task], workers: int) -> Itera
             yield t, _task_result(spec, t)
         return
     todo = list(tasks)
+    modules = part_modules(spec)
     for attempt in range(_RETRIES + 1):
-        pool = spawn_pool(workers)
+        pool = spawn_pool(workers, modules)
         try:
             futures = {pool.submit(_task_result, spec, t): t for t in todo}
             pending = set(futures)
@@ -406,6 +408,37 @@ def _local_results(spec: CampaignSpec, tasks: list[Task], workers: int) -> Itera
                 "a run there ends its process (a plugin that exits, a crash in compiled "
                 "code, the system's out-of-memory killer); the runs done are kept"
             )
+
+
+def part_modules(spec: CampaignSpec) -> tuple[str, ...]:
+    """The modules, by name, that registered the user parts the campaign's runs use, for
+    local worker processes to import: a part registered from Python (``import my_law``
+    in a script or notebook, no ``--plugin``) made every one of its runs an error record
+    (a tester). A part registered in ``__main__`` is refused here when ``__main__`` has
+    no file (a notebook, a prompt): no worker can import it. A script's ``__main__`` is
+    run again in each worker, which then registers what the script registers at its top
+    level."""
+    from pkmctl.campaign.spec import SpecError
+    from pkmctl.campaign.store import cell_parts
+
+    names: dict[str, None] = {}
+    for combo in cell_parts(spec).values():
+        for part in combo.values():
+            if part.builtin:
+                continue
+            fn = next(iter(part.functions.values()), None) or part.build
+            module = getattr(getattr(fn, "py_func", fn), "__module__", None) or ""
+            if module in ("__main__", "__mp_main__"):
+                if not getattr(sys.modules.get("__main__"), "__file__", None):
+                    raise SpecError(
+                        f"{part.kind} {part.name!r} is registered in a notebook or at a "
+                        "prompt, which worker processes cannot import: define it in a "
+                        "module and import that, or run with workers=1"
+                    )
+                continue
+            if module and not module.startswith("pkmctl."):
+                names[module] = None
+    return tuple(names)
 
 
 class WorkStopped(PkmctlError, RuntimeError):
@@ -695,6 +728,8 @@ def _run(
 ):
     """:func:`run_campaign` once connected (``client``: a Dask client, or None: local)."""
     parts = user_parts(spec)
+    if client is None and workers > 1:
+        part_modules(spec)  # a part no worker process can import: refused before anything
     check_store(out, spec, resume=resume, parts=parts)  # refused before compiling
     _check_plants(spec)
     compile_user_parts(spec)

@@ -53,8 +53,9 @@ def _quiet_resource_tracker() -> None:
         os.close(null)
 
 
-def spawn_pool(workers: int) -> ProcessPoolExecutor:
-    """A pool of ``workers`` fresh (``spawn``) processes that die with this one."""
+def spawn_pool(workers: int, modules: tuple[str, ...] = ()) -> ProcessPoolExecutor:
+    """A pool of ``workers`` fresh (``spawn``) processes that die with this one and
+    import ``modules`` (by name) as they start, besides the plugins."""
     import multiprocessing
 
     _quiet_resource_tracker()
@@ -62,20 +63,27 @@ def spawn_pool(workers: int) -> ProcessPoolExecutor:
         workers,
         mp_context=multiprocessing.get_context("spawn"),
         initializer=_start,
-        initargs=(os.getpid(),),
+        initargs=(os.getpid(), tuple(modules)),
     )
 
 
-def _start(parent: int) -> None:
+def _start(parent: int, modules: tuple[str, ...] = ()) -> None:
     """A worker's start: it dies with ``parent``, and imports the user's plugins
-    (``pkmctl --plugin``), whose parts its runs may use. Ctrl-C here (a plugin's import
-    can take seconds) ends it quietly: the pool would log the exception with a traceback
-    ("Exception in initializer")."""
+    (``pkmctl --plugin``) and ``modules``, whose parts its runs may use. Ctrl-C here (a
+    plugin's import can take seconds) ends it quietly: the pool would log the exception
+    with a traceback ("Exception in initializer")."""
+    import importlib
+
     try:
         die_with_parent(parent)
         if os.environ.get("PKMCTL_PLUGINS"):
             from pkmctl.plugins import load_from_env
 
             load_from_env()
+        for name in modules:
+            try:
+                importlib.import_module(name)
+            except Exception:  # noqa: BLE001, S112 - its runs then say the part is missing
+                continue
     except (KeyboardInterrupt, SystemExit):
         os._exit(130)
