@@ -1156,6 +1156,38 @@ def test_the_resume_hint_after_ctrl_c_is_a_command_to_paste(tmp_path):
     assert f"{hint} completes it" in err, err
 
 
+def test_ctrl_c_after_the_last_run_is_stored_says_the_campaign_is_complete(tmp_path):
+    """It said "60 of 60 runs kept ...; ... --resume completes it" (a tester)."""
+    spec = tmp_path / "s.toml"
+    spec.write_text(HEAD.replace("seeds = 1", "seeds = 2"))
+    out = tmp_path / "c"
+    code = (
+        "import os, signal, sys, time\n"
+        "import pkmctl.campaign.execute as ex\n"
+        "real = ex.run_campaign\n"
+        "def run_then_ctrl_c(*args, **kwargs):\n"
+        "    done = real(*args, **kwargs)\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    time.sleep(30)\n"
+        "    return done\n"
+        "ex.run_campaign = run_then_ctrl_c\n"
+        "from pkmctl.cli import main\n"
+        "main()\n"
+    )
+    env = dict(os.environ, PYTHONPATH=str(Path(pkmctl.__file__).resolve().parents[1]))
+    proc = subprocess.run(
+        [sys.executable, "-c", code, "campaign", "run", str(spec), "--out", str(out),
+         "--workers", "1"],
+        env=env, capture_output=True, text=True, timeout=300,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
+    assert proc.returncode == 130, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.endswith(f": all 2 runs are kept in {out}: the campaign is complete "
+                         f"(pkmctl campaign report {out} reports it)"), last  # fmt: skip
+    assert len(read_records(out, timing=False)) == 2
+
+
 def test_a_report_removes_the_files_it_no_longer_writes(tmp_path):
     from pkmctl.report.campaign import write_report
 

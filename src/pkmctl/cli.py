@@ -1172,6 +1172,9 @@ def campaign_run(
             bar.stop()
             if not (out / "campaign.json").exists():  # stopped before the folder was made
                 return "nothing written"
+            if state["done"] >= spec.n_runs:  # (it said "--resume completes it"; a tester)
+                return (f"all {spec.n_runs} runs are kept in {out}: the campaign is complete "
+                        f"(pkmctl campaign report {out} reports it)")  # fmt: skip
             kept = f"{state['done']} of {spec.n_runs} runs kept in {out}"
             if not existed and state["done"] == 0:
                 kept = f"no run done yet; the campaign folder {out} is made"
