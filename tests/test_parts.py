@@ -67,6 +67,26 @@ def test_a_users_law_runs_in_the_loop_and_matches_the_same_law_from_python(doc_m
     )
 
 
+def test_a_run_of_a_users_part_records_its_version(doc_modules, tmp_path):
+    """A run's JSON said nothing of which version of the user's controller made it: an
+    edited plugin gave other numbers under the same provenance (a tester)."""
+    import json
+
+    import my_law  # noqa: F401
+
+    from pkmctl.io.results import load_result, save_result
+
+    r = pkmctl.simulate("paper", controller="my-law", duration=0.002)
+    users = r.info["software"]["user_parts"]
+    assert list(users) == ["controller my-law"]
+    assert users["controller my-law"]["files"] == [str(doc_modules / "my_law.py")]
+    assert len(users["controller my-law"]["sha256"]) == 16
+    _, meta = save_result(r, tmp_path)
+    assert json.loads(meta.read_text())["software"]["user_parts"] == users
+    assert load_result(meta).info["software"]["user_parts"] == users
+    assert "user_parts" not in pkmctl.simulate("paper", "pd", duration=0.002).info["software"]
+
+
 class _P(NamedTuple):
     a: float
 
@@ -104,7 +124,7 @@ def test_registration_errors_are_one_line():
         pkmctl.simulate("paper", controller="nope", duration=0.01)
     # how a part of one's own is found, a Dask worker's too (a tester's campaign records
     # said "must be one of ..." where the workers lacked the plugin)
-    with pytest.raises(PartError, match=r"or a Dask worker's --preload FILE.py\)$"):
+    with pytest.raises(PartError, match=r"worker's --preload FILE.py, or an import in Python\)$"):
         pkmctl.simulate("paper", controller="nope", duration=0.01)
 
 

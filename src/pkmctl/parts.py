@@ -79,6 +79,7 @@ import sys
 import sysconfig
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from pathlib import Path
 from types import CodeType, ModuleType
 from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, TypeVar
 
@@ -687,6 +688,61 @@ def global_values(parts: Iterable[Part], *, functions: Iterable[Callable] = ()) 
         if inspect.isfunction(fn) and users(fn):
             visit(fn)
     return h.hexdigest()[:16] if seen else ""
+
+
+def _part_files(part) -> list[str]:
+    """The user's source files of a part: those its compiled loop's cache hashes
+    (:attr:`~pkmctl.parts.Part.sources`) and those of its Python functions (``build``,
+    ``work``, ``report``...), which make its bundles and info."""
+    files = set(part.sources)
+    for fn in _python_functions(part):
+        try:
+            file = inspect.getsourcefile(fn) or ""
+        except TypeError:
+            continue
+        if file:
+            files |= user_sources(fn)
+    return sorted(files)
+
+
+def _python_functions(part) -> list:
+    """A user part's own Python functions (``build``, ``work``, ``report``...): not
+    compiled, but they make its bundles and info."""
+    package = Path(__file__).resolve().parent
+    out = []
+    for fn in (part.build, part.make_work, part.initial_state, part.state_size, part.log_size,
+               part.report, part.limits, part.memory, part.stepper, part.lane_work,
+               part.lane_ok):  # fmt: skip
+        fn = getattr(fn, "__func__", fn)  # a classmethod's function
+        if not inspect.isfunction(fn):
+            continue
+        try:
+            file = inspect.getsourcefile(fn) or ""
+        except TypeError:
+            file = ""
+        if not (file and Path(file).resolve().is_relative_to(package)):
+            out.append(fn)
+    return out
+
+
+def part_digest(part) -> dict:
+    """What identifies a user part's version: ``sha256`` (16 hex digits) of its source
+    files' content, as they are now, and of the global values its code reads, and
+    ``files``. A campaign records it (:func:`pkmctl.campaign.store.user_parts`) and its
+    workers report it for the parts they ran, checked against the client's; a Result
+    of a user part keeps it in ``info["software"]["user_parts"]``."""
+    files = _part_files(part)
+    digests = []
+    for f in files:
+        try:
+            digests.append(hashlib.sha256(Path(f).read_bytes()).hexdigest())
+        except OSError:
+            digests.append("unreadable:" + Path(f).name)
+    # the values its functions read too: gains imported from a helper module ("from
+    # gains import K1") changed between a campaign's sessions unseen (a tester)
+    values = global_values([part], functions=_python_functions(part))
+    h = hashlib.sha256("\0".join([*sorted(digests), values]).encode())
+    return {"sha256": h.hexdigest()[:16], "files": files}
 
 
 def _filled(cell: Any) -> bool:

@@ -44,6 +44,7 @@ from pkmctl.campaign.spec import (
     SpecError,
 )
 from pkmctl.io.atomic import atomic_write
+from pkmctl.parts import part_digest
 from pkmctl.sim.metrics import RMSE_KEYS
 
 __all__ = [
@@ -289,47 +290,6 @@ def mixed_versions(out: str | Path) -> str:
     )
 
 
-def _part_files(part) -> list[str]:
-    """The user's source files of a part: those its compiled loop's cache hashes
-    (:attr:`~pkmctl.parts.Part.sources`) and those of its Python functions (``build``,
-    ``work``, ``report``...), which make its bundles and info."""
-    import inspect
-
-    from pkmctl.parts import user_sources
-
-    files = set(part.sources)
-    for fn in _python_functions(part):
-        try:
-            file = inspect.getsourcefile(fn) or ""
-        except TypeError:
-            continue
-        if file:
-            files |= user_sources(fn)
-    return sorted(files)
-
-
-def _python_functions(part) -> list:
-    """A user part's own Python functions (``build``, ``work``, ``report``...): not
-    compiled, but they make its bundles and info."""
-    import inspect
-
-    package = Path(__file__).resolve().parents[1]
-    out = []
-    for fn in (part.build, part.make_work, part.initial_state, part.state_size, part.log_size,
-               part.report, part.limits, part.memory, part.stepper, part.lane_work,
-               part.lane_ok):  # fmt: skip
-        fn = getattr(fn, "__func__", fn)  # a classmethod's function
-        if not inspect.isfunction(fn):
-            continue
-        try:
-            file = inspect.getsourcefile(fn) or ""
-        except TypeError:
-            file = ""
-        if not (file and Path(file).resolve().is_relative_to(package)):
-            out.append(fn)
-    return out
-
-
 def user_parts(spec: CampaignSpec) -> dict[str, dict]:
     """The user parts (not pkmctl's: a plugin's) the campaign's runs use, by ``"KIND
     NAME"``: ``sha256`` (16 hex digits) of their source files' content and of the values
@@ -342,29 +302,6 @@ def user_parts(spec: CampaignSpec) -> dict[str, dict]:
             if not part.builtin:
                 parts[f"{part.kind} {part.name}"] = part
     return {key: part_digest(part) for key, part in sorted(parts.items())}
-
-
-def part_digest(part) -> dict:
-    """One user part's entry of :func:`user_parts`: ``sha256`` (16 hex digits) of its
-    source files' content, as they are now, and of the values its compiled code freezes
-    in, and ``files``. A campaign's workers report it for the parts they ran
-    (:func:`pkmctl.campaign.execute.run_task`'s caller), checked against this process's."""
-    import hashlib
-
-    from pkmctl.parts import global_values
-
-    files = _part_files(part)
-    digests = []
-    for f in files:
-        try:
-            digests.append(hashlib.sha256(Path(f).read_bytes()).hexdigest())
-        except OSError:
-            digests.append("unreadable:" + Path(f).name)
-    # the values its functions read too: gains imported from a helper module ("from
-    # gains import K1") changed between a campaign's sessions unseen (a tester)
-    values = global_values([part], functions=_python_functions(part))
-    h = hashlib.sha256("\0".join([*sorted(digests), values]).encode())
-    return {"sha256": h.hexdigest()[:16], "files": files}
 
 
 def _check_parts(out: Path, old: dict, parts: dict[str, dict]) -> None:

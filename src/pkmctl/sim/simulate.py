@@ -702,6 +702,14 @@ def run_prepared_lanes(
     return results
 
 
+def _user_part_digests(parts: dict[str, Part]) -> dict[str, dict]:
+    """:func:`pkmctl.parts.part_digest` of each user part, by ``"KIND NAME"``: a run's
+    JSON said nothing of the version of the user's controller that made it (a tester)."""
+    from pkmctl.parts import part_digest
+
+    return {f"{k} {p.name}": part_digest(p) for k, p in parts.items() if not p.builtin}
+
+
 def _result(prep: Prepared, parts: dict[str, Part], run: _Run, out) -> Result:
     """The Result of one run's LoopOutput; raises SimulationDiverged if it stopped."""
     scenario, bundles = run.scenario, run.bundles
@@ -735,6 +743,10 @@ def _result(prep: Prepared, parts: dict[str, Part], run: _Run, out) -> Result:
     for kind, part in parts.items():
         if part.report is not None:
             info.update(part.report(bundles[kind][0], out.final_state[kind]))
+    if users := _user_part_digests(parts):  # which version of a user's part made it
+        from pkmctl.io.results import provenance
+
+        info["software"] = {**provenance(), "user_parts": users}
     ref = prep.reference
     result = Result(
         scenario=scenario,
