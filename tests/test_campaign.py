@@ -899,6 +899,41 @@ def _fake_campaign(out: Path, text: str, metric=None, status=None) -> CampaignSp
     return spec
 
 
+def test_a_report_compares_the_kept_actuator_metrics_too(tmp_path):
+    """smc tracks better but chatters 100 times as much on limb 2: the report said
+    "smc is better" on the RMSEs alone (a tester)."""
+    from pkmctl.campaign.store import read_records
+    from pkmctl.report.campaign import write_report
+
+    text = (HEAD.replace('["smc"]', '["smc", "pd"]').replace("seeds = 1", "seeds = 6")
+            + 'metrics = ["rmse", "chattering_N_per_s"]\n')  # fmt: skip
+
+    def metric(run, column):
+        smc = run.controller == "smc"
+        if column == "chattering_N_per_s_2":
+            return (100.0 if smc else 1.0) * (1 + 0.01 * run.seed)
+        return (0.5 if smc else 1.0) * (1 + 0.01 * run.seed)
+
+    out = tmp_path / "c"
+    _fake_campaign(out, text, metric=metric)
+    write_report(out)
+    report = (out / "report" / "report.md").read_text()
+    at = report.index("### The actuators")
+    assert "**smc vs pd**" in report[:at] and "smc is better." in report[:at]
+    limb2 = report[report.index("#### chattering_N_per_s_2") :]
+    assert limb2.split("####")[1].count("pd is better.") == 1, limb2
+    import csv
+
+    with (out / "report" / "paired.csv").open() as f:
+        rows = {(r["cell"], r["metric"]): r for r in csv.DictReader(f)}
+    assert rows[("-1", "chattering_N_per_s_2")]["better"] == "b"  # pd
+    assert rows[("-1", "chattering_N_per_s_1")]["better"] == "a"  # smc
+    with (out / "report" / "summary.csv").open() as f:
+        assert {"chattering_N_per_s_2", "rmse_z_mm"} <= {r["metric"] for r in csv.DictReader(f)}
+    assert "peak_force_N" not in report  # not kept: not compared
+    assert read_records(out).num_rows == 12
+
+
 def _refused(tmp_path, text: str, command: str = "run") -> str:
     """The one line `campaign run` (or `show`) refuses ``text`` with (exit 2, no folder)."""
     spec = tmp_path / "bad.toml"

@@ -552,8 +552,9 @@ def write_report(out: str | Path, cancel=None) -> list[Path]:
             f"SPEC --out {out} --resume runs them; nothing written"
         )
     metrics = stats.headline_metrics(spec, table)
-    summary = stats.cell_stats(spec, table, metrics)
-    paired = stats.paired_differences(spec, table, metrics)
+    actuators = stats.actuator_metrics(spec, table)
+    summary = stats.cell_stats(spec, table, metrics + actuators)
+    paired = stats.paired_differences(spec, table, metrics + actuators)
     div = [r for r in summary if r["metric"] == metrics[0]]
     statuses = table.column("status").to_pylist()
     lines = [
@@ -582,6 +583,12 @@ def write_report(out: str | Path, cancel=None) -> list[Path]:
     else:
         for m in metrics:
             lines += [f"### {m}", "", *_words(spec, paired, m), ""]
+        if actuators:  # what the tracking cost the drives, compared the same way
+            lines += ["### The actuators", "",
+                      "Each limb's chattering index (N/s) and peak force (N), kept by the "
+                      "spec's metrics: lower is smoother, gentler on the drives.", ""]  # fmt: skip
+            for m in actuators:
+                lines += [f"#### {m}", "", *_words(spec, paired, m), ""]
     answers = []
     for q in spec.compare:
         rows = stats.comparison(spec, table, q.controller, q.baseline, metrics)
