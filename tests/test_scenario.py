@@ -97,6 +97,17 @@ BAD = [
     ({"gains": {"K": [1000.0, -1.0, 200.0]}}, "gains.K[1] = -1.0: must be a finite number in [0, "),
     ({"gains": {"eps": 0.0}}, "gains.eps = 0.0"),
     ({"gains": {"theta_bounds": [2.0, 3.0]}}, "theta_bounds"),
+    # the range each bound can take, not [0, 1e6] for both (0 then refused; a tester)
+    (
+        {"gains": {"theta_bounds": [-1.0, 10.0]}},
+        "gains.theta_bounds[0] = -1.0: must be a finite number in (0, 1e+06] (multiples of "
+        "Theta_0; lo in (0, 1], hi in [1, 1e+06])",
+    ),
+    (
+        {"gains": {"theta_bounds": [5.0, 9.0]}},
+        "gains.theta_bounds[0] = 5.0: must be a finite "
+        "number in (0, 1] (multiples of Theta_0; lo in",
+    ),
     ({"disturbance": {"seed": -1}}, "disturbance.seed = -1"),
     ({"disturbance": {"hold": 0.0}}, "disturbance.hold = 0.0"),
     # one value is held over each period: a shorter hold drew values no period read

@@ -151,8 +151,10 @@ class GainsSpec(_Model):
     Ku: NonNegVec3 = Field(default_factory=lambda: list(TABLE3["Ku"]))
     gamma: float = Field(Gains().gamma, ge=0, le=1e6)
     filter_periods: float = Field(Gains().filter_periods, ge=1, le=1e6)
+    # (each bound has its own range, which every message about them states: [0, 1e6]
+    # for both sent -1 to 0, which _bounds then refused; a tester)
     theta_bounds: Annotated[
-        list[Annotated[float, Field(ge=0, le=1e6)]], Field(min_length=2, max_length=2)
+        list[Annotated[float, Field(gt=0, le=1e6)]], Field(min_length=2, max_length=2)
     ] = [0.1, 10.0]
     pd_kp: NonNegVec3 = Field(default_factory=lambda: list(BASELINE_GAINS["pd_kp"]))
     pd_kd: NonNegVec3 = Field(default_factory=lambda: list(BASELINE_GAINS["pd_kd"]))
@@ -162,11 +164,13 @@ class GainsSpec(_Model):
     @model_validator(mode="after")
     def _bounds(self) -> GainsSpec:
         lo, hi = self.theta_bounds
-        if not (0 < lo <= 1 <= hi < math.inf):
-            raise ValueError(
-                f".theta_bounds = {self.theta_bounds}: must be [lo, hi] with lo in (0, 1] and "
-                "hi in [1, 1e+06] (multiples of Theta_0): need 0 < lo <= 1 <= hi"
-            )
+        for i, (v, ok, allowed) in enumerate(((lo, 0 < lo <= 1, "(0, 1]"),
+                                              (hi, 1 <= hi <= 1e6, "[1, 1e+06]"))):  # fmt: skip
+            if not ok:  # (False for NaN)
+                raise ValueError(
+                    f".theta_bounds[{i}] = {v!r}: must be a finite number in {allowed} "
+                    f"({UNITS['gains.theta_bounds']})"
+                )
         return self
 
     def build(self) -> Gains:
@@ -1094,7 +1098,7 @@ UNITS: dict[str, str | tuple[str, ...]] = {
     "gains.Ku": ("N", "N m", "N m"),
     "gains.gamma": "1/J",
     "gains.filter_periods": "control periods",
-    "gains.theta_bounds": "multiples of Theta_0",
+    "gains.theta_bounds": "multiples of Theta_0; lo in (0, 1], hi in [1, 1e+06]",
     "gains.pd_kp": ("N/m", "N m/rad", "N m/rad"),
     "gains.pd_kd": ("N s/m", "N m s/rad", "N m s/rad"),
     "gains.ctc_kp": "1/s^2",
