@@ -1734,6 +1734,19 @@ def test_the_time_estimate_counts_each_runs_loop():
     stepped = periods * ESTIMATE_PERIOD["stepped"] + ESTIMATE_RUN["stepped"]
     assert estimate_seconds(spec, [(1, "pd")] * 3) == pytest.approx(3 * stepped)
     assert estimate_seconds(spec) == pytest.approx(estimate_seconds(spec, [(0, "pd"), (1, "pd")]))
+    # each RK4 sub-step and the machine's parts cost their share: 1000 sub-steps read
+    # "estimated 0.0 s" and took 9.8 s (a tester)
+    from pkmctl.sim import cost
+
+    subs = '[factors."timing.substeps"]\nvalues = [1, 1000]\n'
+    spec = CampaignSpec.from_toml(HEAD.replace('["smc"]', '["pd"]') + subs)
+    one, many = (estimate_seconds(spec, [(i, "pd")]) - cost.RUN["lanes"] for i in (0, 1))
+    assert many / one == pytest.approx(1 + 999 * cost.SUBSTEP["lanes"] / cost.PERIOD["lanes"])
+    proto = CampaignSpec.from_toml(HEAD.replace('["smc"]', '["pd"]').replace("paper", "prototype"))
+    built = cost.PERIOD["lanes"] + 9 * cost.SUBSTEP["lanes"] * cost.DRIVE + cost.ENCODER["lanes"]
+    assert estimate_seconds(proto, [(0, "pd")]) == pytest.approx(
+        50 * built * 8 / min(8, lane_count()) + cost.RUN["lanes"]
+    )
 
 
 def test_a_resume_while_the_campaign_runs_is_refused(tmp_path):

@@ -414,8 +414,30 @@ def test_simulate_in_a_log_says_how_far_it_is(tmp_path):
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
     lines = [ln for ln in res.stderr.splitlines() if ln.startswith("simulating pd on 'paper': ")]
-    assert len(lines) >= 5 and lines[0].endswith(" of 20,000 periods (10 %)"), res.stderr
+    assert len(lines) >= 5 and " of 20,000 periods (10 %)" in lines[0], res.stderr
     assert "writing pd.parquet" in res.stderr
+    # the rate and the time left, once the loop has run a while (a 27-day run said
+    # "(0 %)" and nothing more: a tester)
+    assert re.search(r"\(\d+ %\), [\d,]+ periods/s, about [\d.]+ s left$", lines[-1]), lines
+
+
+def test_a_long_run_is_estimated_before_it_starts(tmp_path, monkeypatch):
+    from pkmctl import cli
+    from pkmctl.sim import cost
+
+    monkeypatch.chdir(tmp_path)
+    res = runner.invoke(app, ["simulate", "paper", "--duration", "0.01", "--out", "o"])
+    assert res.exit_code == 0 and "estimated" not in res.stderr, res.stderr
+    monkeypatch.setattr(cli, "LONG_RUN_S", 0.0)
+    res = runner.invoke(app, ["simulate", "prototype", "--duration", "0.01", "--out", "o"])
+    assert res.exit_code == 0, res.stderr
+    est = cost.PERIOD["single"] + 9 * cost.SUBSTEP["single"] * cost.DRIVE + cost.ENCODER["single"]
+    line = next(ln for ln in res.stderr.splitlines() if "estimated" in ln)
+    assert line == (
+        "simulating afsmc on 'prototype': 10 periods of 10 RK4 sub-steps, estimated "
+        f"{10 * est + cost.RUN['single']:.1f} s on a machine like ours (Ctrl-C stops it; "
+        "timing.duration, .control_period and .substeps set its length)"
+    )
 
 
 def test_a_write_error_names_the_file_by_its_final_name():

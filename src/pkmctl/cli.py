@@ -719,17 +719,27 @@ def simulate(
             _fraction_bar() as bar,
             (compiles := _Compiles(bar, task := bar.add_task(doing, total=None))).listen(),
         ):
-            said = {"at": time.monotonic(), "tenth": 0}
+            said = {"at": time.monotonic(), "tenth": 0, "first": None}
+            _say_long_run(sc, controller, doing)
 
             def progress(done: int, total: int) -> None:
                 bar.update(task, completed=done, total=total, description=doing)
+                now = time.monotonic()
+                if said["first"] is None:  # the loop's first report: compiled by now
+                    said["first"] = (now, done)
                 if err_console.is_terminal or not total or done >= total:
                     return
                 # a log gets a line every 10 % or minute (an hour's run at 20 kHz was
-                # silent for 81 s: a tester)
-                tenth, now = 10 * done // total, time.monotonic()
+                # silent for 81 s: a tester), with the rate and the time left once the
+                # loop has run a while (a 27-day run said "(0 %)" and nothing more)
+                tenth = 10 * done // total
                 if tenth > said["tenth"] or now - said["at"] >= LOG_EVERY_S:
-                    _say(f"{doing}: {done:,} of {total:,} periods ({100 * done / total:.0f} %)")
+                    t0, d0 = said["first"]
+                    rate = (done - d0) / (now - t0) if done > d0 and now > t0 else 0.0
+                    pace = (f", {rate:,.0f} periods/s, about {_seconds((total - done) / rate)} "
+                            "left") if rate > 0 else ""  # fmt: skip
+                    _say(f"{doing}: {done:,} of {total:,} periods "
+                         f"({100 * done / total:.0f} %){pace}")  # fmt: skip
                     said.update(at=now, tenth=tenth)
 
             def work():
@@ -958,7 +968,31 @@ app.add_typer(campaign_app, name="campaign")
 def _seconds(s: float) -> str:
     if s < 10:
         return f"{s:.1f} s"
+    if s >= 2 * 86400:
+        return f"{s / 86400:.1f} days"
     return f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min" if s < 7200 else f"{s / 3600:.1f} h"
+
+
+#: A run estimated to take longer than this (s) is said before it starts.
+LONG_RUN_S = 60.0
+
+
+def _say_long_run(sc, controller: str, doing: str) -> None:
+    """Say a run's estimated time before it starts, if over :data:`LONG_RUN_S`: a valid
+    scenario of 3.6e9 periods of 1000 sub-steps (about 27 days) started without a word
+    (a tester). Compiling is not in it."""
+    from pkmctl.sim import cost
+    from pkmctl.sim.simulate import resolve_parts
+
+    parts = resolve_parts(sc, controller)
+    loop = "stepped" if parts["plant"].stepper is not None else "single"
+    est = cost.run_seconds(sc, parts, loop)
+    if est > LONG_RUN_S:
+        t = sc.timing
+        _say(f"{doing}: {round(t.duration / t.control_period):,} periods of {t.substeps} "
+             f"RK4 sub-step{'s' * (t.substeps > 1)}, estimated {_seconds(est)} on a machine "
+             "like ours (Ctrl-C stops it; timing.duration, .control_period and .substeps "
+             "set its length)")  # fmt: skip
 
 
 def _campaign_handle(ctx: typer.Context, exc: BaseException, doing: str) -> NoReturn:

@@ -45,6 +45,7 @@ from pkmctl.campaign.spec import (
 )
 from pkmctl.io.atomic import atomic_write
 from pkmctl.parts import part_digest
+from pkmctl.sim import cost
 from pkmctl.sim.metrics import RMSE_KEYS
 
 __all__ = [
@@ -182,48 +183,39 @@ def machine_key(cell: dict) -> str:
     return json.dumps(machine, sort_keys=True, default=str)
 
 
-#: The time estimate's cost of one control period of one run (s), measured on the shared
-#: 2-core Zen 4 development machine (2026-12-07, `paper`): in SIMD lanes (8 there: 0.38-0.59
-#: us by controller; fewer lanes cost more, 8 / L times), one run alone (PD 1.2, SMC 1.3,
-#: AFSMC 1.7 us) and with a plant stepped from Python (MuJoCo's: 64-73 us). The estimate
-#: alone: the tasks' size keeps spec.SECONDS_PER_PERIOD, which a resume must find again.
-ESTIMATE_PERIOD = {"lanes": 0.6e-6, "single": 2e-6, "stepped": 70e-6}
-#: Seconds a run costs outside its loop in the estimate (prepare, build, metrics): in
-#: lanes next to nothing (1600 runs of 0.2 s in 8 lanes took 2.8 s on one worker, 2026-12-07,
-#: 1.75 ms a run with the loop; the spec's 10 ms a run made it "20 s"), alone 3-5 ms
-#: (docs/campaigns.md, "cost outside the loop").
-ESTIMATE_RUN = {"lanes": 2e-4, "single": 4e-3, "stepped": 4e-3}
+#: (kept under their old names: pkmctl.sim.cost holds the model)
+ESTIMATE_PERIOD = cost.PERIOD
+ESTIMATE_RUN = cost.RUN
 
 
 def estimate_seconds(spec: CampaignSpec, runs=None) -> float:
     """Estimated seconds of work of ``runs`` (default: all the campaign's) on one core of
-    a machine like ours, unloaded: each run's periods at :data:`ESTIMATE_PERIOD` of its
-    loop, plus :data:`ESTIMATE_RUN` of it a run."""
+    a machine like ours, unloaded: each run's periods at the cost of its loop, its
+    sub-steps and its parts (:mod:`pkmctl.sim.cost`), plus a run's cost outside it."""
     from pkmctl.sim.lanes import lane_count, lanes_supported
 
     parts = {(machine_key(spec.cells[i]), c): p for (i, c), p in cell_parts(spec).items()}
     durations = spec.durations()
-    per, each = {}, {}
+    loops, scale = {}, {}
     for key, p in parts.items():
         if p["plant"].stepper is not None:
-            loop = "stepped"
-            per[key] = ESTIMATE_PERIOD["stepped"]
+            loops[key], scale[key] = "stepped", 1.0
         elif lanes_supported(p):
-            loop = "lanes"
-            per[key] = ESTIMATE_PERIOD["lanes"] * 8 / max(1, min(8, lane_count()))
+            loops[key], scale[key] = "lanes", 8 / max(1, min(8, lane_count()))
         else:
-            loop = "single"
-            per[key] = ESTIMATE_PERIOD["single"]
-        each[key] = ESTIMATE_RUN[loop]
+            loops[key], scale[key] = "single", 1.0
     if runs is None:
         runs = [(cell, c) for cell in range(len(spec.cells)) for c in spec.controllers
                 for _ in spec.seeds]  # fmt: skip
     total = 0.0
     for cell, c in runs:
-        period = float(spec.cells[cell].get("timing.control_period",
-                                            spec.base.timing.control_period))  # fmt: skip
+        timing = spec.base.timing
+        period = float(spec.cells[cell].get("timing.control_period", timing.control_period))
+        substeps = int(spec.cells[cell].get("timing.substeps", timing.substeps))
         key = (machine_key(spec.cells[cell]), c)
-        total += per[key] * durations[cell] / period + each[key]
+        loop = loops[key]
+        each = cost.period_seconds(parts[key], substeps, loop) * scale[key]
+        total += each * round(durations[cell] / period) + cost.RUN[loop]
     return total
 
 
