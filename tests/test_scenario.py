@@ -435,3 +435,20 @@ def test_simulate_takes_a_toml_file_as_the_cli_does(tmp_path):
     from pkmctl.fuzzy.fis import FISError
 
     assert issubclass(FISError, pkmctl.PkmctlError)  # `except pkmctl.PkmctlError` catches it
+
+
+def test_docs_field_reference_is_the_codes():
+    """The fields' ranges were written nowhere but in the messages (a tester): the table
+    in docs/architecture.md is field_reference()'s, and names every numeric field."""
+    from pathlib import Path
+
+    from pkmctl.sim.scenario import field_reference
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "architecture.md").read_text()
+    begin, end = "<!-- field reference: begin -->\n", "<!-- field reference: end -->"
+    table = doc[doc.index(begin) + len(begin) : doc.index(end)]
+    assert table == field_reference()
+    for base in ("paper", "prototype"):
+        for field in _numeric_fields(Scenario.builtin(base)):
+            assert f"| `{field}` |" in table or f"| `{field} (kind " in table, field
+    assert "| `timing.duration` | a finite number in (0, 3600] | s |" in table

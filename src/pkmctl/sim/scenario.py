@@ -49,7 +49,7 @@ from pkmctl.fuzzy.term import term_system
 from pkmctl.model.mechanism import PAPER_TABLE2, Mechanism
 from pkmctl.sim.trajectory import TRAJECTORIES, Fourier, Sinusoid, paper_trajectory
 
-__all__ = ["BUILTINS", "Scenario", "ScenarioError", "reference_outside"]
+__all__ = ["BUILTINS", "Scenario", "ScenarioError", "field_reference", "reference_outside"]
 
 #: A trajectory whose J has a condition number above this is "near a singularity".
 MAX_TRAJECTORY_CONDITION = 100.0
@@ -1253,6 +1253,48 @@ def _loc_text(parts: list) -> str:
     for p in parts:
         out += f"[{p}]" if isinstance(p, int) else ("." if out else "") + str(p)
     return out or "scenario"
+
+
+def field_reference() -> str:
+    """Every scenario field with what it allows and its unit, as a Markdown table, made
+    from the declarations the messages are made of (docs/architecture.md holds it; a test
+    keeps the two the same). The ranges were written nowhere but in the messages (a
+    tester planning a 2-hour run learned of the 1-hour limit from its refusal)."""
+    from pkmctl.parts import get_part, names
+
+    rows: list[tuple[str, str, str]] = []
+
+    def walk(model: Any, prefix: str, kind: str | None) -> None:
+        for n, f in model.model_fields.items():
+            key = f"{prefix}.{f.alias or n}" if prefix else f.alias or n
+            annotation, meta, _ = _unwrap(f.annotation, list(f.metadata))
+            models = _models(annotation)
+            if models and typing.get_origin(annotation) is not list:
+                if len(models) > 1:  # a tagged union: its kinds, then each one's fields
+                    tags = ", ".join(repr(_tag(m)) for m in models)
+                    rows.append((f"`{key}.kind`", f"one of {tags}", ""))
+                for m in models:
+                    walk(m, key, _tag(m) if len(models) > 1 else kind)
+                continue
+            if kind and n == "kind":
+                continue
+            shown = f"{key} (kind {kind!r})" if kind and not key.endswith(".kind") else key
+            allowed = _allowed(f.annotation, list(f.metadata))
+            if key == "logging.every":
+                words = "an integer in [1, the run's control periods]"
+            elif key.endswith(".kind") and prefix in ("plant", "sensor", "actuators"):
+                part = "actuator" if prefix == "actuators" else prefix
+                own = [x for x in names(part) if get_part(part, x).builtin]
+                words = f"one of {', '.join(repr(x) for x in own)}, or a part of your own"
+            else:
+                words = allowed[0] + (", or left out" if allowed[2] else "") if allowed else "?"
+            unit = _unit(key, None, allowed[1] if allowed else "")
+            rows.append((f"`{shown}`", words, unit))
+
+    walk(Scenario, "", None)
+    lines = ["| field | allowed | unit |", "|---|---|---|"]
+    lines += [f"| {k} | {w} | {u} |" for k, w, u in rows]
+    return "\n".join(lines) + "\n"
 
 
 def _one_line(exc: ValidationError) -> str:
