@@ -406,7 +406,9 @@ def _local_results(spec: CampaignSpec, tasks: list[Task], workers: int) -> Itera
             raise WorkStopped(
                 f"a worker process died {_RETRIES + 1} times, running {_tasks_named(spec, todo)}: "
                 "a run there ends its process (a plugin that exits, a crash in compiled "
-                "code, the system's out-of-memory killer); the runs done are kept"
+                "code, the system's out-of-memory killer; from a script, a run_campaign "
+                'call outside an if __name__ == "__main__": guard, which each worker runs '
+                "again); the runs done are kept"
             )
 
 
