@@ -931,7 +931,17 @@ def test_a_report_compares_the_kept_actuator_metrics_too(tmp_path):
     with (out / "report" / "summary.csv").open() as f:
         assert {"chattering_N_per_s_2", "rmse_z_mm"} <= {r["metric"] for r in csv.DictReader(f)}
     assert "peak_force_N" not in report  # not kept: not compared
+    assert "Each limb's chattering index (N/s), kept" in report
     assert read_records(out).num_rows == 12
+    # with only actuator metrics kept they are the headline, said once (every row and
+    # verdict came twice; a reviewer)
+    only = tmp_path / "only"
+    _fake_campaign(only, text.replace('"rmse", "chattering_N_per_s"', '"chattering_N_per_s"'),
+                   metric=metric)  # fmt: skip
+    write_report(only)
+    lines = (only / "report" / "summary.csv").read_text().splitlines()
+    assert len(lines) == len(set(lines)) == 1 + 4 * 2  # 4 limbs x 2 controllers, 1 cell
+    assert "### The actuators" not in (only / "report" / "report.md").read_text()
 
 
 def _refused(tmp_path, text: str, command: str = "run") -> str:
@@ -1221,6 +1231,27 @@ def test_ctrl_c_after_the_last_run_is_stored_says_the_campaign_is_complete(tmp_p
     assert last.endswith(f": all 2 runs are kept in {out}: the campaign is complete "
                          f"(pkmctl campaign report {out} reports it)"), last  # fmt: skip
     assert len(read_records(out, timing=False)) == 2
+    # some of them error records: not complete, a resume reruns them (a reviewer)
+    plugin = tmp_path / "raising_law.py"
+    plugin.write_text(
+        "from typing import NamedTuple\nimport pkmctl\n\n"
+        "class P(NamedTuple):\n    k: float\n\n"
+        "    @classmethod\n    def from_context(cls, ctx):\n"
+        "        raise ValueError('no gains for this machine')\n\n"
+        "@pkmctl.register_controller('raising-law', params=P)\n"
+        "def law(p, state, work, y, ref, F):\n    F[:] = 0.0\n"
+    )
+    spec.write_text(HEAD.replace('["smc"]', '["smc", "raising-law"]'))
+    proc = subprocess.run(
+        [sys.executable, "-c", code, "--plugin", str(plugin), "campaign", "run", str(spec),
+         "--out", str(tmp_path / "e"), "--workers", "1"],
+        env=env, capture_output=True, text=True, timeout=300,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
+    assert proc.returncode == 130, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert ": all 2 runs are kept in " in last and ", 1 run failed with an error: " in last
+    assert last.endswith(" --resume runs their tasks again"), last
 
 
 def test_a_report_removes_the_files_it_no_longer_writes(tmp_path):

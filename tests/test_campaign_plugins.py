@@ -120,13 +120,20 @@ def test_a_resume_after_a_value_imported_by_the_part_changed_is_refused(tmp_path
 
 
 _API_RUN = """
-import sys
+import importlib.util, sys
 from pkmctl.campaign import CampaignSpec
 from pkmctl.campaign.execute import run_campaign
 from pkmctl.campaign.store import read_records
 
+{script_law}
+
 if __name__ == "__main__":
     import {module}  # registered here only, as a notebook's import does
+    import {registrar}  # registers a step another module defines
+    spec = importlib.util.spec_from_file_location("{by_path}", sys.argv[3])
+    loaded = importlib.util.module_from_spec(spec)  # from a folder off sys.path
+    sys.modules["{by_path}"] = loaded
+    spec.loader.exec_module(loaded)
     done = run_campaign(CampaignSpec.from_toml(sys.argv[1]), sys.argv[2], workers=2)
     rows = read_records(sys.argv[2], timing=False).to_pylist()
     print(sorted({{(r["controller"], r["status"]) for r in rows}}))
@@ -137,20 +144,36 @@ def test_from_python_local_workers_import_the_module_that_registered_the_part(
     tmp_path, monkeypatch
 ):
     """run_campaign(workers=2) from a script that imports its part's module (no
-    --plugin): every run of the part was an error record, its hint naming --plugin."""
+    --plugin): every run of the part was an error record, its hint naming --plugin. Also
+    (a reviewer): a part registered by a module other than its step's, one loaded from a
+    file off sys.path, and one registered at the script's top level (its values read as
+    __main__'s here and __mp_main__'s in a worker: every run was a PluginMismatch)."""
     monkeypatch.delenv(ENV, raising=False)
-    module = "law_" + uuid.uuid4().hex[:10]
-    name = module.replace("_", "-")
-    (tmp_path / f"{module}.py").write_text(LAW.replace("NAME", name))
+    tag = uuid.uuid4().hex[:8]
+    module, helper, registrar, by_path = (f"{w}_{tag}" for w in ("law", "steps", "reg", "far"))
+    names = {m: m.replace("_", "-") for m in (module, registrar, by_path, "main")}
+    names["main"] = f"main-{tag}"
+    (tmp_path / f"{module}.py").write_text(LAW.replace("NAME", names[module]))
+    unregistered = LAW.replace('@pkmctl.register_controller("NAME", params=P)\n', "")
+    (tmp_path / f"{helper}.py").write_text(unregistered)
+    (tmp_path / f"{registrar}.py").write_text(
+        f"import pkmctl\nfrom {helper} import P, law\n"
+        f"pkmctl.register_controller({names[registrar]!r}, params=P)(law)\n"
+    )
+    (tmp_path / "lib").mkdir()
+    (tmp_path / "lib" / f"{by_path}.py").write_text(LAW.replace("NAME", names[by_path]))
     script = tmp_path / "run.py"
-    script.write_text(_API_RUN.format(module=module))
+    script.write_text(_API_RUN.format(module=module, registrar=registrar, by_path=by_path,
+                                      script_law=LAW.replace("NAME", names["main"])))  # fmt: skip
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), str(SRC)]))
     env.pop(ENV, None)
-    res = subprocess.run([sys.executable, str(script), str(_spec(tmp_path, ["pd", name])),
-                          str(tmp_path / "c")], env=env, capture_output=True, text=True,
-                         timeout=600)  # fmt: skip
+    spec = _spec(tmp_path, ["pd", *names.values()], seeds=1)
+    res = subprocess.run([sys.executable, str(script), str(spec), str(tmp_path / "c"),
+                          str(tmp_path / "lib" / f"{by_path}.py")], env=env,
+                         capture_output=True, text=True, timeout=600)  # fmt: skip
     assert res.returncode == 0, res.stderr
-    assert res.stdout.strip() == str(sorted({(name, "ok"), ("pd", "ok")})), res.stdout
+    expected = sorted({(n, "ok") for n in [*names.values(), "pd"]})
+    assert res.stdout.strip() == str(expected), res.stdout + res.stderr
     # defined at a prompt or in a notebook cell: no worker can import it, said up front
     code = LAW.replace("NAME", "typed-law") + (
         "\nfrom pkmctl.campaign import CampaignSpec\n"
@@ -167,6 +190,21 @@ def test_from_python_local_workers_import_the_module_that_registered_the_part(
         "import that, or run with workers=1"
     ), res.stderr
     assert not (tmp_path / "d").exists()
+
+
+def test_a_worker_that_cannot_import_a_parts_module_says_why():
+    """The worker's import error was dropped, and each run's error then told the user to
+    import the module, which they had done (a reviewer)."""
+    code = ("import os; from pkmctl.sim import workers; "
+            "workers._start(os.getppid(), ('no_such_module_here',))")  # fmt: skip
+    env = dict(os.environ, PYTHONPATH=str(SRC))
+    res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, timeout=120)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert res.stderr == (
+        "warning: a worker could not import no_such_module_here: ModuleNotFoundError: No "
+        "module named 'no_such_module_here'\n"
+    )
 
 
 def test_a_part_that_does_not_compile_stops_the_campaign_before_any_record(tmp_path, monkeypatch):

@@ -397,6 +397,7 @@ def test_global_values_digest(tmp_path):
     """What :func:`pkmctl.parts.global_values` covers: globals the step reads (through
     modules too) and their values, closure values, the user's own functions it calls;
     not what it does not read; built-in parts add nothing."""
+    import copy
     from types import SimpleNamespace
 
     from pkmctl.parts import get_part, global_values
@@ -421,6 +422,25 @@ def test_global_values_digest(tmp_path):
 
     assert digest(make(np.array([1.0]))) != digest(make(np.array([2.0])))
     assert global_values([get_part("controller", "afsmc")]) == ""
+    # (a reviewer) the same digest in every process: an object array by its items, not its
+    # pointers; a script's functions as __main__ and as __mp_main__ (a spawned worker's
+    # name for it); a dict of gains by its items; and a value repr() refuses is no error
+    for g2 in ({"K": np.array([1.0, "a"], dtype=object)}, {"K": 2**20000}, {"K": {"k": 1.0}}):
+        exec("def step(x):\n    return K * x", g2)
+        once = digest(g2["step"])
+        g2["K"] = copy.deepcopy(g2["K"])  # another object of equal value
+        assert digest(g2["step"]) == once
+    g3 = {"K": {"k": 1.0, "b": [2.0]}}
+    exec("def step(x):\n    return K['k'] * x", g3)
+    before = digest(g3["step"])
+    g3["K"]["b"][0] = 3.0
+    assert digest(g3["step"]) != before
+    mains = []
+    for name in ("__main__", "__mp_main__"):
+        g4 = {"K": 1.0, "__name__": name}
+        exec("def step(x):\n    return K * x", g4)
+        mains.append(digest(g4["step"]))
+    assert mains[0] == mains[1]
 
 
 def test_a_part_typed_at_a_prompt_runs(tmp_path):

@@ -1207,6 +1207,13 @@ def campaign_run(
             if not (out / "campaign.json").exists():  # stopped before the folder was made
                 return "nothing written"
             if state["done"] >= spec.n_runs:  # (it said "--resume completes it"; a tester)
+                from pkmctl.campaign.store import read_records
+
+                statuses = read_records(out, timing=False).column("status").to_pylist()
+                if errors := statuses.count("error"):  # (a reviewer)
+                    return (f"all {spec.n_runs} runs are kept in {out}, {_n(errors, 'run')} "
+                            f"failed with an error: once the cause is fixed, "
+                            f"{resume_command()} runs their tasks again")  # fmt: skip
                 return (f"all {spec.n_runs} runs are kept in {out}: the campaign is complete "
                         f"(pkmctl campaign report {out} reports it)")  # fmt: skip
             kept = f"{state['done']} of {spec.n_runs} runs kept in {out}"

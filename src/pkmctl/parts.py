@@ -190,6 +190,9 @@ class Part:
     lane_limb_jacobian: tuple[int, ...] | None = None
     #: the NamedTuple class of the stacked bundle (default: made from ``params``)
     lane_params: type | None = None
+    #: the module whose code registered a user's part (by name): what a campaign's local
+    #: workers import to register it too (:func:`pkmctl.campaign.execute.part_modules`)
+    module: str = ""
 
     @contextlib.contextmanager
     def _named(self):
@@ -430,6 +433,7 @@ def _register_part(
     lanes: dict[str, Callable] | None = None,
     lane_work: Callable | None = None,
     lane_ok: Callable | None = None,
+    module: str = "",
 ) -> Part:
     reg = _REGISTRY[kind]
     if not isinstance(name, str) or not _NAME.fullmatch(name):
@@ -553,6 +557,7 @@ def _register_part(
         memory=memory,
         limb_jacobian=limb_jacobian,
         compiled=compiled,
+        module=module,
     )
     reg[name] = part
     _BY_TYPE[(kind, params)] = part
@@ -593,11 +598,42 @@ def user_sources(fn: Callable) -> set[str]:
                 seen.add(id(mod))
                 visit(vars(mod), getattr(mod, "__file__", None))
 
+    def cells(py: Any) -> list[Any]:
+        return [c.cell_contents for c in py.__closure__ or () if _filled(c)]
+
+    def visit_used(py: Any) -> None:
+        """What a function of the user's reaches through the names its code uses (not its
+        module's every global: a script's `if __name__ == "__main__":` block imports
+        modules into it that a spawned worker never sees, and the client's and the
+        worker's digests of a part registered there differed; a reviewer). A function or
+        class of the same module is followed by the names its own code uses."""
+        if id(py) in seen:
+            return
+        seen.add(id(py))
+        g = py.__globals__
+        for v in [g[n] for n in sorted(_code_names(py.__code__)) if n in g] + cells(py):
+            f = getattr(v, "py_func", v)
+            if inspect.isfunction(f) and f.__globals__ is g:
+                visit_used(f)
+                continue
+            if inspect.isclass(f) and vars(sys.modules.get(f.__module__, object())) is g:
+                for m in list(vars(f).values()):
+                    m = getattr(m, "__func__", m)
+                    if inspect.isfunction(m) and m.__globals__ is g:
+                        visit_used(m)
+                continue
+            mod = module_of(v)
+            if mod is not None and id(mod) not in seen:
+                seen.add(id(mod))
+                visit(vars(mod), getattr(mod, "__file__", None))
+
     py = getattr(fn, "py_func", fn)
-    cells = {f"cell{i}": c.cell_contents for i, c in enumerate(py.__closure__ or ())
-             if _filled(c)}  # fmt: skip
     file = inspect.getsourcefile(py)
-    visit({**py.__globals__, **cells}, file)
+    if file and file.endswith(".py") and not _is_library(file):
+        found.add(file)
+        visit_used(py)
+    elif file:  # a library's function: its module's imports, as for any module
+        visit({**py.__globals__, **{f"cell{i}": c for i, c in enumerate(cells(py))}}, file)
     if file and file not in found:  # the function's own file, even if a library's
         found.add(file)
     # a function typed at a prompt or in a notebook cell has no file on disk: its code
@@ -606,6 +642,15 @@ def user_sources(fn: Callable) -> set[str]:
 
 
 _SIMPLE = (bool, int, float, complex, str, bytes, type(None), np.generic)
+
+
+def _code_names(code: CodeType) -> set[str]:
+    """The global names a code object and the code nested in it use."""
+    out = set(code.co_names)
+    for c in code.co_consts:
+        if isinstance(c, CodeType):
+            out |= _code_names(c)
+    return out
 
 
 def global_values(parts: Iterable[Part], *, functions: Iterable[Callable] = ()) -> str:
@@ -628,23 +673,30 @@ def global_values(parts: Iterable[Part], *, functions: Iterable[Callable] = ()) 
             return False
         return not _is_library(file)
 
-    def names(code: CodeType) -> set[str]:
-        out = set(code.co_names)
-        for c in code.co_consts:
-            if isinstance(c, CodeType):
-                out |= names(c)
-        return out
-
     def value(tag: str, v: Any, depth: int = 0) -> None:
-        if isinstance(v, np.ndarray):
-            h.update(f"{tag}:{v.dtype.str}{v.shape}\0".encode())
-            h.update(np.ascontiguousarray(v).tobytes())
-        elif isinstance(v, _SIMPLE):
-            h.update(f"{tag}={v!r}\0".encode())
-        elif isinstance(v, (tuple, list)) and depth < 4:
-            h.update(f"{tag}:{type(v).__name__}{len(v)}\0".encode())
-            for i, item in enumerate(v):
-                value(f"{tag}[{i}]", item, depth + 1)
+        # the same text for the same value in every process: an object array's bytes are
+        # its pointers, and repr(2**20000) raises (a reviewer); a dict of gains is data too
+        try:
+            if isinstance(v, np.ndarray):
+                h.update(f"{tag}:{v.dtype.str}{v.shape}\0".encode())
+                if v.dtype.hasobject:
+                    value(f"{tag}.items", v.tolist(), depth + 1)
+                else:  # (its bytes as they are: tobytes() copied a 200 MB table)
+                    h.update(np.ascontiguousarray(v).reshape(-1).view(np.uint8))
+            elif isinstance(v, int) and not isinstance(v, bool):
+                h.update(f"{tag}=int:{v:x}\0".encode())
+            elif isinstance(v, _SIMPLE):
+                h.update(f"{tag}={v!r}\0".encode())
+            elif isinstance(v, (tuple, list)) and depth < 4:
+                h.update(f"{tag}:{type(v).__name__}{len(v)}\0".encode())
+                for i, item in enumerate(v):
+                    value(f"{tag}[{i}]", item, depth + 1)
+            elif isinstance(v, dict) and depth < 4:
+                h.update(f"{tag}:dict{len(v)}\0".encode())
+                for k in sorted(v, key=repr):
+                    value(f"{tag}[{k!r}]", v[k], depth + 1)
+        except Exception:  # noqa: BLE001 - a hash of provenance never stops a run
+            h.update(f"{tag}:unhashable {type(v).__name__}\0".encode())
 
     def item(tag: str, v: Any) -> None:
         fn = getattr(v, "py_func", v)
@@ -658,14 +710,16 @@ def global_values(parts: Iterable[Part], *, functions: Iterable[Callable] = ()) 
         if id(py) in seen:
             return
         seen.add(id(py))
-        where = f"{py.__module__}.{py.__qualname__}"
+        # (a script's module is __main__ here and __mp_main__ in a spawned worker)
+        module = "__main__" if py.__module__ == "__mp_main__" else py.__module__
+        where = f"{module}.{py.__qualname__}"
         try:
             on_disk = os.path.isfile(inspect.getsourcefile(py) or "")
         except TypeError:
             on_disk = False
         if not on_disk:
             h.update(marshal.dumps(py.__code__))
-        used = names(py.__code__)
+        used = _code_names(py.__code__)
         for name in sorted(used & py.__globals__.keys()):
             v = py.__globals__[name]
             if isinstance(v, ModuleType):  # helper.scale, settings.GAIN: its used names
@@ -1030,7 +1084,12 @@ def _decorator(kind: str, main_role: str) -> _Register:
             )
 
         def deco(fn: _F, /) -> _F:
-            _register(kind, name, {main_role: fn, **extra}, params=params, build=build, **options)
+            # the registering module: its frame calls this one (the step may be another
+            # module's: `from helpers import law; register_controller(...)(law)`, whose
+            # workers imported helpers alone; a reviewer)
+            caller = sys._getframe(1).f_globals.get("__name__", "")
+            _register(kind, name, {main_role: fn, **extra}, params=params, build=build,
+                      module=caller, **options)  # fmt: skip
             return fn
 
         return deco

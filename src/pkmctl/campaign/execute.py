@@ -428,8 +428,7 @@ def part_modules(spec: CampaignSpec) -> tuple[str, ...]:
         for part in combo.values():
             if part.builtin:
                 continue
-            fn = next(iter(part.functions.values()), None) or part.build
-            module = getattr(getattr(fn, "py_func", fn), "__module__", None) or ""
+            module = part.module
             if module in ("__main__", "__mp_main__"):
                 if not getattr(sys.modules.get("__main__"), "__file__", None):
                     raise SpecError(
@@ -439,8 +438,21 @@ def part_modules(spec: CampaignSpec) -> tuple[str, ...]:
                     )
                 continue
             if module and not module.startswith("pkmctl."):
-                names[module] = None
+                names[_importable(module)] = None
     return tuple(names)
+
+
+def _importable(module: str) -> str:
+    """How a worker can import ``module``: by its name, or by its file where the name
+    does not lead to it (loaded from a path off sys.path; a reviewer)."""
+    from importlib.machinery import PathFinder
+
+    try:  # by sys.path alone (importlib.util.find_spec answers from sys.modules)
+        found = PathFinder.find_spec(module.split(".")[0]) is not None
+    except (ImportError, ValueError):
+        found = False
+    file = getattr(sys.modules.get(module), "__file__", None) or ""
+    return module if found or not file.endswith(".py") else file
 
 
 class WorkStopped(PkmctlError, RuntimeError):

@@ -80,10 +80,17 @@ def _start(parent: int, modules: tuple[str, ...] = ()) -> None:
             from pkmctl.plugins import load_from_env
 
             load_from_env()
-        for name in modules:
+        for name in modules:  # a module's name, or its file
             try:
-                importlib.import_module(name)
-            except Exception:  # noqa: BLE001, S112 - its runs then say the part is missing
-                continue
+                if name.endswith(".py"):
+                    from pkmctl.plugins import load_plugins
+
+                    load_plugins([name])
+                else:
+                    importlib.import_module(name)
+            except Exception as exc:  # noqa: BLE001 - its runs then say the part is missing
+                text = " ".join(str(exc).split())
+                sys.stderr.write(f"warning: a worker could not import {name}: "
+                                 f"{type(exc).__name__}: {text}\n")  # fmt: skip
     except (KeyboardInterrupt, SystemExit):
         os._exit(130)
