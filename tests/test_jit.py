@@ -443,6 +443,31 @@ def test_global_values_digest(tmp_path):
     assert mains[0] == mains[1]
 
 
+def test_the_sources_of_a_module_loaded_outside_sys_modules(tmp_path):
+    """A plugin executed from its file without a sys.modules entry (importlib's
+    spec_from_file_location alone): a class of its own that the step uses has a module
+    name nothing holds; following it must not fail the registration."""
+    import importlib.util
+
+    from pkmctl.parts import user_sources
+
+    path = tmp_path / "loose_mod.py"
+    path.write_text("from typing import NamedTuple\nimport helper_of_loose\n\n"
+                    "class Q(NamedTuple):\n    a: float\n\n"
+                    "def step(x):\n    return Q(x), helper_of_loose\n")  # fmt: skip
+    (tmp_path / "helper_of_loose.py").write_text("K = 1.0\n")
+    sys.path.insert(0, str(tmp_path))
+    try:
+        spec = importlib.util.spec_from_file_location("loose_mod", path)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        assert {Path(f).name for f in user_sources(mod.step)} == {
+            "loose_mod.py", "helper_of_loose.py"}  # fmt: skip
+    finally:
+        sys.path.remove(str(tmp_path))
+        sys.modules.pop("helper_of_loose", None)
+
+
 def test_a_part_typed_at_a_prompt_runs(tmp_path):
     """A part defined in ``python -c`` (or at the interactive prompt) has no file: its
     code goes into the cache key instead of failing on a missing '<string>' file. Also:

@@ -616,7 +616,8 @@ def user_sources(fn: Callable) -> set[str]:
             if inspect.isfunction(f) and f.__globals__ is g:
                 visit_used(f)
                 continue
-            if inspect.isclass(f) and vars(sys.modules.get(f.__module__, object())) is g:
+            own = getattr(sys.modules.get(getattr(f, "__module__", None) or ""), "__dict__", None)
+            if inspect.isclass(f) and own is g:
                 for m in list(vars(f).values()):
                     m = getattr(m, "__func__", m)
                     if inspect.isfunction(m) and m.__globals__ is g:
