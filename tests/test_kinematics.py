@@ -50,6 +50,19 @@ def test_forward_inverse_property(robot, z, a, b):
     np.testing.assert_allclose(robot.forward_kinematics(robot.inverse_kinematics(X)), X, atol=1e-9)
 
 
+@pytest.mark.parametrize("X", [[0.7, 0.0, 1.52], [0.7, 0.0, -1.55], [0.7, 1.52, 0.0]])
+def test_forward_kinematics_finds_poses_beyond_1_5_rad(robot, X):
+    """The search was bounded at |angle| < 1.5 rad, inside the valid set's pi/2: a valid,
+    well-conditioned pose at 1.52 rad was "did not converge", even from 1 mrad away (a code
+    reader)."""
+    X = np.array(X)
+    q = robot.inverse_kinematics(X)
+    assert robot.condition_number(X) < 1e6
+    near = X - 1e-3 * np.sign(X) * (np.abs(X) > 1.0)  # 1 mrad nearer 0 on the big angle
+    np.testing.assert_allclose(robot.forward_kinematics(q, guess=near), X, atol=1e-9)
+    np.testing.assert_allclose(robot.forward_kinematics(q, guess=[0.7, 0.0, 0.0]), X, atol=1e-9)
+
+
 def test_forward_kinematics_of_rounded_lengths_is_their_least_squares_pose(robot):
     """Encoder counts (62.5 nm) fit no pose: forward_kinematics raised "did not converge"
     on 200 of 200 such sets (a tester), at a converged least-squares pose. It now names

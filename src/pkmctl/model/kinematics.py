@@ -317,8 +317,9 @@ def forward_kinematics_kernel(geom, q_target, guess, tol, max_iter):
         for _ in range(30):
             step = np.linalg.solve(A + mu * np.eye(3), -g)
             Xn = X + step
-            # keep inside the chart (z > 0, |angles| < pi/2) while searching
-            if Xn[0] <= 0.0 or abs(Xn[1]) >= 1.5 or abs(Xn[2]) >= 1.5:
+            # keep inside the chart (z > 0, |angles| < pi/2) while searching (a bound of
+            # 1.5 rad refused valid poses beyond it as "did not converge": a code reader)
+            if Xn[0] <= 0.0 or abs(Xn[1]) >= 0.5 * math.pi or abs(Xn[2]) >= 0.5 * math.pi:
                 mu *= 10.0
                 continue
             limb_jacobian(geom, Xn, R, Jq, q)
