@@ -461,6 +461,43 @@ def test_mamdani_system_validation():
     assert system.rules == (fz.Rule((0,), 0, 1.0),)
 
 
+def test_a_term_index_must_be_an_integer():
+    """Variable.index took int(1.9) = 1 and True as term 1 without a word, where
+    FuzzySystem refuses both (a code reader)."""
+    a, b = fz.Term("a", "trimf", (0.0, 0.5, 1.0)), fz.Term("b", "trimf", (0.5, 1.0, 1.5))
+    x = fz.Variable("x", (0.0, 1.0), (a, b))
+    for bad in (1.9, 1.0, True, "1", -1, 2):
+        with pytest.raises(ValueError, match=r"term index|no term"):
+            x.index(bad)
+    with pytest.raises(ValueError, match=r"term index 1\.9 is not an integer in \[0, 1\]"):
+        fz.MamdaniSystem((x,), x, [fz.Rule((1.9,), 1)])
+    assert x.index(np.int64(1)) == 1 and x.index("b") == 1
+
+
+@pytest.mark.parametrize(
+    "kind, params",
+    [("trimf", (0, 1, 2)), ("trimf", (0, 1, 2, 99)), ("trapmf", (0, 1, 2, 3)),
+     ("pimf", (0, 1, 2, 3)), ("zmf", (1, 2)), ("linzmf", (1, 2)), ("smf", (1, 2)),
+     ("linsmf", (1, 2)), ("gaussmf", (0, 20)), ("gbellmf", (1, 2, 0)),
+     ("sigmf", (2, 0)), ("dsigmf", (0.5, -1, 0.5, 1)), ("psigmf", (0.5, -1, -0.5, 1)),
+     ("gauss2mf", (20, -1, 20, 1))],
+    # (the smooth kinds' slopes gentle enough that no membership underflows to 0 on the grid)
+)  # fmt: skip
+def test_a_terms_support_is_where_its_membership_is_positive(kind, params):
+    """Term.support() against the membership itself on a grid: a trimf's ignored fourth
+    parameter was its upper end, and pimf, linzmf and linsmf were unbounded (a code
+    reader)."""
+    term = fz.Term("t", kind, params)
+    lo, hi = term.support()
+    x = np.linspace(-50.0, 50.0, 1_000_001)  # 1e-4 apart
+    positive = x[np.asarray(term(x)) > 0]
+    assert (lo == -np.inf) == (positive[0] == x[0]) and (hi == np.inf) == (positive[-1] == x[-1])
+    if lo > -np.inf:
+        assert lo <= positive[0] <= lo + 2e-4
+    if hi < np.inf:
+        assert hi - 2e-4 <= positive[-1] <= hi
+
+
 def test_a_grid_near_the_largest_doubles_is_finite_and_silent():
     """A .fis Range of [-1e308 1] printed numpy's overflow warnings three times (a
     fuzzer): the grid is scaled first there; elsewhere it is as before, exactly

@@ -18,6 +18,7 @@ kernels; :func:`flc_eval` is the scalar entry point for other ``@numba.njit`` co
 from __future__ import annotations
 
 import math
+import numbers
 import warnings
 from collections.abc import Sequence
 from dataclasses import KW_ONLY, dataclass, field
@@ -169,13 +170,19 @@ class Term:
     def support(self) -> tuple[float, float]:
         """Closure of the set where the membership is positive (may be infinite)."""
         p = self.params
-        return {
-            "trimf": (p[0], p[-1]),
-            "trapmf": (p[0], p[-1]),
-            "gaussmf": (-np.inf, np.inf),
-            "zmf": (-np.inf, p[1]),
-            "smf": (p[0], np.inf),
-        }.get(self.kind, (-np.inf, np.inf))
+        # (trimf's p[2], not p[-1]: MATLAB ignores a fourth parameter, which made the
+        # support of (0, 1, 2, 99) reach 99; pimf, linzmf and linsmf were unbounded: a
+        # code reader)
+        bounds = {
+            "trimf": lambda: (p[0], p[2]),
+            "trapmf": lambda: (p[0], p[3]),
+            "pimf": lambda: (p[0], max(p[0], p[3])),  # smf(a, b) . zmf(c, d)
+            "zmf": lambda: (-np.inf, p[1]),
+            "linzmf": lambda: (-np.inf, p[1]),
+            "smf": lambda: (p[0], np.inf),
+            "linsmf": lambda: (p[0], np.inf),
+        }
+        return bounds[self.kind]() if self.kind in bounds else (-np.inf, np.inf)
 
 
 @dataclass(frozen=True)
@@ -211,9 +218,16 @@ class Variable:
                     f"(terms: {', '.join(self.term_names)})"
                 )
             return self.term_names.index(term)
-        if not 0 <= int(term) < len(self.terms):
+        # (an integer only: int(1.9) made a rule on term 1 without a word, and True was
+        # term 1, where FuzzySystem refuses both: a code reader)
+        if (
+            isinstance(term, bool)
+            or not isinstance(term, numbers.Integral)
+            or not 0 <= int(term) < len(self.terms)
+        ):
             raise ValueError(
-                f"variable {self.name!r}: term index {term} not in [0, {len(self.terms) - 1}]"
+                f"variable {self.name!r}: term index {term!r} is not an integer in "
+                f"[0, {len(self.terms) - 1}]"
             )
         return int(term)
 
