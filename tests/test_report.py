@@ -508,8 +508,25 @@ def test_render_report_explains_the_z_errors_and_says_when_one_swings() -> None:
 
 
 def test_render_report_rejects_empty_input() -> None:
-    with pytest.raises(ValueError, match="no known controller"):
+    with pytest.raises(ValueError, match=r"results: no run among \[\] \(a Result for each"):
         render_report({}, figures=[], scenario_name="paper")
+
+
+def test_render_report_of_a_controller_with_no_surface_gain_on_z() -> None:
+    """gains.pd_kp = [0, ...] is valid: every run of `reproduce` finished, then the report
+    divided by PD's zero gain and the command lost them all with an internal error (a code
+    reader). It also said "SMC and FSMC meet it" whatever ran."""
+    sc = pkmctl.Scenario.builtin("paper", 1.2).replace(**{"gains.pd_kp": [0.0, 4e3, 4e3]})
+    runs = {c: pkmctl.simulate(sc, controller=c) for c in ("smc", "pd", "ctc")}
+    text = render_report(runs, figures=[], scenario_name="custom")
+    assert "PD has no gain from s to F on z near s = 0, so nothing there meets" in text
+    assert "of gravity on z. SMC and PD meet it with the gain from s to F" in text
+    assert re.search(r"SMC \(gain near s = 0: [^)]*\) predicts [\d.]+ mm and shows", text)
+    # two runs of the paper's three: SMC alone is no ranking, and not "one controller"
+    assert (
+        "- Rankings: only one of the paper's controllers (SMC, FSMC and AFSMC) was run, so "
+        "there is nothing to rank against its Table 4." in text
+    )
 
 
 @pytest.mark.parametrize(("reach", "lin"), [(0.27, 0.5), (0.5, 0.5), (2.3e-4, 5e-4), (0.11, 0.2),

@@ -109,8 +109,12 @@ def _order(x: float, y: float) -> int:
 def _ranking_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
     pairs = _paper_pairs(pairs)
     names = [c for c, _ in pairs]
-    if len(names) < 2:
-        return ["- Rankings: only one controller was run, so there is nothing to rank."]
+    if len(names) < 2:  # (it said "only one controller was run" after SMC, PD and CTC)
+        return [
+            f"- Rankings: {'only one' if names else 'none'} of the paper's controllers "
+            f"({_words([controller_label(c) for c in PAPER_TABLE4])}) was run, so there is "
+            f"nothing to rank against its Table 4."
+        ]
     ours = {c: r.rmse() for c, r in pairs}
     same, differ, ties, no_order = [], [], [], []
     for k in RMSE_KEYS:
@@ -448,6 +452,7 @@ def _why_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
         return []
     parts = []
     predicted: dict[str, float] = {}
+    gained: list[str] = []
     steady = {c: abs(mean_error(r, t_from=1.0)["z_mm"]) for c, r in pairs}
     for c, r in pairs:
         measured = mean_error(r, t_from=1.0)["z_mm"]
@@ -462,6 +467,13 @@ def _why_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
             parts.append(f"{label} shows {measured:.3g} mm{_swing(r)}")
             continue
         gain = float(sg[0])
+        gained.append(label)
+        if not gain > 0.0:  # (a valid zero gain divided by zero and lost the runs: a reader)
+            parts.append(
+                f"{label} has no gain from s to F on z near s = 0, so nothing there meets "
+                f"the missing gravity, and shows {measured:.3g} mm{_swing(r)}"
+            )
+            continue
         predicted[c] = 1e3 * dG / (gain * lam)
         parts.append(
             f"{label} (gain near s = 0: {gain:.4g} N·s/m) predicts {predicted[c]:.3g} mm "
@@ -502,12 +514,20 @@ def _why_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
             else f"does not hold z best ({controller_label(best)} does): the prediction "
             "misses something here."
         )
+    # (the controllers that ran with a surface gain, where it said "SMC and FSMC" whatever
+    # ran, PD included: a code reader)
+    if gained:
+        meet = (
+            f" {_words(gained)} meet{'s' if len(gained) == 1 else ''} it with the gain from "
+            f"s to F near the surface, leaving a steady error of about ΔG/(gain·λ_z)"
+        )
+    else:
+        meet = ""
     return [
         f"- **Why the z errors differ**: the controllers' model is "
         f"{100 * (1 - sc.controller_model.theta_scale):.0f} % light, so at the mean pose it "
-        f"misses {dG:.3g} N of gravity on z. SMC and FSMC meet it with the gain from s to F "
-        f"near the surface, leaving a steady error of about ΔG/(gain·λ_z) (each measured "
-        f"as its mean z error after 1 s): {'; '.join(parts)}.{tail}"
+        f"misses {dG:.3g} N of gravity on z.{meet} (each measured as its mean z error "
+        f"after 1 s): {'; '.join(parts)}.{tail}"
     ]
 
 
@@ -611,13 +631,14 @@ def render_report(
     Raises
     ------
     ValueError
-        If ``results`` holds none of the known controllers.
+        If ``results`` holds no run (a name the paper does not have, a part of your own,
+        is reported like the paper's five).
     """
     pairs = ordered(results)
-    if not pairs:
+    if not pairs:  # (it said "no known controller", which an unknown one never was)
         raise ValueError(
-            f"results: no known controller among {sorted(results)} "
-            f"(expected some of {list(CONTROLLER_ORDER)})"
+            f"results: no run among {sorted(results)} (a Result for each controller name, "
+            f"such as {', '.join(CONTROLLER_ORDER)})"
         )
     sc = pairs[0][1].scenario
     lines = [f"# pkmctl — the paper's experiment, scenario “{scenario_name}”", ""]
