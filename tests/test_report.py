@@ -607,3 +607,26 @@ def test_curves_a_decade_apart_on_a_log_panel_keep_their_own_line() -> None:
     assert set(_shared_styles(drawn, log=True).values()) == {"-"}
     same = [("fsmc", t, mid), ("afsmc", t, mid * (1 + 1e-4))]
     assert _shared_styles(same, log=True)["afsmc"] != "-"  # equal ones still share
+
+
+def test_a_panel_a_thinned_log_has_no_rows_for_says_so() -> None:
+    """With logging.every = 2000 (a row per 0.1 s), the force figures' "first 50 ms" and
+    "detail" panels and, at every = 30000, the |error| panel after 1 s were blank axes
+    with data-like ticks and no word (a code reader)."""
+    for every, number, empty in ((2000, 24, (0, 2)), (30000, 17, (1,))):
+        sc = pkmctl.Scenario.builtin("paper", 2.5).replace(**{"logging.every": every})
+        fig, _ = _drawn(number, [("smc", pkmctl.simulate(sc, controller="smc"))])
+        for i, ax in enumerate(fig.axes):
+            said = [t.get_text() for t in ax.texts]
+            if i in empty:
+                assert len(ax.get_xticks()) == len(ax.get_yticks()) == 0, (number, i)
+                assert ax.get_xlabel() == ax.get_ylabel() == "", (number, i)
+                assert said == [
+                    f"the log keeps a row every {every * 5e-5:.3g} s:\nfewer than 2 in this window"
+                ], (number, i)
+            else:
+                assert said == [] and len(ax.get_lines()) >= 1, (number, i)
+        # the legend on the first panel with curves (it was an empty box on a blank one)
+        first = next(i for i in range(len(fig.axes)) if i not in empty)
+        legend = [t.get_text() for t in fig.axes[first].get_legend().get_texts()]
+        assert legend == (["SMC", "desired"] if number == 24 else ["SMC"]), number

@@ -13,7 +13,9 @@ milliseconds dwarf everything after them.
 - 20-22 (box plots of the errors): the whole run left, t ≥ 1 s right.
 - 23-26 (actuator forces): the first 50 ms at full scale (the kilonewton peak),
   then t ≥ 50 ms with the y axis fitted to the steady part (t ≥ 0.5 s), then a
-  50 ms window mid-run at full resolution, where the controllers' ripple differs.
+  50 ms window mid-run at the log's full resolution, where the controllers' ripple
+  differs. A panel whose window holds fewer than two logged rows (``logging.every``)
+  says so.
 
 Long series are thinned for plotting to at most ``_MAX_POINTS`` points per line by
 min/max decimation (each bucket keeps its smallest and largest value, so chattering
@@ -242,10 +244,17 @@ def _plot_lines(
     lo: float = 0.0,
     hi: float = math.inf,
     log: bool = False,
-) -> None:
+) -> bool:
     """The curves (and the desired one, dashed on top) between t = lo and hi; ``log``:
     the panel's y axis will be logarithmic (which curves lie on one another is judged
-    there)."""
+    there). False, and a note in the panel, where no curve has two logged samples in the
+    window (a thinned log, ``logging.every``: the panels were blank axes with data-like
+    ticks and no word: a code reader)."""
+    if all(_window(t, y, lo, hi)[0].size < 2 for _, t, y in curves):
+        t = curves[0][1]
+        _empty(ax, f"the log keeps a row every {t[1] - t[0]:.3g} s:\nfewer than 2 in this window"
+               if t.size > 1 else "the log has fewer than 2 rows")  # fmt: skip
+        return False
     thinned = [(name, *_thin(*_window(t, y, lo, hi))) for name, t, y in curves]
     # the widest band underneath: a thinned curve alternates each bin's min and max, a band
     # as wide as its ripple; drawn in controller order, PD's band hid SMC's, FSMC's, AFSMC's
@@ -261,6 +270,7 @@ def _plot_lines(
         # bands hid it all but a stub)
         ax.plot(tw, yw, **_DESIRED_STYLE, zorder=3.0)
     ax.grid(True, alpha=0.3)
+    return True
 
 
 #: Curves closer than this share of the panel's range (its samples' 0.1-99.9 %) over most
@@ -326,9 +336,11 @@ def _legend_above(ax: Axes) -> None:
     "best" inside, it covered the last second of every curve (Figs. 10, 11, 17)."""
     from matplotlib.lines import Line2D
 
+    handles, labels = ax.get_legend_handles_labels()
+    if not handles:  # a panel with a note instead of curves
+        return
     lo, hi = ax.get_ylim()
     ax.set_ylim(lo, hi + _LEGEND_ROOM * (hi - lo))
-    handles, labels = ax.get_legend_handles_labels()
     # a controller's line solid: where it shares a line with another (_shared_styles) it is
     # dashed in this panel only, and a dashed entry read as the desired one's style
     solid = [
@@ -359,16 +371,16 @@ def _draw_tracking(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]
     ref = pairs[0][1]
     des = (ref.t, scale * desired(ref))
     top, bottom = fig.subplots(2, 1, height_ratios=[3, 2], gridspec_kw=_GRID_V)
-    _plot_lines(top, curves, des)
-    top.set_ylabel(ylabel)
-    top.set_xlabel("t (s)")
+    if _plot_lines(top, curves, des):
+        top.set_ylabel(ylabel)
+        top.set_xlabel("t (s)")
     top.set_title("whole run", **_TITLE)
     _legend_above(top)
     hi = min(_T_ZOOM_START, float(ref.t[-1]))
-    _plot_lines(bottom, curves, des, 0.0, hi)
-    bottom.set_xlim(0.0, hi)
-    bottom.set_ylabel(ylabel)
-    bottom.set_xlabel("t (s)")
+    if _plot_lines(bottom, curves, des, 0.0, hi):
+        bottom.set_xlim(0.0, hi)
+        bottom.set_ylabel(ylabel)
+        bottom.set_xlabel("t (s)")
     bottom.set_title(f"first {hi:g} s", **_TITLE)
 
 
@@ -381,10 +393,10 @@ def _draw_error(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) 
     curves = _errors(spec, pairs)
     ylabel = _ERROR_LABEL[spec.quantity]
     top, bottom = fig.subplots(2, 1, gridspec_kw=_GRID_V)
-    _plot_lines(top, curves, None)
-    top.axhline(0.0, color="black", linewidth=0.6)
-    top.set_ylabel(ylabel)
-    top.set_xlabel("t (s)")
+    if _plot_lines(top, curves, None):
+        top.axhline(0.0, color="black", linewidth=0.6)
+        top.set_ylabel(ylabel)
+        top.set_xlabel("t (s)")
     top.set_title("whole run", **_TITLE)
     _legend_above(top)
     t_end = max(float(t[-1]) for _, t, _ in curves)
@@ -393,15 +405,15 @@ def _draw_error(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) 
         # where a linear zoom fitted to the largest showed the others as a line at 0
         mags = [(n, t, np.abs(e)) for n, t, e in curves]
         tops = [float(np.max(_window(t, e, RMSE_AFTER_S)[1], initial=0.0)) for _, t, e in mags]
-        _plot_lines(bottom, mags, None, RMSE_AFTER_S, log=max(tops) > 0)
-        if max(tops) > 0:
-            bottom.set_yscale("log")
-            floor = min(v for v in tops if v > 0) * 1e-2  # zero crossings: spikes below
-            bottom.set_ylim(bottom=floor)
-        bottom.set_xlim(RMSE_AFTER_S, t_end)
+        if _plot_lines(bottom, mags, None, RMSE_AFTER_S, log=max(tops) > 0):
+            if max(tops) > 0:
+                bottom.set_yscale("log")
+                floor = min(v for v in tops if v > 0) * 1e-2  # zero crossings: spikes below
+                bottom.set_ylim(bottom=floor)
+            bottom.set_xlim(RMSE_AFTER_S, t_end)
+            bottom.set_ylabel(ylabel)
+            bottom.set_xlabel("t (s)")
         bottom.set_title(f"t ≥ {RMSE_AFTER_S:g} s: |error| (log scale)", **_TITLE)
-        bottom.set_ylabel(ylabel)
-        bottom.set_xlabel("t (s)")
     else:
         _empty(bottom, f"run shorter than {RMSE_AFTER_S:g} s")
         bottom.set_title(f"t ≥ {RMSE_AFTER_S:g} s", **_TITLE)
@@ -512,19 +524,20 @@ def _draw_force(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) 
     t_end = float(ref.t[-1])
     top, middle, bottom = fig.subplots(3, 1, gridspec_kw=_GRID_V)
     split = min(_FORCE_SPLIT, t_end)
-    _plot_lines(top, curves, des, 0.0, split)
+    drawn = [top] if _plot_lines(top, curves, des, 0.0, split) else []
     top.set_xlim(0.0, split)
     top.set_title(f"first {split * 1e3:g} ms (full scale)", **_TITLE)
-    _legend_above(top)
     if t_end > _FORCE_SPLIT:
-        _plot_lines(middle, curves, des, _FORCE_SPLIT)
-        middle.set_xlim(_FORCE_SPLIT, t_end)
         steady_from = _FORCE_STEADY_FROM if t_end > _FORCE_STEADY_FROM else _FORCE_SPLIT
-        limits = _steady_limits(
-            [_window(t, y, steady_from)[1] for _, t, y in curves] + [_window(*des, steady_from)[1]]
-        )
-        if limits is not None:
-            middle.set_ylim(*limits)
+        if _plot_lines(middle, curves, des, _FORCE_SPLIT):
+            drawn.append(middle)
+            middle.set_xlim(_FORCE_SPLIT, t_end)
+            limits = _steady_limits(
+                [_window(t, y, steady_from)[1] for _, t, y in curves]
+                + [_window(*des, steady_from)[1]]
+            )
+            if limits is not None:
+                middle.set_ylim(*limits)
         middle.set_title(
             f"t ≥ {split * 1e3:g} ms, y axis fitted to t ≥ {steady_from:g} s "
             "(bands: min/max envelope of the samples)",
@@ -533,13 +546,16 @@ def _draw_force(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) 
         # a short window at full resolution, in the middle of the steady part
         lo = max(steady_from, 0.5 * t_end - 0.5 * _FORCE_DETAIL)
         hi = min(t_end, lo + _FORCE_DETAIL)
-        _plot_lines(bottom, curves, des, lo, hi)
-        bottom.set_xlim(lo, hi)
+        if _plot_lines(bottom, curves, des, lo, hi):
+            drawn.append(bottom)
+            bottom.set_xlim(lo, hi)
         bottom.set_title(f"detail: {lo:.4g}-{hi:.4g} s", **_TITLE)
     else:
         for ax in (middle, bottom):
             _empty(ax, "run too short")
-    for ax in (top, middle, bottom) if t_end > _FORCE_SPLIT else (top,):
+    if drawn:  # (on the first panel with curves: a thinned log's may have none)
+        _legend_above(drawn[0])
+    for ax in drawn:
         ax.set_ylabel(ylabel)
         ax.set_xlabel("t (s)")  # three time ranges: each axis says it is time
 
