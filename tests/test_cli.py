@@ -541,6 +541,14 @@ def test_simulate_says_when_the_drives_spent_time_at_their_limits(tmp_path):
     res = runner.invoke(app, ["simulate", "paper", "--controller", "pd", "--duration", "0.2",
                               "--out", str(tmp_path / "q")])  # fmt: skip
     assert res.exit_code == 0 and "note:" not in res.stdout, res.stdout
+    # ideal actuators with a force limit have no drives (a code reader)
+    sc = tmp_path / "fl.toml"
+    sc.write_text(pkmctl.Scenario.builtin("paper").replace(**{"actuators.force_limit": 100.0})
+                  .to_toml())  # fmt: skip
+    res = runner.invoke(app, ["simulate", str(sc), "--controller", "pd", "--duration", "0.2",
+                              "--out", str(tmp_path / "r")])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "note: the actuators were at their force limit for " in " ".join(res.stdout.split())
 
 
 def test_help_in_a_narrow_terminal_cuts_nothing():

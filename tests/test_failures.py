@@ -463,6 +463,18 @@ def test_what_does_not_fit_in_memory_is_refused_in_one_line(tmp_path, monkeypatc
     assert not out.exists() and not leftovers(tmp_path)
 
 
+def test_a_run_refused_for_memory_gets_no_time_estimate_first(tmp_path, monkeypatch):
+    """An hour's run said "estimated 2.4 min on a machine like ours", then that it needs
+    81.62 GiB (a code reader): the memory check comes first."""
+    from pkmctl.sim import simulate as sim
+
+    monkeypatch.setattr(sim, "_available_memory", lambda: 8 * 2**30)
+    args = ["simulate", "paper", "--out", str(tmp_path / "o"), "--duration", "3600"]
+    line = one_line(runner.invoke(app, args), 2)
+    assert "needs 81.62 GiB" in line and "8.00 GiB available" in line, line
+    assert "logging.every = " in line and not leftovers(tmp_path)
+
+
 def test_simulate_counts_the_saves_copy_of_the_table(tmp_path, monkeypatch):
     """The check counted the run's arrays, not the copy of the table its save makes
     (+217-279 MB for a 20 s AFSMC run): a run that fitted computed, then could not be

@@ -714,6 +714,11 @@ def simulate(
     doing = f"simulating {controller} on {sc.name!r}"
     stage = None
     try:
+        from pkmctl.sim.simulate import check_saved_memory
+
+        # (before the estimate: a 3600 s run said "estimated 2.4 min", then that it
+        # needs 81.62 GiB: a code reader)
+        check_saved_memory(sc, controller)  # (the save's copy too)
         with (
             staged_folder(out) as stage,
             _fraction_bar() as bar,
@@ -743,9 +748,6 @@ def simulate(
                     said.update(at=now, tenth=tenth)
 
             def work():
-                from pkmctl.sim.simulate import check_saved_memory
-
-                check_saved_memory(sc, controller)  # (the save's copy too)
                 result = run(sc, controller=controller, progress=progress)
                 bar.update(task, description=f"writing {controller}.{fmt}")
                 if not err_console.is_terminal:
@@ -781,10 +783,13 @@ def simulate(
 
 
 def _limit_notes(result) -> list[str]:
-    """A line for each of the drives' limits the run spent more than 1 % of its time at
+    """A line for each of the actuators' limits the run spent more than 1 % of its time at
     (force) or over (speed): the errors above are then a saturated machine's, which only
     the JSON said (a fuzzer's drives without torque sank 38 mm, unsaid)."""
     from pkmctl.sim.metrics import summary
+
+    # ("the drives" of ideal actuators with a force_limit, which have none: a code reader)
+    who = "the drives" if result.parts.get("actuator") == "drive" else "the actuators"
 
     m = summary(result)
     span = result.t[-1] - result.t[0] if result.t.size > 1 else 0.0
@@ -794,7 +799,7 @@ def _limit_notes(result) -> list[str]:
                       ("time_over_speed_limit_s", "over their speed limit")):  # fmt: skip
         t = m.get(key)
         if t is not None and span > 0 and t > 0.01 * span:
-            out.append(f"note: the drives were {what} for {t:.3g} s of the {span:g} s run "
+            out.append(f"note: {who} were {what} for {t:.3g} s of the {span:g} s run "
                        f"({100 * t / span:.0f} %; {key} in the JSON's metrics)")  # fmt: skip
     return out
 
