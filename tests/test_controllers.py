@@ -1,5 +1,7 @@
 """Controllers: the laws of DESIGN.md §3 checked against the model's own terms and theory."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from conftest import random_poses
@@ -429,6 +431,21 @@ def test_a_snapshot_restored_carries_on_bit_for_bit_and_reset_can_keep_theta(rob
     np.testing.assert_array_equal(c.state.raw, fresh.state.raw)
     with pytest.raises(ValueError, match="snapshot: expected a afsmc controller's state"):
         c.restore(pkmctl.Controller.from_scenario("paper", "pd").state)
+    # a NaN state was put back for good, each step then blaming "these finite inputs";
+    # steps = -5 was taken (a code reader)
+    before = c.state.raw
+    raw = snap.raw.copy()
+    raw[10] = np.nan
+    with pytest.raises(
+        ValueError, match=r"^snapshot.raw\[10\] = nan: a afsmc controller's state must be finite$"
+    ):
+        c.restore(dataclasses.replace(snap, raw=raw))
+    for steps in (-5, 1.5, True, None):
+        with pytest.raises(ValueError, match=r"^snapshot.steps = .*: must be an integer >= 0$"):
+            c.restore(dataclasses.replace(snap, steps=steps))
+    np.testing.assert_array_equal(c.state.raw, before)
+    c.restore(dataclasses.replace(snap, steps=np.int64(40)))
+    assert c.state.steps == 40
 
 
 def test_prepare_compiles_before_the_first_step_and_touches_nothing():

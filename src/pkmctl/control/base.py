@@ -253,6 +253,17 @@ class Controller:
                 f"snapshot: expected a {self.name} controller's state (raw of shape "
                 f"{self._state.shape}), got {type(snapshot).__name__}"
             )
+        # (a NaN state was put back, and every later step blamed "these finite inputs";
+        # steps = -5 printed "-5 steps taken": a code reader)
+        if not np.isfinite(raw).all():
+            bad = int(np.flatnonzero(~np.isfinite(raw))[0])
+            raise ValueError(
+                f"snapshot.raw[{bad}] = {float(raw[bad])!r}: a {self.name} controller's state must "
+                f"be finite"
+            )
+        steps = getattr(snapshot, "steps", None)
+        if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 0:
+            raise ValueError(f"snapshot.steps = {steps!r}: must be an integer >= 0")
         with self._lock:
             self._state[:] = raw
             self._steps = int(snapshot.steps)
