@@ -112,6 +112,21 @@ def test_bad_specs_fail_in_one_line_before_anything_runs(tmp_path, change, expec
     assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    ("duration", "why"),
+    [("-1.0", "must be a finite number in (0, 3600] (s)"),
+     ("1e-9", "must be >= control_period (5e-05)")],
+)  # fmt: skip
+def test_a_bad_duration_is_named_as_the_spec_writes_it(tmp_path, duration, why):
+    """It read "timing.duration = -1.0", a key the spec never has (a code reader)."""
+    spec = tmp_path / "bad.toml"
+    spec.write_text(f'scenario = "paper"\nduration = {duration}\n')
+    res = runner.invoke(app, ["campaign", "show", str(spec)])
+    assert res.exit_code == 2, res.output
+    want = f"error: duration = {float(duration)!r} (timing.duration): {why}"
+    assert res.stderr.strip() == want, res.stderr
+
+
 def test_spec_expands_to_paired_cells_and_deterministic_tasks(spec_file):
     spec = CampaignSpec.from_toml(spec_file)
     assert spec.n_runs == 16 and len(spec.cells) == 4

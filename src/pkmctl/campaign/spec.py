@@ -579,7 +579,16 @@ class CampaignSpec:
         if fis_files is None:
             fis_files = _fis_files(parsed, folder or Path.cwd())
         _same_fis_twice(factors, parsed, fis_files)
-        base = base.replace(**{"timing.duration": float(duration)})
+        try:
+            base = base.replace(**{"timing.duration": float(duration)})
+        except ScenarioError as exc:  # (named as the field the spec has: it said
+            # "timing.duration = -1.0", a key the user never wrote: a code reader)
+            text = str(exc)
+            if not text.startswith("timing.duration = ") or ": " not in text:
+                raise
+            raise ScenarioError(
+                f"duration = {duration!r} (timing.duration): {text.split(': ', 1)[1]}"
+            ) from None
         center = None
         if design == "grid":
             n_cells = math.prod(len(v) for v, _ in parsed.values())
