@@ -2,6 +2,7 @@
 
 import csv
 import json
+import os
 import re
 import subprocess
 import sys
@@ -354,6 +355,45 @@ def test_plugin_registers_a_users_part_for_the_command_and_its_workers(tmp_path,
         assert "plugin-half-pd" in pool.submit(_names_in_worker).result(timeout=300)
 
 
+def test_a_worker_that_cannot_import_a_plugin_says_so_and_lives(tmp_path, monkeypatch, capfd):
+    """A plugin that failed in a worker broke the pool: tracebacks, then "a worker process
+    died 4 times" (a code reader). The worker says why in one line; its runs then find
+    no such part."""
+    from pkmctl.plugins import ENV
+    from pkmctl.sim.workers import spawn_pool
+
+    (tmp_path / "gone_bad.py").write_text("raise RuntimeError('edited since')\n")
+    monkeypatch.setenv(ENV, json.dumps([str(tmp_path / "gone_bad.py")]))
+    with spawn_pool(1) as pool:
+        assert "plugin-half-pd" not in pool.submit(_names_in_worker).result(timeout=300)
+    err = capfd.readouterr().err
+    assert (
+        f"warning: a worker could not import a plugin: --plugin {tmp_path / 'gone_bad.py'}: "
+        "RuntimeError: edited since (gone_bad.py, line 1: raise RuntimeError('edited since'))"
+    ) in err.splitlines()
+    assert "Traceback" not in err
+
+
+def test_a_plugin_in_a_folder_whose_name_holds_a_path_separator_reaches_the_workers(
+    tmp_path, monkeypatch
+):
+    """The plugins were recorded joined by os.pathsep: a folder named "col:on" split into
+    two paths no worker could import, and a campaign ended in 16 tracebacks and "a worker
+    process died 4 times" (a code reader)."""
+    from pkmctl.plugins import ENV, load_plugins
+    from pkmctl.sim.workers import spawn_pool
+
+    folder = tmp_path / f"col{os.pathsep}on"
+    folder.mkdir()
+    name = "colon_" + tmp_path.name.replace("-", "_")
+    (folder / f"{name}.py").write_text(_PLUGIN.replace("plugin-half-pd", "plugin-colon-pd"))
+    monkeypatch.setenv(ENV, "")
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    assert load_plugins([str(folder / f"{name}.py")]) == [str((folder / f"{name}.py").resolve())]
+    with spawn_pool(1) as pool:
+        assert "plugin-colon-pd" in pool.submit(_names_in_worker).result(timeout=300)
+
+
 @pytest.mark.parametrize(
     ("content", "message"),
     [
@@ -363,6 +403,26 @@ def test_plugin_registers_a_users_part_for_the_command_and_its_workers(tmp_path,
             "--plugin {path}: RuntimeError: boom (bad_plugin.py, line 1: raise "
             "RuntimeError('boom'))",
         ),
+        # the place was lost with a message of several lines (a code reader)
+        (
+            "raise ValueError('first line\\nsecond line')",
+            "--plugin {path}: ValueError: first line [...] (bad_plugin.py, line 1: raise "
+            "ValueError('first line\\nsecond line'))",
+        ),
+        # pkmctl exited 0 having done nothing, or printed the plugin's argparse usage as
+        # its own (a code reader)
+        (
+            "import sys\nsys.exit(0)",
+            "--plugin {path}: the module called sys.exit(0) while it was imported (a "
+            "script's argparse or main code at its top level? put it under if __name__ == "
+            '"__main__":)',
+        ),
+        (
+            "import argparse\nargparse.ArgumentParser().parse_args(['--foo'])",
+            "--plugin {path}: the module called sys.exit(2) while it was imported (a "
+            "script's argparse or main code at its top level? put it under if __name__ == "
+            '"__main__":)',
+        ),
     ],
 )
 def test_a_plugin_that_fails_is_one_line(tmp_path, content, message):
@@ -371,7 +431,11 @@ def test_a_plugin_that_fails_is_one_line(tmp_path, content, message):
         path.write_text(content)
     res = runner.invoke(app, ["--plugin", str(path), "simulate", "paper"])
     assert res.exit_code == 2, res.output
-    assert res.output.strip() == "error: " + message.format(path=path)
+    lines = res.output.strip().splitlines()
+    if "argparse" in (content or ""):  # its own usage lines first, then what they were
+        assert lines[0].startswith("usage: ") and len(lines) == 3, lines
+        lines = lines[-1:]
+    assert lines == ["error: " + message.format(path=path)]
 
 
 def test_a_plugin_module_in_the_current_folder_says_how_to_import_it(tmp_path, monkeypatch):

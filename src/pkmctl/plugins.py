@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import json
 import os
 import sys
 from pathlib import Path
@@ -20,8 +21,22 @@ from pkmctl.errors import PkmctlError
 
 __all__ = ["ENV", "PluginError", "load_from_env", "load_plugins"]
 
-#: The environment variable that lists the plugins (``os.pathsep``-separated).
+#: The environment variable that lists the plugins: a JSON list (a folder's name may hold
+#: ``os.pathsep``, which split a path into two that no worker could import: a code
+#: reader), or ``os.pathsep``-separated names as set by hand.
 ENV = "PKMCTL_PLUGINS"
+
+
+def _listed() -> list[str]:
+    value = os.environ.get(ENV, "")
+    if value.startswith("["):
+        try:
+            names = json.loads(value)
+        except ValueError:
+            names = None
+        if isinstance(names, list) and all(isinstance(n, str) for n in names):
+            return [n for n in names if n]
+    return [p for p in value.split(os.pathsep) if p]
 
 
 class PluginError(PkmctlError, ValueError):
@@ -58,12 +73,17 @@ def _import(spec: str) -> str:
         sys.modules[name] = module
         try:
             loader.loader.exec_module(module)
+        except SystemExit as exc:
+            del sys.modules[name]
+            raise PluginError(_exited(spec, exc)) from None
         except Exception as exc:
             del sys.modules[name]
             raise PluginError(f"--plugin {spec}: {_why(exc, path)}") from exc
         return str(path)
     try:
         importlib.import_module(spec)
+    except SystemExit as exc:
+        raise PluginError(_exited(spec, exc)) from None
     except Exception as exc:
         top = spec.split(".")[0]
         here = Path.cwd() / f"{top}.py", Path.cwd() / top / "__init__.py"
@@ -78,6 +98,16 @@ def _import(spec: str) -> str:
             ) from exc
         raise PluginError(f"--plugin {spec}: {_why(exc)}") from exc
     return spec
+
+
+def _exited(spec: str, exc: SystemExit) -> str:
+    """A plugin that called sys.exit while imported: pkmctl exited 0 having done nothing,
+    or printed the plugin's argparse usage as its own (a code reader)."""
+    return (
+        f"--plugin {spec}: the module called sys.exit({exc.code!r}) while it was imported "
+        f"(a script's argparse or main code at its top level? put it under "
+        f'if __name__ == "__main__":)'
+    )
 
 
 def _why(exc: Exception, own: Path | None = None) -> str:
@@ -111,20 +141,21 @@ def _why(exc: Exception, own: Path | None = None) -> str:
     text = f"{type(exc).__name__}: {exc}"
     if isinstance(exc, SyntaxError):  # its message names the file and line itself
         return text
-    return text + where
+    # the place after the message's first line: after a message of several lines it was
+    # lost with them, the error being one line (a code reader)
+    lines = text.splitlines() or [text]
+    return lines[0] + (" [...]" if len(lines) > 1 else "") + where
 
 
 def load_plugins(specs: list[str]) -> list[str]:
     """Import each plugin (a ``.py`` file or a module name) and add it to ``PKMCTL_PLUGINS``
     for the worker processes started later; returns the recorded names."""
     done = [_import(s) for s in specs]
-    known = [p for p in os.environ.get(ENV, "").split(os.pathsep) if p]
-    os.environ[ENV] = os.pathsep.join(dict.fromkeys(known + done))
+    os.environ[ENV] = json.dumps(list(dict.fromkeys(_listed() + done)))
     return done
 
 
 def load_from_env() -> None:
     """Import the plugins ``PKMCTL_PLUGINS`` lists (in a worker process)."""
-    for spec in os.environ.get(ENV, "").split(os.pathsep):
-        if spec:
-            _import(spec)
+    for spec in _listed():
+        _import(spec)

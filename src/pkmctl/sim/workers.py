@@ -77,9 +77,13 @@ def _start(parent: int, modules: tuple[str, ...] = ()) -> None:
     try:
         die_with_parent(parent)
         if os.environ.get("PKMCTL_PLUGINS"):
-            from pkmctl.plugins import load_from_env
+            from pkmctl.plugins import PluginError, load_from_env
 
-            load_from_env()
+            try:
+                load_from_env()
+            except PluginError as exc:  # (it broke the pool: 16 tracebacks, then "a worker
+                # process died 4 times", the cause unsaid: a code reader)
+                sys.stderr.write(f"warning: a worker could not import a plugin: {exc}\n")
         for name in modules:  # a module's name, or its file
             try:
                 if name.endswith(".py"):
