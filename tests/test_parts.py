@@ -557,7 +557,7 @@ def test_build_limits_and_options_of_a_users_part_fail_in_one_line_naming_them()
         force=lambda p, state, cmd, tau: None,
     )(lambda p, state, work, y, F, cmd: None)  # fmt: skip
     sc = pkmctl.Scenario.builtin("paper").replace(**{"actuators.kind": "x-fast-limits"})
-    said = r"^actuator 'x-fast-limits': limits gave 'fast': must be two numbers \(force N"
+    said = r"^actuator 'x-fast-limits': limits gave 'fast': must be two numbers > 0 \(force N"
     with pytest.raises(PartError, match=said + r", speed m/s; inf: none\)$"):
         pkmctl.simulate(sc, "pd", duration=0.001)
     said = r"^controller 'x-foo': unknown option 'foo'; the options are .*state_size"

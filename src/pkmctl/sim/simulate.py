@@ -126,7 +126,7 @@ def check_saved_memory(scenario: Scenario, controller: str) -> None:
     that fits but could not be saved is refused before it computes."""
     n, every = scenario.timing.periods, scenario.logging.every
     cols = log_columns(scenario, resolve_parts(scenario, controller))
-    holds, parts = disturbance_count(scenario), part_memory(scenario)
+    holds, parts = disturbance_count(scenario), part_memory(scenario, controller)
 
     def need(e: int) -> int:
         return memory_needed(n, cols, every=e, disturbance_values=holds, part_values=parts,
@@ -137,11 +137,46 @@ def check_saved_memory(scenario: Scenario, controller: str) -> None:
                  decimated=need, every=every, periods=n)  # fmt: skip
 
 
-def part_memory(scenario: Scenario) -> int:
+def part_memory(scenario: Scenario, controller: str | None = None) -> int:
     """Doubles per control period the bundles of the scenario's sensor, actuator and
-    plant hold (their parts' ``memory``; the encoder's noise, say)."""
-    parts = _machine_parts(scenario).values()
-    return sum(int(p.memory(scenario)) for p in parts if p.memory is not None)
+    plant hold (their parts' ``memory``; the encoder's noise, say), and those of
+    ``controller``'s (a controller's ``memory`` was not counted: a code reader)."""
+    parts = list(_machine_parts(scenario).values())
+    if controller is not None:
+        parts.append(get_part("controller", controller))
+    return sum(_memory_of(p, scenario) for p in parts if p.memory is not None)
+
+
+def _memory_of(part: Part, scenario: Scenario) -> int:
+    """A part's ``memory(scenario)``, checked: what it raises named as its part's, and a
+    whole number >= 0 (a user's raised as "an internal error", and "lots" or NaN gave
+    int()'s words: a code reader)."""
+    value = _part_call(part, "memory", part.memory, scenario)
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float | np.integer | np.floating)
+        or not (math.isfinite(value) and value >= 0 and float(value).is_integer())
+    ):
+        raise PartError(
+            f"{part.kind} {part.name!r}: memory gave {value!r:.60}: must be a whole number "
+            "of doubles per control period, >= 0"
+        )
+    return int(value)
+
+
+def _part_call(part: Part, what: str, fn: Callable, *args: Any) -> Any:
+    """``fn(*args)``, a user part's ``what``: what it raises comes as a PartError naming
+    the part, as its build's does (it read "ZeroDivisionError ... (an internal error)")."""
+    if part.builtin:
+        return fn(*args)
+    try:
+        return fn(*args)
+    except PartError:
+        raise
+    except Exception as exc:
+        raise PartError(
+            f"{part.kind} {part.name!r}: {what} failed: {type(exc).__name__}: {exc}"
+        ) from exc
 
 
 def _available_memory() -> int | None:
@@ -372,11 +407,16 @@ def _resolve(scenario: Scenario | str | os.PathLike[str], duration: float | None
     return scenario
 
 
-def prepare(scenario: Scenario | str, duration: float | None, log_columns: int = 0) -> Prepared:
+def prepare(
+    scenario: Scenario | str,
+    duration: float | None,
+    log_columns: int = 0,
+    controller: str | None = None,
+) -> Prepared:
     """Everything the runs of ``scenario`` share (for runs of many seeds or controllers
     on one scenario: :func:`run_prepared`); its memory is checked before anything is
     allocated, with ``log_columns`` more columns in the log of one run (its controller's
-    and sensor's, :func:`log_columns`)."""
+    and sensor's, :func:`log_columns`) and ``controller``'s part memory."""
     scenario = _resolve(scenario, duration)
     plant = scenario.plant()
     Tc = scenario.timing.control_period
@@ -384,7 +424,7 @@ def prepare(scenario: Scenario | str, duration: float | None, log_columns: int =
     if n < 1:
         raise ScenarioError("timing.duration: shorter than one control period")
     every = scenario.logging.every
-    holds, parts = disturbance_count(scenario), part_memory(scenario)
+    holds, parts = disturbance_count(scenario), part_memory(scenario, controller)
     # Refuse what cannot fit before allocating any of it (a 1 h run at 20 kHz: ~27 GiB).
     check_memory(
         memory_needed(n, log_columns, every=every, disturbance_values=holds, part_values=parts),
@@ -482,7 +522,7 @@ def simulate(
         raise TypeError(f"progress = {progress!r:.60}: must be a function (done, total) or None")
     scenario = _resolve(scenario, duration)
     parts = resolve_parts(scenario, controller)
-    prep = prepare(scenario, None, log_columns(scenario, parts))
+    prep = prepare(scenario, None, log_columns(scenario, parts), parts["controller"].name)
     return run_prepared(prep, parts, seed, progress=progress)
 
 
@@ -604,13 +644,18 @@ def _set_up(prep: Prepared, parts: dict[str, Part], seed: int | None, check_logs
                      decimated=logs_need, every=every, periods=n)  # fmt: skip
     force_limit, speed_limit = math.inf, math.inf
     if parts["actuator"].limits is not None:
-        limits = parts["actuator"].limits(bundles["actuator"][0])
+        act = parts["actuator"]
+        limits = _part_call(act, "limits", act.limits, bundles["actuator"][0])
         try:
             force_limit, speed_limit = (float(v) for v in limits)
         except (TypeError, ValueError):
+            force_limit = math.nan
+        # (> 0: (-1, -1) put every period "at the force limit", and NaN read as none: a
+        # code reader)
+        if not (force_limit > 0 and speed_limit > 0):
             raise PartError(
-                f"actuator {parts['actuator'].name!r}: limits gave {limits!r}: must be two "
-                "numbers (force N, speed m/s; inf: none)"
+                f"actuator {act.name!r}: limits gave {limits!r:.60}: must be two numbers > 0 "
+                "(force N, speed m/s; inf: none)"
             ) from None
     starts = tuple(metrics.first_period(w, Tc) for w in metrics.WINDOWS)
     mp = metric_params(starts, metrics.ERROR_SCALE, force_limit * (1 - metrics.LIMIT_MARGIN),
@@ -744,7 +789,14 @@ def _result(prep: Prepared, parts: dict[str, Part], run: _Run, out,
     info = {"kernel_seconds": out.kernel_seconds, "steps": m}
     for kind, part in parts.items():
         if part.report is not None:
-            info.update(part.report(bundles[kind][0], out.final_state[kind]))
+            said = _part_call(part, "report", part.report, bundles[kind][0],
+                              out.final_state[kind])  # fmt: skip
+            if not isinstance(said, dict):  # ("'int' object is not iterable": a reader)
+                raise PartError(
+                    f"{kind} {part.name!r}: report gave {said!r:.60}: must be a dict of "
+                    "what to add to the result's info"
+                )
+            info.update(said)
     if users is None:
         users = _user_part_digests(parts)
     if users:  # which version of a user's part made it
@@ -985,7 +1037,7 @@ def _check_many(sc: Scenario, parts: dict[str, Part], keep: str, runs: int, live
     ``keep="results"`` every one of the ``runs`` runs keeps its logs to the end."""
     n, every, Tc = sc.timing.periods, sc.logging.every, sc.timing.control_period
     cols = log_columns(sc, parts) if keep == "results" else 0
-    holds, values = disturbance_count(sc), part_memory(sc)
+    holds, values = disturbance_count(sc), part_memory(sc, parts["controller"].name)
     count = max(runs, live) if keep == "results" else live
 
     def need(e: int) -> int:
