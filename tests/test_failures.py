@@ -896,6 +896,25 @@ def test_sigint_before_the_commands_own_handling_still_says_so(tmp_path):
     assert err.strip().startswith("interrupted after ") and "Traceback" not in err, err
 
 
+def test_python_dash_m_pkmctl_has_the_commands_quiet_ctrl_c_while_starting(tmp_path):
+    """`python -m pkmctl` (docs/performance.md's other form of the command) imports the
+    package with argv[0] = "-m": it kept Python's handler, and Ctrl-C while starting
+    printed a traceback of 40 lines (a code reader). Seen at the import of pkmctl.cli,
+    by an audit hook that reports the handler then and ends the process."""
+    (tmp_path / "sitecustomize.py").write_text(textwrap.dedent('''
+        import os, signal, sys
+        def hook(event, args):
+            if event == "import" and args[0] == "pkmctl.cli":
+                print(getattr(signal.getsignal(signal.SIGINT), "__name__", "?"), flush=True)
+                os._exit(0)
+        sys.addaudithook(hook)
+    '''))  # fmt: skip
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), str(SRC)]))
+    out = subprocess.run([sys.executable, "-m", "pkmctl", "--version"], env=env,
+                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert out.stdout.split() == ["_quiet_interrupt"], (out.stdout, out.stderr[-2000:])
+
+
 def test_the_start_ups_quiet_ctrl_c_is_the_commands_alone(tmp_path):
     """A spawned worker (campaigns, precompile, figures) has the command's argv: it took
     the start-up's handler too, and each printed "interrupted while starting" on Ctrl-C."""
@@ -950,7 +969,7 @@ def test_a_spawned_worker_importing_pkmctl_as_it_prepares_keeps_pythons_ctrl_c(t
     assert res.stderr == "", res.stderr
 
 
-def _signal_reproduce(out: Path, sig: str, after: str, *, hangup):
+def _signal_reproduce(out: Path, sig: str, after: str, *, hangup, interrupt=signal.SIG_DFL):
     """A 0.5 s reproduce into ``out`` sent ``sig`` once it has said ``after``; started
     with SIGHUP set to ``hangup``: a test run under nohup passed SIG_IGN on, and the
     SIGHUP case skipped itself as "the run ended before the signal" (pkmctl rightly keeps
@@ -959,7 +978,8 @@ def _signal_reproduce(out: Path, sig: str, after: str, *, hangup):
     proc = subprocess.Popen(
         [sys.executable, "-m", "pkmctl", "reproduce", "--duration", "0.5", "--out", str(out)],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        preexec_fn=lambda: signal.signal(signal.SIGHUP, hangup),
+        preexec_fn=lambda: (signal.signal(signal.SIGHUP, hangup),
+                            signal.signal(signal.SIGINT, interrupt)),
     )  # fmt: skip
     lines: queue.Queue = queue.Queue()
     threading.Thread(target=_read_lines, args=(proc.stderr, lines), daemon=True).start()
@@ -978,9 +998,16 @@ def _signal_reproduce(out: Path, sig: str, after: str, *, hangup):
     return proc, seen
 
 
-def test_an_ignored_sighup_stays_ignored(old_results):
-    """Under nohup (SIGHUP ignored) a hang-up does not stop the run: it ends and writes."""
-    proc, seen = _signal_reproduce(old_results, "SIGHUP", "simulating ", hangup=signal.SIG_IGN)
+@pytest.mark.parametrize("sig", ["SIGHUP", "SIGINT"])
+def test_an_ignored_sighup_or_sigint_stays_ignored(old_results, sig):
+    """Under nohup (SIGHUP ignored) a hang-up does not stop the run: it ends and writes.
+    So does a Ctrl-C that is ignored, as POSIX starts a script's background job: pkmctl
+    put its own handler in and died of it, where a plain Python process lives on (a code
+    reader)."""
+    ignored = {sig: signal.SIG_IGN}
+    proc, seen = _signal_reproduce(old_results, sig, "simulating ",
+                                   hangup=ignored.get("SIGHUP", signal.SIG_DFL),
+                                   interrupt=ignored.get("SIGINT", signal.SIG_DFL))  # fmt: skip
     assert proc.returncode == 0, "".join(seen)
     assert (old_results / "report.md").read_text() != "old report, seed 0\n"
     assert not leftovers(old_results.parent)

@@ -28,9 +28,27 @@ def _quiet_worker_interrupt(signum, frame) -> None:
     raise SystemExit(130)
 
 
+def _the_command() -> bool:
+    """Whether this process is the ``pkmctl`` command (or one of the workers it spawned,
+    which have its argv): its console script, or ``python -m pkmctl``, whose argv[0] is
+    "-m" while the package is imported, and its __main__.py's path in a worker (-m took
+    Python's handler: a 40-line traceback on Ctrl-C while starting: a code reader)."""
+    first = sys.argv[0] if sys.argv else ""
+    if os.path.basename(first) == "pkmctl":
+        return True
+    if first.endswith(os.path.join("pkmctl", "__main__.py")):
+        return True
+    orig = getattr(sys, "orig_argv", [])
+    pairs = zip(orig, orig[1:], strict=False)
+    return first == "-m" and any(a == "-m" and b == "pkmctl" for a, b in pairs)
+
+
 if (
-    os.path.basename(sys.argv[0] if sys.argv else "") == "pkmctl"
+    _the_command()
     and threading.current_thread() is threading.main_thread()
+    # an ignored Ctrl-C stays ignored: a script's background job (POSIX starts it so) died
+    # of a SIGINT that a plain Python process survives (a code reader)
+    and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN
 ):
     # A spawned worker imports this as it prepares, with the parent's argv:
     # parent_process() is still None then, but the process has its worker's name (the

@@ -310,7 +310,8 @@ def _main(
     import signal
 
     if threading.current_thread() is threading.main_thread():  # the start-up's quiet handler
-        signal.signal(signal.SIGINT, signal.default_int_handler)  # off (pkmctl/_start.py)
+        if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # (ignored: stays so)
+            signal.signal(signal.SIGINT, signal.default_int_handler)  # off (_start.py)
         # SIGTERM (kill, a job scheduler) as Ctrl-C: the same clean-up, where it left the
         # staging folder with all written so far and the figure processes behind
         signal.signal(signal.SIGTERM, _terminated)
