@@ -675,7 +675,8 @@ def run_campaign(
         Address of a running Dask scheduler (``tcp://host:8786``): run there.
     resume : bool
         Complete the campaign in ``out`` (the same spec): run only the tasks without a
-        file. Without it an existing campaign folder is refused.
+        file and those whose file holds an error record (a run that raised). Without it
+        an existing campaign folder is refused.
     progress : callable, optional
         Called as ``progress(done=, failures=, total=, rate=)`` after each task, with
         ``compiling=`` too if it takes it: the combinations of parts and controller whose
