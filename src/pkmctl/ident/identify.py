@@ -87,6 +87,9 @@ JACKKNIFE_BLOCKS = 40
 #: The rate the observation is decimated to, in multiples of the cutoff: 2.5 leaves
 #: neighbouring samples of filtered white noise nearly uncorrelated.
 DECIMATED_RATE = 2.5
+#: The range of a log's largest |tau| (N) that least squares handles in float64 (its
+#: squares must neither underflow nor overflow): it failed at 1e-157 N and 1e303 N.
+FORCE_RANGE = (1e-100, 1e100)
 #: Largest relative deviation of a sampling interval from the median (a gap beyond it).
 MAX_JITTER = 0.01
 #: The pose filter must be at least this many times above the parallel filter's cutoff,
@@ -388,6 +391,16 @@ def _check_times(log: Log) -> float:
         raise IdentificationError(
             f"{where}: column tau{zero[0] + 1} is all zero: a limb's force is missing from "
             "the log, and the fit would be meaningless"
+        )
+    # least squares squares the forces: beyond these they under- or overflow float64 (1e-200
+    # x a log's forces raised a ZeroDivisionError, 1e-160 x "SVD did not converge" and 1e300
+    # x a timing diagnosis: a code reader); a real log is in N, far inside
+    top = float(np.max(np.abs(log.tau)))
+    if not FORCE_RANGE[0] <= top <= FORCE_RANGE[1]:
+        raise IdentificationError(
+            f"{where}: the largest |tau| is {top:.3g} N, too {'small' if top < 1 else 'large'}"
+            f" for the fit (allowed: {FORCE_RANGE[0]:g} to {FORCE_RANGE[1]:g} N): the forces "
+            "must be in N"
         )
     return h
 
