@@ -815,6 +815,14 @@ def test_a_pkmctl_log_gets_the_force_lead_searched_by_default(tmp_path, exciting
     r = _run("identify", "run.csv", "--out", "o", "--no-physical", "--force-lead", "0",
              cwd=tmp_path)  # fmt: skip
     assert r.returncode == 0 and "force lead" not in r.stderr, r.stderr
+    # the .json given as the log (read_log follows its table): the .json "beside" it was
+    # itself, naming run.csv, so it was called another table's, the lead was 0 and the
+    # machine the default (a code reader)
+    r = _run("identify", "run.json", "--out", "o", "--no-physical", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "force lead (auto, the default for a pkmctl log): " in r.stderr, r.stderr
+    report = " ".join((tmp_path / "o" / "report.md").read_text().split())
+    assert f"scenario {sc.name!r} (from 'run.json', beside the log)" in report, report
 
 
 def test_a_validation_log_of_another_machine_is_said_so(tmp_path, exciting, noisy):
@@ -834,6 +842,9 @@ def test_a_validation_log_of_another_machine_is_said_so(tmp_path, exciting, nois
         "differs from"
     )
     assert said in " ".join(r.stderr.split()), r.stderr
+    # the .json given as --validate: its own scenario, not "another table's" (a code reader)
+    r = _run(*args[:-1], "val.json", cwd=tmp_path)
+    assert r.returncode == 0 and said in " ".join(r.stderr.split()), r.stderr
     (tmp_path / "val.json").write_text((tmp_path / "run.json").read_text())
     r = _run(*args, cwd=tmp_path)
     assert r.returncode == 0 and "--validate" not in r.stderr, r.stderr

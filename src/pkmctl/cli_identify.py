@@ -39,6 +39,18 @@ from pkmctl.cli import (
 )
 
 
+def _table_of(log: Path) -> Path:
+    """The table a pkmctl .json names (``read_log`` follows it), else ``log``: the .json
+    beside ``RUN/pd.json`` is itself, which names pd.parquet, so the run's scenario and its
+    force-lead default were taken for another table's and dropped (a code reader)."""
+    if log.suffix.lower() != ".json" or not log.is_file():
+        return log
+    try:
+        return log.with_name(json.loads(log.read_text(encoding="utf-8"))["table"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return log  # (read_log says what it is not)
+
+
 def _metadata_scenario(log: Path) -> str | None:
     """The scenario (TOML text) of pkmctl's metadata beside ``log`` (its .json); None if
     there is none, or the .json is not pkmctl's. The text ends with a line break, so that
@@ -351,6 +363,8 @@ def identify(
     from pkmctl.ident.report import OUTPUT_NAMES, remove_stale, write_identification
     from pkmctl.io.atomic import check_output_folder, discard, staged_folder
 
+    log = _table_of(log)
+    validate = _table_of(validate) if validate is not None else None
     how = "auto"
     if force_lead is None:  # a pkmctl log's forces are commands held over a period
         force_lead = "auto" if _metadata_scenario(log) is not None else "0"
