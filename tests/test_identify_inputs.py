@@ -3,6 +3,9 @@ direct calls, kept fast; the estimation itself is tested in tests/test_identify.
 
 from __future__ import annotations
 
+import os
+import threading
+
 import numpy as np
 import pytest
 
@@ -35,3 +38,25 @@ def test_forces_at_extreme_scales_are_refused_in_one_line(proto, scale, words):
         "(allowed: 1e-100 to 1e+100 N)"
     ), msg
     assert "\n" not in msg
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs here")
+def test_a_fifo_named_like_the_metadata_is_not_read(tmp_path):
+    """A FIFO named LOG.json beside the log hung identify for ever: the force lead's
+    default read it without the regular-file check the scenario's lookup made (a code
+    reader). Read in a thread here, unblocked by a writer if it hangs."""
+    from pkmctl.cli_identify import _metadata_scenario, _other_table
+
+    (tmp_path / "log.csv").write_text("t\n")
+    os.mkfifo(tmp_path / "log.json")
+    for fn in (_metadata_scenario, _other_table):
+        got = []
+        reader = threading.Thread(target=lambda f=fn, g=got: g.append(f(tmp_path / "log.csv")))
+        reader.start()
+        reader.join(5.0)
+        hung = reader.is_alive()
+        if hung:  # open it for writing, and close it: the reader gets an empty file
+            os.close(os.open(tmp_path / "log.json", os.O_WRONLY))
+            reader.join()
+        assert not hung, f"{fn.__name__} blocked on the FIFO"
+        assert got == [None]

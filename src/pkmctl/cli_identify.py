@@ -51,12 +51,21 @@ def _table_of(log: Path) -> Path:
         return log  # (read_log says what it is not)
 
 
+def _beside(log: Path) -> str:
+    """The text of the .json beside ``log``; OSError if it is not a regular file (a FIFO
+    named LOG.json blocked the read for ever: a code reader)."""
+    meta = log.with_suffix(".json")
+    if not meta.is_file():
+        raise FileNotFoundError(meta)
+    return meta.read_text(encoding="utf-8")
+
+
 def _metadata_scenario(log: Path) -> str | None:
     """The scenario (TOML text) of pkmctl's metadata beside ``log`` (its .json); None if
     there is none, or the .json is not pkmctl's. The text ends with a line break, so that
     ``Scenario.from_toml`` reads it as text (one line of it was read as a file's name)."""
     try:
-        meta = json.loads(log.with_suffix(".json").read_text(encoding="utf-8"))
+        meta = json.loads(_beside(log))
         text = meta["scenario_toml"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
@@ -70,7 +79,7 @@ def _other_table(log: Path) -> str | None:
     pd.csv saved after pd.parquet: the json is the csv's run, which may be another
     machine's, and it labelled the parquet's run or refused it, blaming the data)."""
     try:
-        table = json.loads(log.with_suffix(".json").read_text(encoding="utf-8"))["table"]
+        table = json.loads(_beside(log))["table"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
     return table if isinstance(table, str) and table != log.name else None
