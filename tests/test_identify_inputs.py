@@ -4,6 +4,9 @@ direct calls, kept fast; the estimation itself is tested in tests/test_identify.
 from __future__ import annotations
 
 import os
+import re
+import subprocess
+import sys
 import threading
 
 import numpy as np
@@ -60,3 +63,33 @@ def test_a_fifo_named_like_the_metadata_is_not_read(tmp_path):
             reader.join()
         assert not hung, f"{fn.__name__} blocked on the FIFO"
         assert got == [None]
+
+
+def _run(*args, cwd):
+    return subprocess.run(
+        [sys.executable, "-m", "pkmctl", *args], capture_output=True, text=True, cwd=cwd
+    )
+
+
+def test_excite_prints_a_cutoff_identify_accepts_at_a_non_round_rate(tmp_path, proto):
+    """Logging every 3rd period (333.333 Hz): excite printed --cutoff 6.66667 from the exact
+    333.3333... Hz, which identify, reading 333.333 Hz, refused; its error gave the range
+    (0, 6.667], which holds 6.66667, and asked for >= 333.3 Hz of a 333.333 Hz log (a code
+    reader). Both now round the way that keeps them true."""
+    slow = proto.replace(**{"logging.every": 3})
+    (tmp_path / "e3.toml").write_text(slow.to_toml())
+    r = _run("excite", "--scenario", "e3.toml", "--out", "ex.toml", "--harmonics", "3",
+             "--base-frequency", "0.5", "--periods", "1", cwd=tmp_path)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    printed = re.search(r"identify DIR/pd\.parquet --cutoff (\S+)", " ".join(r.stdout.split()))
+    assert printed, r.stdout
+    cut = float(printed[1])
+    log = _log(t=3e-3 * np.arange(200))  # 333.333 Hz, too short to identify
+    with pytest.raises(IdentificationError, match="too short for cutoff") as info:
+        identify(log, slow, cutoff=cut)
+    assert "too slowly" not in str(info.value)
+    with pytest.raises(IdentificationError) as info:
+        identify(log, slow, cutoff=6.66667)
+    msg = str(info.value)
+    assert "sampled at 333.333 Hz, too slowly for cutoff = 6.66667 Hz, which must be in " in msg
+    assert "(0, 6.66666] Hz" in msg and "must be sampled at >= 333.334 Hz" in msg, msg

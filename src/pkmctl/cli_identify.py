@@ -204,21 +204,25 @@ def excite(
         DEFAULT_CUTOFF,
         MIN_HARMONIC_GAIN,
         cutoff_for,
+        floor_g,
         highest_harmonic,
         max_cutoff,
         minimum_duration,
+        sample_rate,
     )
 
-    # the top harmonic must pass identify's parallel filter (at most fs/50 of the log)
-    fs = 1.0 / (base.timing.control_period * base.logging.every)
+    # the top harmonic must pass identify's parallel filter (at most fs/50 of the log); fs
+    # as identify reads it from the log (333.333 Hz, not 333.3333...: a code reader)
+    fs = sample_rate(base.timing.control_period * base.logging.every)
     top = harmonics * base_frequency
     cut = cutoff_for(top, fs)
     if cut is None:
         _fail(
             f"--base-frequency x --harmonics = {top:g} Hz: pkmctl identify would filter the top "
-            f"harmonic away (a {fs:g} Hz log allows --cutoff <= {max_cutoff(fs):g} Hz, which "
-            f"keeps {100 * MIN_HARMONIC_GAIN:g} % of a harmonic up to {highest_harmonic(fs):g} "
-            f"Hz); allowed: base frequency x harmonics <= {highest_harmonic(fs):g} Hz"
+            f"harmonic away (a {fs:g} Hz log allows --cutoff <= {floor_g(max_cutoff(fs)):g} "
+            f"Hz, which keeps {100 * MIN_HARMONIC_GAIN:g} % of a harmonic up to "
+            f"{highest_harmonic(fs):g} Hz); allowed: base frequency x harmonics <= "
+            f"{highest_harmonic(fs):g} Hz"
         )
 
     doing = f"designing an exciting trajectory for {base.name!r}"

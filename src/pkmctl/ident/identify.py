@@ -411,6 +411,21 @@ def sample_rate(h: float) -> float:
     return float(f"{1.0 / h:.6g}")
 
 
+def floor_g(x: float, digits: int = 6) -> float:
+    """``x`` to ``digits`` significant digits, rounded down: printed with ``:g`` it is not
+    above ``x`` (a largest cutoff of 6.6666667 Hz printed 6.66667, which identify refused
+    at the same log: a code reader)."""
+    s = float(f"{x:.{digits}g}")
+    if not (math.isfinite(x) and s > x):
+        return s
+    return float(f"{s - 10.0 ** (math.floor(math.log10(abs(s))) - digits + 1):.{digits}g}")
+
+
+def ceil_g(x: float, digits: int = 6) -> float:
+    """``x`` to ``digits`` significant digits, rounded up (see :func:`floor_g`)."""
+    return -floor_g(-x, digits)
+
+
 def max_cutoff(fs: float) -> float:
     """The largest parallel filter cutoff (Hz) for a log sampled at ``fs`` Hz: the pose
     filter (at :data:`DIFF_CUTOFF_RATIO` x fs) must be :data:`MIN_POSE_TO_CUTOFF` times
@@ -440,7 +455,7 @@ def cutoff_for(f: float, fs: float, least: float = DEFAULT_CUTOFF) -> float | No
     Hz in a log at ``fs`` Hz; None if even :func:`max_cutoff` does not (identify would
     filter the harmonic away). A log below 500 Hz allows no 10 Hz cutoff: it gave 10, and
     excite printed an identify command that identify refused (a tester)."""
-    top = max_cutoff(fs)
+    top = floor_g(max_cutoff(fs))  # (printed with :g, it must not round up past the limit)
     if filter_gain(top, fs, f) < MIN_HARMONIC_GAIN:
         return None
     lo, hi = min(least, top), top
@@ -673,10 +688,10 @@ def _check_rate(log: Log, cutoff: float, diff_cutoff: float | None) -> tuple[flo
         if cutoff > cmax:
             raise IdentificationError(
                 f"{where}: sampled at {fs:g} Hz, too slowly for cutoff = {cutoff:g} Hz, which "
-                f"must be in (0, {cmax:.4g}] Hz for this log (the pose filter, at "
+                f"must be in (0, {floor_g(cmax):g}] Hz for this log (the pose filter, at "
                 f"{DIFF_CUTOFF_RATIO:g} x the sample rate, must be >= {MIN_POSE_TO_CUTOFF:g} x "
                 f"the cutoff); at {cutoff:g} Hz the log must be sampled at >= "
-                f"{cutoff * MIN_POSE_TO_CUTOFF / DIFF_CUTOFF_RATIO:.4g} Hz"
+                f"{ceil_g(cutoff * MIN_POSE_TO_CUTOFF / DIFF_CUTOFF_RATIO):g} Hz"
                 + (  # a machine's log at 1 Hz over hours: t in ms (a tester's log said 1 Hz)
                     "; t in milliseconds? (t must be in seconds)"
                     if fs <= 2.0 and log.t[-1] - log.t[0] > 600.0
