@@ -322,6 +322,18 @@ def test_sample_rate_cutoff_and_length_are_checked_first(exciting):
     assert obs.sample_rate == 1000.0 and obs.decimation == 40
 
 
+def test_a_log_of_just_the_minimum_length_is_identified(exciting, noisy):
+    """6727 samples of 6.726 s at 10 Hz are the minimum: cut from t = 1 s, the median
+    interval is a rounding under 1 ms, and the log was refused as 6.726 s too short for
+    6.726 s (a code reader); one sample less is refused."""
+    _, sc = exciting
+    cut = Log(noisy.t[1000:7727], noisy.q[1000:7727], noisy.tau[1000:7727], "bad.csv")
+    assert np.median(np.diff(cut.t)) < 1e-3
+    assert identify(cut, sc, physical=False).observation.t.size > 0
+    with pytest.raises(IdentificationError, match=r"6726 samples \(6.725 s\), too short"):
+        identify(Log(cut.t[:-1], cut.q[:-1], cut.tau[:-1], "bad.csv"), sc, physical=False)
+
+
 def test_force_lead_auto_finds_several_samples_and_refuses_the_edge(exciting):
     _, sc = exciting
     log = _clean(sc)

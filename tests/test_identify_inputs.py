@@ -3,6 +3,7 @@ direct calls, kept fast; the estimation itself is tested in tests/test_identify.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import subprocess
@@ -93,3 +94,33 @@ def test_excite_prints_a_cutoff_identify_accepts_at_a_non_round_rate(tmp_path, p
     msg = str(info.value)
     assert "sampled at 333.333 Hz, too slowly for cutoff = 6.66667 Hz, which must be in " in msg
     assert "(0, 6.66666] Hz" in msg and "must be sampled at >= 333.334 Hz" in msg, msg
+
+
+@pytest.mark.parametrize("cutoff", [10.0, 12.8, 7.3])
+def test_minimum_duration_is_what_identify_needs(proto, cutoff):
+    """minimum_duration counted the filters' support in seconds, observe in whole samples:
+    at 12.8 Hz (a half-length of 156.25 samples, 157 used) a log of the duration it gave
+    was refused, 1.5 ms short (a code reader). A log of that span passes the length check
+    (and is refused for what follows: it does not move), one sample less does not."""
+    from pkmctl.ident.identify import minimum_duration
+
+    n = math.ceil(1000.0 * minimum_duration(cutoff, 30) - 1e-6) + 1  # the fewest spanning it
+    home = proto.plant().inverse_kinematics(proto.plant().home)
+    for k, short in ((n, False), (n - 1, True)):
+        with pytest.raises(IdentificationError) as info:
+            identify(_log(n=k, q=np.tile(home, (k, 1))), proto, cutoff=cutoff)
+        assert ("too short for cutoff" in str(info.value)) == short, str(info.value)
+
+
+def test_excite_times_the_run_for_the_log_it_gives(tmp_path):
+    """A run of D s logs t = 0 .. D - 1 ms: excite said a 6.72631 s design was long enough
+    for identify's 6.726 s, and identify refused the run's 6.725 s log (a code reader)."""
+    r = _run("excite", "--out", "ex.toml", "--harmonics", "3", "--periods", "1",
+             "--base-frequency", "0.14867", cwd=tmp_path)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    said = " ".join(r.stderr.split())
+    assert (
+        "warning: 6.72631 s is too short for pkmctl identify at its default --cutoff 10 Hz, "
+        "which needs >= 6.727 s of run" in said
+    ), said
+    assert "use --periods >= 2" in said, said

@@ -299,12 +299,15 @@ def excite(
             f"identify DIR/pd.parquet{raise_cutoff}"  # (quoted: a path with a space ran
         )  # "simulate sc" when pasted)
     )
-    need = minimum_duration(cut, exc_.base.count, fs)
-    if exc_.duration < need:
+    # a run of D s logs t = 0 .. D - 1/fs at most: one interval less than D (a run of
+    # 6.72631 s, said long enough for 6.726 s, logged 6.725 s: a code reader)
+    need = minimum_duration(cut, exc_.base.count, fs) + 1.0 / fs
+    if exc_.duration < need * (1.0 - 1e-9):
         at = f"--cutoff {cut:g} Hz" if raise_cutoff else f"its default --cutoff {cut:g} Hz"
         _say(
             f"warning: {exc_.duration:g} s is too short for pkmctl identify at {at}, which "
-            f"needs >= {need:.3g} s: use --periods >= {math.ceil(need * base_frequency - 1e-9)}"
+            f"needs >= {need:.4g} s of run (the log's span and one interval): use --periods "
+            f">= {math.ceil(need * base_frequency - 1e-9)}"
         )
 
 
