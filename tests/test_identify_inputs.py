@@ -124,3 +124,25 @@ def test_excite_times_the_run_for_the_log_it_gives(tmp_path):
         "which needs >= 6.727 s of run" in said
     ), said
     assert "use --periods >= 2" in said, said
+
+
+def test_timestamps_in_t_are_refused_by_name(tmp_path):
+    """ISO times in t (2026-12-07T10:00:00.000, 1 ms apart) were read as nanoseconds since
+    1970: 'sampled at 1.00006e-06 Hz ... t in milliseconds?' (a code reader)."""
+    from datetime import datetime, timedelta
+
+    from pkmctl.ident.identify import read_log
+
+    t0 = datetime(2026, 12, 7, 10)
+    rows = "".join(
+        f"{(t0 + timedelta(milliseconds=k)).isoformat(timespec='milliseconds')},"
+        "0.7,0.7,0.7,0.7,1,1,1,1\n"
+        for k in range(30)
+    )
+    (tmp_path / "iso.csv").write_text("t,q1,q2,q3,q4,tau1,tau2,tau3,tau4\n" + rows)
+    with pytest.raises(IdentificationError) as info:
+        read_log(tmp_path / "iso.csv")
+    assert str(info.value).startswith(
+        f"log {str(tmp_path / 'iso.csv')!r}: column t holds dates or times (timestamp["
+    ), str(info.value)
+    assert "not numbers: t must be in seconds" in str(info.value)

@@ -244,7 +244,8 @@ def _parse_failure(path: Path, message: str) -> str:
 
 def _read_table(path: Path, what: str = "log") -> tuple[dict, dict[str, int], list[str]]:
     """The columns of a Parquet or CSV table by name (float arrays; None for a non-numeric
-    one), the names that occur more than once (name: count; not read) and the header."""
+    one, its type's name for a date or time one), the names that occur more than once
+    (name: count; not read) and the header."""
     where = f"{what} {_printable(str(path))!r}"
     check_log_file(path, what=what)
     try:  # (pyarrow's file on the path's bytes: pyarrow takes a str path as UTF-8, and a
@@ -285,6 +286,9 @@ def _read_table(path: Path, what: str = "log") -> tuple[dict, dict[str, int], li
         if name in dups:
             continue  # an error only if it is needed
         col = table.column(i)  # by position: a name may occur twice
+        if pa.types.is_temporal(col.type):  # (ISO times became ns since 1970: a code reader)
+            out[name] = str(col.type)  # an error only if it is needed
+            continue
         try:
             out[name] = col.to_numpy(zero_copy_only=False).astype(float)
         except (TypeError, ValueError):
@@ -337,6 +341,11 @@ def read_log(path: str | Path, *, what: str = "log") -> Log:
             f"tau1..tau4 in N; the header read: {shown!r}, {len(header)} column(s){hint})"
         )
     for n in need:
+        if isinstance(cols[n], str):
+            raise IdentificationError(
+                f"{where}: column {n} holds dates or times ({cols[n]}), not numbers: {n} must "
+                "be in seconds (e.g. from the log's start)"
+            )
         if cols[n] is None:
             raise IdentificationError(f"{where}: column {n} is not numeric")
         bad = np.flatnonzero(~np.isfinite(cols[n]))
