@@ -630,6 +630,12 @@ def test_forces_in_other_units_are_refused(exciting, noisy):
         )
         assert "x the scenario's prior 10.84 kg (allowed 0.1-10 x)" in msg
         assert "kN instead of N" in msg and "motor torques" in msg
+    # further off, the physical fit (masses >= 1 g) fits no more, and the residual it left
+    # (70 %) was blamed on negative masses, the units unnamed (a code reader)
+    for scale in (1e-4, 1e-6):
+        msg = _refused(_with(noisy, tau=lambda x, s=scale: s * x), sc, r"m_platform = [\d.e-]+ kg "
+                       r"\(WLS\) is [\d.e-]+ x the scenario's prior")  # fmt: skip
+        assert "kN instead of N" in msg and "negative masses" not in msg
 
 
 @pytest.mark.parametrize(

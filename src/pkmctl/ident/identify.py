@@ -1329,7 +1329,8 @@ def _check_fit(
 ) -> None:
     """Refuse a fit that no genuine log gives (one line each): a clearly negative WLS mass,
     a relative residual above ``max_residual`` (of the physically consistent fit if there
-    is one, else of WLS), an m_platform outside ``mass_ratio`` x the prior's. ``lead``: a
+    is one, else of WLS), an m_platform outside ``mass_ratio`` x the prior's (before the
+    residual when it is positive and WLS fits: forces in other units). ``lead``: a
     force lead given that is itself suspect (named among the causes); ``misfit``: the
     :func:`lead_note` saying it fits much worse than the best near 0 (named first);
     ``searched`` False: the lead was given (or the default 0), not searched."""
@@ -1346,6 +1347,29 @@ def _check_fit(
         )
     if misfit:
         causes = f"{misfit}; else {causes}"
+    m0 = prior[PARAMETER_NAMES.index("m_platform")]
+    ratio = None
+    if mass_ratio is not None and "m_platform" in base.expressions and m0 > 0:
+        k_m = base.expressions.index("m_platform")
+        ratio = wls.beta[k_m] / m0
+
+    def check_mass_ratio() -> None:
+        lo, hi = mass_ratio
+        if ratio is None or lo <= ratio <= hi:
+            return
+        why = (
+            causes
+            if ratio <= 0
+            else (f"{misfit}; else " if misfit else "")
+            + "forces in other units (kN instead of N: 1e-3 x), or motor torques in "
+            "N m instead of limb forces (f = 2 pi eta T / lead: lead / (2 pi eta) x); or "
+            "the prior is not this machine's (give its --scenario, with its masses)"
+        )
+        raise IdentificationError(
+            f"{where}: m_platform = {wls.beta[k_m]:.4g} kg (WLS) is {ratio:.3g} x the "
+            f"scenario's prior {m0:.4g} kg (allowed {lo:g}-{hi:g} x): {why}"
+        )
+
     if max_residual is not None:
         masses = [k for k, e in enumerate(base.expressions) if e.startswith("m_") and " " not in e]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -1357,6 +1381,11 @@ def _check_fit(
                 f"{-wls.beta[k] / wls.std[k]:.3g} std below 0 (a mass must be >= 0; allowed: "
                 f"at most {NEGATIVE_MASS_STD:g} std below): {causes}"
             )
+        if ratio is not None and ratio > 0 and wls.relative_error <= max_residual:
+            # a WLS that fits with a positive mass scaled away: the units, first (forces
+            # 1e-4 x fit WLS as well as ever, and the physical fit, its masses >= 1 g, left
+            # 70 %, "only negative masses ... fit the data": a code reader)
+            check_mass_ratio()
         fit, which = (phys_fit, "the physically consistent fit") if phys_fit else (wls, "WLS")
         if not fit.relative_error <= max_residual:
             hint = (
@@ -1371,24 +1400,7 @@ def _check_fit(
                 f"{100 * max_residual:g} %){hint}: {causes}; a real machine whose "
                 "unmodelled effects leave more: raise max_residual"
             )
-    m0 = prior[PARAMETER_NAMES.index("m_platform")]
-    if mass_ratio is not None and "m_platform" in base.expressions and m0 > 0:
-        k = base.expressions.index("m_platform")
-        ratio = wls.beta[k] / m0
-        lo, hi = mass_ratio
-        if not lo <= ratio <= hi:
-            causes = (
-                causes
-                if ratio <= 0
-                else (f"{misfit}; else " if misfit else "")
-                + "forces in other units (kN instead of N: 1e-3 x), or motor torques in "
-                "N m instead of limb forces (f = 2 pi eta T / lead: lead / (2 pi eta) x); or "
-                "the prior is not this machine's (give its --scenario, with its masses)"
-            )
-            raise IdentificationError(
-                f"{where}: m_platform = {wls.beta[k]:.4g} kg (WLS) is {ratio:.3g} x the "
-                f"scenario's prior {m0:.4g} kg (allowed {lo:g}-{hi:g} x): {causes}"
-            )
+    check_mass_ratio()
 
 
 def fk_limit(scenario: Scenario) -> float:
