@@ -146,3 +146,32 @@ def test_timestamps_in_t_are_refused_by_name(tmp_path):
         f"log {str(tmp_path / 'iso.csv')!r}: column t holds dates or times (timestamp["
     ), str(info.value)
     assert "not numbers: t must be in seconds" in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("kw", "words"),
+    [
+        ({"restarts": 0}, "restarts = 0: must be an integer >= 1"),
+        ({"base_frequency": 0.0}, r"base_frequency = 0.0: must be in \(0, 10\] Hz"),
+        ({"base_frequency": float("nan")}, r"base_frequency = nan: must be in \(0, 10\] Hz"),
+        ({"samples": 0}, r"samples = 0: must be an integer >= 20 \(points a period"),
+        ({"periods": 0}, "periods = 0: must be an integer >= 1"),
+        ({"harmonics": 2}, r"harmonics = 2: must be an integer >= 3 \(rest at both ends"),
+        ({"seed": -1}, "seed = -1: must be an integer >= 0"),
+        ({"max_iter": 0}, "max_iter = 0: must be an integer >= 1"),
+        ({"restarts": 1.5}, "restarts = 1.5: must be an integer >= 1"),
+        (
+            {"base_frequency": 1e-3, "periods": 4},
+            "base_frequency = 0.001: a run of periods = 4 would last 4000 s, over timing",
+        ),
+    ],
+)
+def test_design_excitation_checks_each_argument(proto, kw, words):
+    """restarts = 0 raised a TypeError, base_frequency = 0 a ZeroDivisionError, samples = 0
+    numpy's zero-size reduction, and periods = 0 'designed' a run of 0 s (a code reader):
+    each is refused naming the argument, its value and what it must be."""
+    from pkmctl.ident.excite import design_excitation
+
+    with pytest.raises(ValueError, match=f"^{words}") as info:
+        design_excitation(proto, **kw)
+    assert "\n" not in str(info.value)

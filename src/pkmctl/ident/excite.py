@@ -216,9 +216,32 @@ def design_excitation(
     """Design an exciting trajectory for ``scenario``'s machine (see the module);
     ``progress(starts done, restarts)`` is called as each random start ends."""
     t0 = time.perf_counter()
-    H, f = int(harmonics), float(base_frequency)
-    if H < 3:
-        raise ValueError(f"harmonics = {H}: must be >= 3 (rest at both ends takes 3 conditions)")
+    # each argument checked, as the command's options are (restarts = 0 raised a TypeError,
+    # samples = 0 numpy's zero-size reduction, base_frequency = 0 a ZeroDivisionError, and
+    # periods = 0 "designed" a run of 0 s: a code reader)
+    why = {
+        "harmonics": " (rest at both ends takes 3 conditions)",
+        "samples": " (points a period, 4 x harmonics: the top harmonic's peaks seen)",
+    }
+    for name, value, lo in (("harmonics", harmonics, 3), ("periods", periods, 1),
+                            ("samples", samples, None), ("restarts", restarts, 1),
+                            ("seed", seed, 0), ("max_iter", max_iter, 1)):  # fmt: skip
+        lo = 4 * int(harmonics) if lo is None else lo  # (harmonics checked first)
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < lo:
+            raise ValueError(f"{name} = {value!r}: must be an integer >= {lo}{why.get(name, '')}")
+    H = int(harmonics)
+    try:
+        f = float(base_frequency)
+    except (TypeError, ValueError):
+        f = math.nan
+    if not 0.0 < f <= 10.0:  # NaN too; the command's range
+        raise ValueError(f"base_frequency = {base_frequency!r}: must be in (0, 10] Hz")
+    if periods / f > 3600.0:
+        raise ValueError(
+            f"base_frequency = {f:g}: a run of periods = {periods} would last "
+            f"{periods / f:.4g} s, over timing.duration's 3600 s: must be >= "
+            f"{periods / 3600.0:.4g} Hz"
+        )
     plant = scenario.plant()
     theta_ext, vs = _machine(scenario)
     base = base_parameters(plant, vs)
