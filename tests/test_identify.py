@@ -1047,5 +1047,14 @@ def test_forces_clipped_by_the_logger_are_noted(exciting):
         [tau[:, :2], np.clip(tau[:, 2], -top, top), tau[:, 3:]]))  # fmt: skip
     said = _clipped(clipped.tau)
     assert said.startswith("tau3 is exactly ") and " % of the samples" in said, said
+    # forces the logger quantised (0.1 % of the 2160 N rating, or 5 N) sit at their extremes
+    # as often as at the levels next to them: they were called clipped (a code reader); so
+    # quantised and then clipped, they are
+    for step in (2.16, 5.0):
+        quantised = step * np.round(log.tau / step)
+        assert _clipped(quantised) == "", (step, _clipped(quantised))
+        top = np.quantile(quantised[:, 2], 0.97)
+        quantised[:, 2] = np.minimum(quantised[:, 2], top)
+        assert _clipped(quantised).startswith(f"tau3 is exactly {top:g} N in 3"), step
     notes = identify(clipped, sc, force_lead=None).notes
     assert any(n.startswith("tau3 is exactly") and "clips the force" in n for n in notes), notes
