@@ -289,6 +289,11 @@ def test_lengths_that_fit_no_pose_of_the_geometry_are_refused(exciting):
     mm = _with(log, q=lambda q: 1e3 * q)
     with pytest.raises(IdentificationError, match=r"in millimetres\? \(q must be in metres\)"):
         identify(mm, sc)
+    # centimetres (71 m limbs) had no hint, the 100 x bound being mm's (a code reader)
+    for factor, unit in ((100.0, "centimetres"), (39.37, "inches"), (1e-3, "kilometres")):
+        other = _with(log, q=lambda q, f=factor: f * q)
+        with pytest.raises(IdentificationError, match=rf"m: in {unit}\? \(q must be in metres"):
+            identify(other, sc)
     other = sc.replace(**{"mechanism.r_b": sc.mechanism.r_b + 0.01})  # another machine
     with pytest.raises(IdentificationError, match="do not fit the geometry"):
         identify(_clean(other), sc)

@@ -539,6 +539,17 @@ class Observation:
     rate_cutoff: float = math.nan
 
 
+#: Ratios of a log's lengths to the machine's (their median where forward kinematics
+#: failed / the home pose's mean) that name a unit: x 1000 mm, x 100 cm, x 39.37 inches,
+#: x 0.001 km; each between the geometric means of its neighbours' factors.
+_LENGTH_UNITS = (
+    (math.sqrt(100.0 * 1000.0), math.inf, "millimetres"),
+    (math.sqrt(39.37 * 100.0), math.sqrt(100.0 * 1000.0), "centimetres"),
+    (math.sqrt(39.37 * 10.0), math.sqrt(39.37 * 100.0), "inches"),
+    (0.0, math.sqrt(0.001 * 0.01), "kilometres"),
+)
+
+
 def _forward_kinematics(
     mech: Mechanism, log: Log, max_residual: float = math.inf, machine: str = "the scenario"
 ) -> tuple[np.ndarray, float]:
@@ -552,10 +563,15 @@ def _forward_kinematics(
     bad, worst = fk_batch(mech.geometry, q, mech.home.copy(), 1e-13, 1e-15, 50, X)
     if bad >= 0:
         home = float(np.mean(mech.inverse_kinematics(mech.home)))
-        units = (  # lengths in mm read as m: 714 m limbs (a tester)
+        # lengths in mm read as m: 714 m limbs (a tester); in cm (71 m) or inches the hint
+        # was missing (a code reader): the unit whose factor is nearest (geometric means
+        # of neighbouring factors as the bounds)
+        ratio = float(np.median(q[bad])) / home
+        unit = next((u for lo, hi, u in _LENGTH_UNITS if lo < ratio <= hi), None)
+        units = (
             f"; lengths of {np.median(q[bad]):.4g} m where the machine's are ~{home:.2g} m: "
-            "in millimetres? (q must be in metres)"
-            if np.median(q[bad]) > 100 * home
+            f"in {unit}? (q must be in metres)"
+            if unit
             else ""
         )
         raise IdentificationError(
