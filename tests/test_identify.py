@@ -325,6 +325,13 @@ def test_sample_rate_cutoff_and_length_are_checked_first(exciting):
     late = _with(log, t=lambda t: t * (1 + 1e-7))
     obs = identify(late, sc, physical=False).observation
     assert obs.sample_rate == 1000.0 and obs.decimation == 40
+    # epoch times (t ~ 1.7e9 s): float64 intervals of 0.99993 or 1.00017 ms, whose median
+    # made 1000.07 Hz, 'decimation by 40 (to 25.0018 Hz)' and moved the estimate by up to
+    # 0.22 std (a code reader); the mean interval is the span's
+    ref = identify(log, sc, physical=False)
+    epoch = identify(_with(log, t=lambda t: t + 1.7e9), sc, physical=False)
+    assert epoch.observation.sample_rate == 1000.0 and epoch.observation.decimation == 40
+    assert np.abs((epoch.wls.beta - ref.wls.beta) / ref.wls.std).max() < 0.05
 
 
 def test_a_log_of_just_the_minimum_length_is_identified(exciting, noisy):
