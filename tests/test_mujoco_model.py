@@ -269,6 +269,17 @@ def test_the_smaller_shadow_map_draws_the_default_picture(robot):
     assert np.abs(ours - default).mean() < 0.014
 
 
+def test_render_poses_draws_images_wider_than_800(robot):
+    """build_mjcf's offscreen buffer is 800 x 600: width 1024 raised "MuJoCo cannot render
+    here" in six lines (a code reader); render_poses raises the buffer to the image."""
+    try:
+        mj.render_poses(robot, [robot.home], width=32, height=24)
+    except RuntimeError as exc:
+        pytest.skip(f"no offscreen GL backend here: {exc}")
+    images = mj.render_poses(robot, [robot.home], width=1024, height=700)
+    assert images[0].shape == (700, 1024, 3) and images[0].std() > 10
+
+
 def test_render_poses_refuses_a_shadow_map_out_of_range(robot):
     with pytest.raises(ValueError, match=r"shadow_size = 0: must be in \[64, 16384\]"):
         mj.render_poses(robot, [robot.home], shadow_size=0)

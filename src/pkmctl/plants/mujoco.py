@@ -987,12 +987,17 @@ def render_poses(
         side = 2 ** math.ceil(math.log2(2 * max(width, height)))
         shadow_size = min(int(model.vis.quality.shadowsize), max(1024, side))
     model.vis.quality.shadowsize = int(shadow_size)
+    # the offscreen buffer must hold the image: build_mjcf's 800 x 600 made width 1024 "cannot
+    # render here" in six lines of MuJoCo's (a code reader)
+    model.vis.global_.offwidth = max(int(model.vis.global_.offwidth), int(width))
+    model.vis.global_.offheight = max(int(model.vis.global_.offheight), int(height))
     data = mujoco.MjData(model)
     try:
         renderer = mujoco.Renderer(model, height, width)
     except Exception as exc:  # the GL backends raise many types
         gl = os.environ.get("MUJOCO_GL", "default")
-        raise RuntimeError(f"MuJoCo cannot render here (MUJOCO_GL={gl}): {exc}") from None
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise RuntimeError(f"MuJoCo cannot render here (MUJOCO_GL={gl}): {first}") from None
     cam = mujoco.MjvCamera()
     cam.lookat[:] = (0.0, 0.0, 0.45 * float(robot.home[0]))
     cam.distance, cam.azimuth, cam.elevation = 2.6 * float(robot.home[0]), 60.0, -15.0
