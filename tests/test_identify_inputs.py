@@ -175,3 +175,34 @@ def test_design_excitation_checks_each_argument(proto, kw, words):
     with pytest.raises(ValueError, match=f"^{words}") as info:
         design_excitation(proto, **kw)
     assert "\n" not in str(info.value)
+
+
+def test_an_invalid_filtered_pose_is_named_by_its_data_row_and_time(proto, monkeypatch):
+    """The pose check runs on rows 4..n-3 (where the differences are defined) and named
+    the k-th of them 'sample k', three rows early, with no time (a code reader). No log
+    that passes forward kinematics was found to reach it, so forward kinematics is
+    replaced here: home, tilting smoothly (0.5 s) to past the condition limit (1.56 rad)."""
+    import scipy.signal
+
+    from pkmctl.ident import identify as m
+    from pkmctl.model.mechanism import MAX_CONDITION, limbs_batch
+
+    mech = proto.plant()
+    n = 700
+    X = np.tile(mech.home, (n, 1))
+    X[:, 1] = 0.78 * (1.0 - np.cos(np.pi * np.minimum(1e-3 * np.arange(n) / 0.5, 1.0)))
+    monkeypatch.setattr(m, "_forward_kinematics", lambda *a, **k: (X.copy(), 0.0))
+    log = _log(n=n, q=np.tile(mech.inverse_kinematics(mech.home), (n, 1)))
+    with pytest.raises(IdentificationError) as info:
+        m.observe(log, mech)
+    # the first row whose filtered pose (Butterworth order 4 at 0.1 fs, zero-phase) is
+    # past the limit, among those checked
+    Xf = scipy.signal.sosfiltfilt(scipy.signal.butter(4, 100.0, fs=1000.0, output="sos"), X,
+                                  axis=0)  # fmt: skip
+    _, J = limbs_batch(mech.geometry, np.ascontiguousarray(Xf))
+    bad = np.flatnonzero(np.linalg.cond(J) >= MAX_CONDITION)
+    k = int(bad[bad >= 3][0])
+    assert str(info.value) == (
+        f"log 'bad.csv': data row {k + 1} (t = {log.t[k]:.6g} s) is at a singular or invalid "
+        "pose (its pose filtered for the derivatives)"
+    )

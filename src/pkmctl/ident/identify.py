@@ -637,9 +637,12 @@ def _clipped(tau: np.ndarray) -> str:
     return "; ".join(said)
 
 
-def _check_poses(where: str, mech: Mechanism, X: np.ndarray) -> np.ndarray:
+def _check_poses(
+    where: str, mech: Mechanism, X: np.ndarray, t: np.ndarray, first: int = 0
+) -> np.ndarray:
     """J (n, 4, 3) of poses X (n, 3), which must be valid (the limits of
-    :mod:`pkmctl.model.mechanism`; eigenvalues of J^T J: fast for long logs)."""
+    :mod:`pkmctl.model.mechanism`; eigenvalues of J^T J: fast for long logs); X's row 0 is
+    the log's data row ``first`` + 1, at time t[0] (t: X's times)."""
     from pkmctl.model.mechanism import (
         MAX_CONDITION,
         MIN_LIMB_LENGTH,
@@ -654,8 +657,12 @@ def _check_poses(where: str, mech: Mechanism, X: np.ndarray) -> np.ndarray:
     ok = (q.min(axis=1) >= MIN_LIMB_LENGTH) & (ev[:, 0] > MIN_SINGULAR_VALUE**2)
     ok &= ev[:, -1] < MAX_CONDITION**2 * ev[:, 0]
     if not ok.all():
-        k = int(np.flatnonzero(~ok)[0])
-        raise IdentificationError(f"{where}: sample {k + 1} is at a singular or invalid pose")
+        k = int(np.flatnonzero(~ok)[0])  # (it said "sample k + 1" of the rows checked,
+        # three data rows early, and no time: a code reader)
+        raise IdentificationError(
+            f"{where}: data row {first + k + 1} (t = {t[k]:.6g} s) is at a singular or invalid "
+            "pose (its pose filtered for the derivatives)"
+        )
     return J
 
 
@@ -820,7 +827,7 @@ def observe(
     from pkmctl.model.mechanism import extended_regressor_batch
 
     Xi, Xdi, Xddi = (np.ascontiguousarray(a[inner]) for a in (Xf, Xd, Xdd))
-    J = _check_poses(where, mechanism, Xi)
+    J = _check_poses(where, mechanism, Xi, log.t[inner], inner.start)
     W = extended_regressor_batch(mechanism.geometry, Xi, Xdi, Xdi, Xddi, friction_velocity)
     # The Coulomb columns J_i^T tanh(qdot_i / v_s) from the limb rates of the measured
     # lengths themselves, not from the pose filtered at fd: the friction makes every
