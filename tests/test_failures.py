@@ -40,6 +40,13 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 PROGRESS = ("simulating ", "writing ", "drawing ", "compiling ", "compiled ")
 
 
+def _ctrl_c_as_a_terminals() -> None:
+    """A child's Ctrl-C as a terminal gives it: a test run started in the background
+    (nohup, CI) passes SIGINT on ignored, which pkmctl rightly keeps ignored; these tests
+    passed only when an earlier in-process command had put Python's handler back."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def one_line(res, code: int) -> str:
     assert res.exit_code == code, res.output
     lines = [ln for ln in res.output.splitlines() if ln.strip() and not ln.startswith(PROGRESS)]
@@ -364,7 +371,7 @@ def test_a_spawned_worker_interrupted_in_its_initializer_ends_quietly(tmp_path):
     '''))  # fmt: skip
     env = {**os.environ, ENV: str(plugin)}
     res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
-                         env=env, timeout=120)  # fmt: skip
+                         env=env, timeout=120, preexec_fn=_ctrl_c_as_a_terminals)  # fmt: skip
     assert res.stdout.split() == ["broken"], res
     assert "Traceback" not in res.stderr and "initializer" not in res.stderr, res.stderr
 
@@ -869,7 +876,8 @@ def test_sigint_while_the_command_starts_is_one_line_and_130(tmp_path):
     assert not (tmp_path / "o").exists()
     # a library user's Ctrl-C is Python's own: KeyboardInterrupt
     code = "import pkmctl, signal as s; print(s.getsignal(s.SIGINT) is s.default_int_handler)"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, preexec_fn=_ctrl_c_as_a_terminals)  # fmt: skip
     assert out.stdout.strip() == "True"
 
 
@@ -911,7 +919,8 @@ def test_python_dash_m_pkmctl_has_the_commands_quiet_ctrl_c_while_starting(tmp_p
     '''))  # fmt: skip
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), str(SRC)]))
     out = subprocess.run([sys.executable, "-m", "pkmctl", "--version"], env=env,
-                         capture_output=True, text=True, timeout=120)  # fmt: skip
+                         capture_output=True, text=True, timeout=120,
+                         preexec_fn=_ctrl_c_as_a_terminals)  # fmt: skip
     assert out.stdout.split() == ["_quiet_interrupt"], (out.stdout, out.stderr[-2000:])
 
 
@@ -930,7 +939,8 @@ def test_the_start_ups_quiet_ctrl_c_is_the_commands_alone(tmp_path):
                 print(handler(), pool.apply(handler))
     '''))  # fmt: skip
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
-                         check=True, timeout=120).stdout.split()  # fmt: skip
+                         check=True, timeout=120,
+                         preexec_fn=_ctrl_c_as_a_terminals).stdout.split()  # fmt: skip
     assert out == ["_quiet_interrupt", "_quiet_worker_interrupt"], out  # command's; worker's
 
 
@@ -962,7 +972,7 @@ def test_a_spawned_worker_importing_pkmctl_as_it_prepares_keeps_pythons_ctrl_c(t
             print(worker.exitcode)
     '''))  # fmt: skip
     res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
-                         check=True, timeout=120)  # fmt: skip
+                         check=True, timeout=120, preexec_fn=_ctrl_c_as_a_terminals)  # fmt: skip
     # the command's quiet line; a worker's quiet exit (it printed a KeyboardInterrupt
     # traceback below the command's line, and "interrupted while starting" before that)
     assert res.stdout.split() == ["_quiet_interrupt", "_quiet_worker_interrupt", "130"], res

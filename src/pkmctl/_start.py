@@ -24,8 +24,12 @@ def _quiet_interrupt(signum, frame) -> None:  # (nothing to clean up before the 
     os._exit(130)
 
 
+class WorkerInterrupted(SystemExit):
+    """A worker's Ctrl-C (exit 130): not a plugin's own sys.exit, which an import names."""
+
+
 def _quiet_worker_interrupt(signum, frame) -> None:
-    raise SystemExit(130)
+    raise WorkerInterrupted(130)
 
 
 def _the_command() -> bool:

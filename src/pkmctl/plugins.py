@@ -75,7 +75,7 @@ def _import(spec: str) -> str:
             loader.loader.exec_module(module)
         except SystemExit as exc:
             del sys.modules[name]
-            raise PluginError(_exited(spec, exc)) from None
+            raise _exited(spec, exc) from None
         except Exception as exc:
             del sys.modules[name]
             raise PluginError(f"--plugin {spec}: {_why(exc, path)}") from exc
@@ -83,7 +83,7 @@ def _import(spec: str) -> str:
     try:
         importlib.import_module(spec)
     except SystemExit as exc:
-        raise PluginError(_exited(spec, exc)) from None
+        raise _exited(spec, exc) from None
     except Exception as exc:
         top = spec.split(".")[0]
         here = Path.cwd() / f"{top}.py", Path.cwd() / top / "__init__.py"
@@ -100,10 +100,15 @@ def _import(spec: str) -> str:
     return spec
 
 
-def _exited(spec: str, exc: SystemExit) -> str:
+def _exited(spec: str, exc: SystemExit) -> BaseException:
     """A plugin that called sys.exit while imported: pkmctl exited 0 having done nothing,
-    or printed the plugin's argparse usage as its own (a code reader)."""
-    return (
+    or printed the plugin's argparse usage as its own (a code reader). A worker's Ctrl-C
+    (:class:`pkmctl._start.WorkerInterrupted`) goes on as it is."""
+    from pkmctl._start import WorkerInterrupted
+
+    if isinstance(exc, WorkerInterrupted):
+        return exc
+    return PluginError(
         f"--plugin {spec}: the module called sys.exit({exc.code!r}) while it was imported "
         f"(a script's argparse or main code at its top level? put it under "
         f'if __name__ == "__main__":)'
