@@ -443,6 +443,37 @@ def test_global_values_digest(tmp_path):
     assert mains[0] == mains[1]
 
 
+def test_global_values_follow_nested_modules_and_default_arguments():
+    """(a code reader) ``cfgpkg.sub.GAIN`` and a helper's ``def scaled(x, g=GAIN)``: Numba
+    compiles both in, and the digest saw neither, so the first value's loop ran for every
+    later value. A module that holds itself is followed once, not forever."""
+    from types import ModuleType, SimpleNamespace
+
+    from pkmctl.parts import global_values
+
+    def digest(fn):
+        return global_values([SimpleNamespace(builtin=False, functions={"step": fn}, lanes={})])
+
+    pkg, sub = ModuleType("cfgpkg"), ModuleType("cfgpkg.sub")
+    pkg.sub, sub.GAIN, sub.pkg = sub, 1.0, pkg  # (sub.pkg: a cycle)
+    g = {"cfgpkg": pkg}
+    exec("def step(x):\n    return cfgpkg.sub.GAIN * x + cfgpkg.sub.pkg.sub.GAIN", g)
+    first = digest(g["step"])
+    sub.GAIN = 1000.0
+    assert digest(g["step"]) != first
+    sub.GAIN = 1.0
+    assert digest(g["step"]) == first
+    g2 = {"GAIN": 1.0}
+    exec("def scaled(x, g=GAIN, *, h=GAIN):\n    return x * g * h\n"
+         "def step(x):\n    return scaled(x)", g2)  # fmt: skip
+    first = digest(g2["step"])
+    g2["scaled"].__defaults__ = (1000.0,)  # what `GAIN = 1000.0` at import gives
+    assert digest(g2["step"]) != first
+    g2["scaled"].__defaults__ = (1.0,)
+    g2["scaled"].__kwdefaults__ = {"h": 1000.0}
+    assert digest(g2["step"]) != first
+
+
 def test_the_sources_of_a_module_loaded_outside_sys_modules(tmp_path):
     """A plugin executed from its file without a sys.modules entry (importlib's
     spec_from_file_location alone): a class of its own that the step uses has a module

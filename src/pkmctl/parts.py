@@ -721,17 +721,38 @@ def global_values(parts: Iterable[Part], *, functions: Iterable[Callable] = ()) 
         if not on_disk:
             h.update(marshal.dumps(py.__code__))
         used = _code_names(py.__code__)
+        modules: set[int] = set()  # each module once a function: no cycles (pkg.sub.pkg)
         for name in sorted(used & py.__globals__.keys()):
             v = py.__globals__[name]
-            if isinstance(v, ModuleType):  # helper.scale, settings.GAIN: its used names
-                for attr in sorted(used):
-                    if attr in vars(v):
-                        item(f"{where}:{name}.{attr}", vars(v)[attr])
+            if isinstance(v, ModuleType):
+                attributes(f"{where}:{name}", v, used, modules, 0)
             else:
                 item(f"{where}:{name}", v)
         for i, c in enumerate(py.__closure__ or ()):
             if _filled(c):
                 item(f"{where}:cell{i}", c.cell_contents)
+        # Numba compiles a default value in as a constant: `def scaled(x, g=GAIN)` ran
+        # the first GAIN's loop for every later one (a code reader)
+        for i, d in enumerate(py.__defaults__ or ()):
+            item(f"{where}:default{i}", d)
+        for k, d in sorted((py.__kwdefaults__ or {}).items()):
+            item(f"{where}:default[{k}]", d)
+
+    def attributes(tag: str, mod: ModuleType, used: set[str], modules: set[int], depth: int):
+        """helper.scale, settings.GAIN: the module's attributes the code's names reach,
+        and through a module among them its own (cfgpkg.sub.GAIN, whose value was never
+        hashed: the first value's loop ran for every other one; a code reader), a few
+        levels deep, each module once."""
+        if id(mod) in modules or depth > 4:
+            return
+        modules.add(id(mod))
+        namespace = getattr(mod, "__dict__", None) or {}
+        for attr in sorted(used & namespace.keys()):
+            v = namespace[attr]
+            if isinstance(v, ModuleType):
+                attributes(f"{tag}.{attr}", v, used, modules, depth + 1)
+            else:
+                item(f"{tag}.{attr}", v)
 
     for part in parts:
         if part.builtin:
