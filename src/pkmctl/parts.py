@@ -1028,8 +1028,11 @@ def _stack_field(name: str, values: list) -> Any:
         if not same:
             raise LaneMismatch(f"field {name!r}: the runs' {type(v0).__name__} differ")
         return v0
-    if isinstance(v0, bool | int | np.integer):
+    if all(isinstance(v, bool | int | np.integer) for v in values):
         return np.array(values, dtype=np.int64)
+    # the type of every run's number: int64 for all when the first run's was an int
+    # truncated the others' floats (1000.75 ran as 1000, unlike its own run; a code
+    # reader); an int is exact in float64, as its own run computes int * float
     return np.array(values, dtype=np.float64)
 
 

@@ -1,0 +1,47 @@
+"""A code reader's findings on the user-part machinery (pkmctl.parts): each lane keeps its
+run's numbers; a registration that cannot run, or whose options or log name are wrong,
+is refused in one line."""
+
+from typing import NamedTuple
+
+import numpy as np
+import pytest
+
+import pkmctl
+from pkmctl.parts import get_part, stack_lanes
+
+
+class _Mix(NamedTuple):
+    kp: float
+
+
+def _mix_step(p, state, work, y, ref, F):
+    for i in range(3):
+        F[i] = p.kp * 1e-3
+
+
+def _mix_lanes(p, state, work, y, ref, F):
+    for i in range(3):
+        for lane in range(F.shape[1]):
+            F[i, lane] = p.kp[lane] * 1e-3
+
+
+pkmctl.register_controller("x-reader-mix", params=_Mix, build=lambda c: _Mix(1.0),
+                           lanes={"step": _mix_lanes},
+                           lane_work=lambda p, L: (np.empty((3, L)),))(_mix_step)  # fmt: skip
+
+
+@pytest.mark.parametrize("kps", [[1000, 1000.75, 2.5], [1000.75, 1000, True], [3, 4, 5]])
+def test_each_lane_of_a_stack_computes_what_its_run_computes_alone(kps):
+    """A bundle's int in the first run (a TOML integer, say) made the stacked field int64
+    for every lane: the other runs' 1000.75 ran as 1000."""
+    part = get_part("controller", "x-reader-mix")
+    lp, _, work = stack_lanes(part, [(_Mix(k), np.zeros(0), (np.empty(3),)) for k in kps])
+    F = np.zeros((3, len(kps)))
+    part.lanes["step"](lp, np.zeros((0, len(kps))), work, None, None, F)  # as Python
+    for lane, kp in enumerate(kps):
+        alone = np.zeros(3)
+        part.functions["step"](_Mix(kp), np.zeros(0), (np.empty(3),), None, None, alone)
+        assert np.array_equal(F[:, lane], alone), (lane, kp)
+    if all(isinstance(k, int) for k in kps):  # integers stay integers
+        assert lp.kp.dtype == np.int64
