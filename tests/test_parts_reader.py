@@ -45,3 +45,50 @@ def test_each_lane_of_a_stack_computes_what_its_run_computes_alone(kps):
         assert np.array_equal(F[:, lane], alone), (lane, kp)
     if all(isinstance(k, int) for k in kps):  # integers stay integers
         assert lp.kp.dtype == np.int64
+
+
+class _Counted(NamedTuple):
+    kp: float
+
+
+def _count_log(p, state, row):
+    row[0] = state[0]
+
+
+def _count_step(p, state, work, y, ref, F):
+    state[0] += 1.0
+    for i in range(3):
+        F[i] = 0.0
+
+
+def _count_log_lanes(p, state, row):
+    for lane in range(row.shape[1]):
+        row[0, lane] = state[0, lane]
+
+
+def _count_lanes(p, state, work, y, ref, F):
+    for lane in range(F.shape[1]):
+        state[0, lane] += 1.0
+        for i in range(3):
+            F[i, lane] = 0.0
+
+
+def test_a_lane_form_missing_for_one_of_the_parts_functions_is_refused_at_registration():
+    """A lane step beside a scalar log registered and ran alone, then every simulate_many
+    and campaign failed: "does not compile: no implementation of controller_log"."""
+    from pkmctl.parts import PartError, names
+
+    def register(**lanes):
+        pkmctl.register_controller("x-reader-count", params=_Counted,
+                                   build=lambda c: _Counted(1.0), state_size=1, log=_count_log,
+                                   log_size=1, log_name="count",
+                                   lane_work=lambda p, L: (np.empty((3, L)),),
+                                   **lanes)(_count_step)  # fmt: skip
+
+    with pytest.raises(PartError, match=r"^controller 'x-reader-count': lanes = \{'step'\}: "
+                                        r"must give a lane form of every function the part "
+                                        r"has \(here also: log\)$"):  # fmt: skip
+        register(lanes={"step": _count_lanes})
+    assert "x-reader-count" not in names("controller")
+    register(lanes={"step": _count_lanes, "log": _count_log_lanes})  # both: taken
+    assert set(get_part("controller", "x-reader-count").lanes) == {"step", "log"}

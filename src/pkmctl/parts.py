@@ -180,7 +180,8 @@ class Part:
     limb_jacobian: tuple[int, ...] | None = None
     compiled: dict[str, Any] = field(default_factory=dict)
     #: step functions in lane form (:mod:`pkmctl.sim.lanes`): every array with a trailing
-    #: lane dimension; a role without one runs its scalar function lane by lane
+    #: lane dimension, one for every function the part has (``command_at`` may lack one);
+    #: a part without them runs its scalar functions lane by lane
     lanes: dict[str, Callable] = field(default_factory=dict)
     #: the lane work from the lane bundle and the lane count, for the functions of ``lanes``
     lane_work: Callable[[Any, int], tuple] | None = None
@@ -935,8 +936,9 @@ def attach_lanes(
 ) -> Part:
     """Give a registered part lane forms of its step functions (:mod:`pkmctl.sim.lanes`):
     ``lanes`` role → function with the role's signature, every array with a trailing lane
-    dimension; ``lane_work(lane_bundle, L)`` their work; ``lane_ok(bundle)`` whether a
-    run's bundle may be stacked (else the part runs lane by lane); a controller's
+    dimension, for every function the part has (``command_at`` may lack one);
+    ``lane_work(lane_bundle, L)`` their work; ``lane_ok(bundle)`` whether a run's bundle
+    may be stacked (else the part runs lane by lane); a controller's
     ``lane_limb_jacobian``, as ``limb_jacobian`` in its lane work."""
     part = get_part(kind, name)
     fns, compiled, sources = {}, dict(part.compiled), set(part.sources)
@@ -954,6 +956,15 @@ def attach_lanes(
             sources |= user_sources(py)
     if not callable(lane_work):
         raise PartError(f"{kind} {name!r}: lane functions need lane_work(lane_bundle, lanes)")
+    # a stacked bundle reaches every function in lane form: a scalar log beside a lane
+    # step registered, ran alone, then failed every simulate_many and campaign as "does
+    # not compile" (a code reader); command_at may lack one (the loop calls command)
+    missing = [r for r in part.functions if r not in fns and r != "command_at"]
+    if missing:
+        raise PartError(
+            f"{kind} {name!r}: lanes = {{{', '.join(repr(r) for r in fns)}}}: must give a "
+            f"lane form of every function the part has (here also: {', '.join(missing)})"
+        )
     from dataclasses import replace
 
     new = replace(part, lanes=fns, lane_work=lane_work, lane_ok=lane_ok, compiled=compiled,
