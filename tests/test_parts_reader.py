@@ -92,3 +92,35 @@ def test_a_lane_form_missing_for_one_of_the_parts_functions_is_refused_at_regist
     assert "x-reader-count" not in names("controller")
     register(lanes={"step": _count_lanes, "log": _count_log_lanes})  # both: taken
     assert set(get_part("controller", "x-reader-count").lanes) == {"step", "log"}
+
+
+class _Opt(NamedTuple):
+    k: float
+
+
+def _opt_step(p, state, work, y, ref, F):
+    for i in range(3):
+        F[i] = 0.0
+
+
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [
+        # listed among the options, then a TypeError naming _register
+        ({"module": "my_module"}, r"unknown option 'module'; the options are adaptive, build, "),
+        ({"builtin": True}, r"unknown option 'builtin'"),  # taken: a user part as pkmctl's own
+        # replaced the decorated function without a word
+        ({"step": lambda p, s, w, y, r, F: None}, r"step= is not an option: the decorated "
+         r"function is its step; the options give its other functions \(log\)$"),
+    ],
+)  # fmt: skip
+def test_options_pkmctl_sets_and_the_decorated_role_are_refused_in_one_line(option, message):
+    from pkmctl.parts import PartError, names
+
+    with pytest.raises(PartError, match=r"^controller 'x-reader-opt': " + message) as info:
+        pkmctl.register_controller("x-reader-opt", params=_Opt, build=lambda c: _Opt(1.0),
+                                   **option)(_opt_step)  # fmt: skip
+    assert "\n" not in str(info.value)
+    assert "x-reader-opt" not in names("controller")
+    with pytest.raises(PartError, match=r"the options are (?!.*\bmodule\b)(?!.*\bbuiltin\b)"):
+        pkmctl.register_controller("x-reader-opt", params=_Opt, stat_size=3)(_opt_step)

@@ -1110,13 +1110,20 @@ def _decorator(kind: str, main_role: str) -> _Register:
         name: str, *, params: type, build: Callable[..., Any] | None = None, **options: Any
     ) -> _Decorate:
         extra = {r: options.pop(r) for r in list(options) if r in ROLES[kind]}
-        allowed = set(inspect.signature(_register_part).parameters) - {"kind", "name", "functions"}
+        if main_role in extra:  # it replaced the decorated function without a word
+            raise PartError(
+                f"{kind} {name!r}: {main_role}= is not an option: the decorated function is its "
+                f"{main_role}; the options give its other functions ({_others(kind, main_role)})"
+            )
+        # module and builtin are pkmctl's to set: module= was listed among the options,
+        # then raised a TypeError, and builtin=True was taken (a code reader)
+        allowed = set(inspect.signature(_register_part).parameters) - {
+            "kind", "name", "functions", "module", "builtin"}  # fmt: skip
         unknown = sorted(set(options) - allowed)
         if unknown:  # (a TypeError naming _register, an internal function, before)
             raise PartError(
                 f"{kind} {name!r}: unknown option {unknown[0]!r}; the options are "
-                f"{', '.join(sorted(allowed - {'builtin'}))} and its functions "
-                f"{', '.join(ROLES[kind])}"
+                f"{', '.join(sorted(allowed))} and its functions {', '.join(ROLES[kind])}"
             )
 
         def deco(fn: _F, /) -> _F:
