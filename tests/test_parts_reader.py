@@ -124,3 +124,47 @@ def test_options_pkmctl_sets_and_the_decorated_role_are_refused_in_one_line(opti
     assert "x-reader-opt" not in names("controller")
     with pytest.raises(PartError, match=r"the options are (?!.*\bmodule\b)(?!.*\bbuiltin\b)"):
         pkmctl.register_controller("x-reader-opt", params=_Opt, stat_size=3)(_opt_step)
+
+
+class _Logged(NamedTuple):
+    k: float
+
+
+def _logged_log(p, state, row):
+    row[0] = 1.0
+
+
+@pytest.mark.parametrize("log_name", ["x,y", "a b", "x" * 65, 3, "q\n"])
+def test_a_log_name_is_checked_as_a_part_name(log_name):
+    """A comma in log_name made a CSV whose header had more fields than its rows (pyarrow:
+    "Expected 39 columns, got 37")."""
+    from pkmctl.parts import PartError, names
+
+    message = (
+        r"^controller 'x-reader-log': log_name = .{1,60}: must be 1-64 letters, digits, "
+        r"'_', '.' or '-', starting with a letter or digit \(or '': the part's name\)$"
+    )
+    with pytest.raises(PartError, match=message):
+        pkmctl.register_controller(
+            "x-reader-log",
+            params=_Logged,
+            build=lambda c: _Logged(1.0),
+            log=_logged_log,
+            log_size=1,
+            log_name=log_name,
+        )(_opt_step)
+    assert "x-reader-log" not in names("controller")
+
+
+def test_an_empty_log_name_is_the_parts_name():
+    class _Default(NamedTuple):
+        k: float
+
+    pkmctl.register_controller(
+        "x-reader-log-default",
+        params=_Default,
+        log=_logged_log,
+        build=lambda c: _Default(1.0),
+        log_size=1,
+    )(_opt_step)
+    assert get_part("controller", "x-reader-log-default").log_name == ""

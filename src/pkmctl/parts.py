@@ -444,6 +444,13 @@ def _register_part(
             f"{kind} name {name!r}: must be 1-64 letters, digits, '_', '.' or '-', starting "
             "with a letter or digit"
         )
+    if log_name != "" and not (isinstance(log_name, str) and _NAME.fullmatch(log_name)):
+        # (a key of result.logs and its CSV columns' prefix: "x,y" wrote a header of more
+        # fields than its rows, which pyarrow and pandas refuse; a code reader)
+        raise PartError(
+            f"{kind} {name!r}: log_name = {short_repr(log_name)}: must be 1-64 letters, "
+            "digits, '_', '.' or '-', starting with a letter or digit (or '': the part's name)"
+        )
     stamp = None if builtin else _source_stamp(functions)
     if name in reg:
         old = reg[name]
