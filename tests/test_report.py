@@ -520,7 +520,7 @@ def test_render_report_of_a_controller_with_no_surface_gain_on_z() -> None:
     runs = {c: pkmctl.simulate(sc, controller=c) for c in ("smc", "pd", "ctc")}
     text = render_report(runs, figures=[], scenario_name="custom")
     assert "PD has no gain from s to F on z near s = 0, so nothing there meets" in text
-    assert "of gravity on z. SMC and PD meet it with the gain from s to F" in text
+    assert "of gravity on z. SMC meets it with the gain from s to F" in text
     assert re.search(r"SMC \(gain near s = 0: [^)]*\) predicts [\d.]+ mm and shows", text)
     # two runs of the paper's three: SMC alone is no ranking, and not "one controller"
     assert (

@@ -467,13 +467,13 @@ def _why_sentences(pairs: list[tuple[str, Result]]) -> list[str]:
             parts.append(f"{label} shows {measured:.3g} mm{_swing(r)}")
             continue
         gain = float(sg[0])
-        gained.append(label)
         if not gain > 0.0:  # (a valid zero gain divided by zero and lost the runs: a reader)
             parts.append(
                 f"{label} has no gain from s to F on z near s = 0, so nothing there meets "
                 f"the missing gravity, and shows {measured:.3g} mm{_swing(r)}"
             )
             continue
+        gained.append(label)  # (after the check: "PD meets it ... PD has no gain": a review)
         predicted[c] = 1e3 * dG / (gain * lam)
         parts.append(
             f"{label} (gain near s = 0: {gain:.4g} N·s/m) predicts {predicted[c]:.3g} mm "
