@@ -521,7 +521,10 @@ def test_identify_output_is_one_runs_and_names_its_log_and_machine(tmp_path, exc
         # (1e-100 Hz was "Singular matrix"; 1e-3 Hz a hint to try another --seed)
         (["excite", "--base-frequency", "1e-100"],
          "--base-frequency = 1e-100: a run of --periods = 2 would last 2e+100 s, over "
-         "timing.duration's 3600 s: must be >= 0.0005556 Hz"),
+         "timing.duration's 3600 s: must be >= 0.000555556 Hz"),
+        # the bound rounded up: ">= 0.001944" refused 0.001944 (a review)
+        (["excite", "--periods", "7", "--base-frequency", "0.001944"],
+         "would last 3601 s, over timing.duration's 3600 s: must be >= 0.00194445 Hz"),
         (["identify", "dup.csv"], "column tau1 occurs 2 times (columns 6, 9)"),
         (["identify", "nohdr.csv"], "the header is missing"),
         (["identify", "zero.csv"], "tau1..tau4 are all zero"),

@@ -110,6 +110,12 @@ def test_minimum_duration_is_what_identify_needs(proto, cutoff):
         with pytest.raises(IdentificationError) as info:
             identify(_log(n=k, q=np.tile(home, (k, 1))), proto, cutoff=cutoff)
         assert ("too short for cutoff" in str(info.value)) == short, str(info.value)
+    # the refusal's numbers say why: it printed "9168 samples (9.167 s) ... needs >= 9.167
+    # s" at 7.3 Hz (a review)
+    said = re.search(r"(\d+) samples \(([\d.]+) s\).*needs >= ([\d.]+) s, (\d+) samples",
+                     str(info.value))  # fmt: skip
+    assert said and int(said[1]) == n - 1 and int(said[4]) == n, str(info.value)
+    assert float(said[2]) < float(said[3]), str(info.value)
 
 
 def test_excite_times_the_run_for_the_log_it_gives(tmp_path):

@@ -175,6 +175,7 @@ def excite(
     """Design an exciting trajectory for identification: a Fourier series per coordinate
     minimising the condition number of the base observation matrix inside the workspace
     and the drives' limits, at rest at both ends. Writes SCENARIO on it as OUT."""
+    from pkmctl.ident.identify import ceil_g
     from pkmctl.io.atomic import atomic_write, check_output_file
 
     if not 3 <= harmonics <= 20:
@@ -188,7 +189,7 @@ def excite(
         _fail(
             f"--base-frequency = {base_frequency:g}: a run of --periods = {periods} would last "
             f"{periods / base_frequency:.4g} s, over timing.duration's 3600 s: must be >= "
-            f"{periods / 3600.0:.4g} Hz"
+            f"{ceil_g(periods / 3600.0):g} Hz"  # (rounded up: ">= 0.001944" refused it)
         )
     if seed < 0:
         _fail(f"--seed = {seed}: must be >= 0")

@@ -201,6 +201,12 @@ def design_software() -> str:
     )
 
 
+def _ceil_g(x: float) -> float:
+    from pkmctl.ident.identify import ceil_g
+
+    return ceil_g(x)
+
+
 def design_excitation(
     scenario: Scenario,
     *,
@@ -240,7 +246,7 @@ def design_excitation(
         raise ValueError(
             f"base_frequency = {f:g}: a run of periods = {periods} would last "
             f"{periods / f:.4g} s, over timing.duration's 3600 s: must be >= "
-            f"{periods / 3600.0:.4g} Hz"
+            f"{_ceil_g(periods / 3600.0):g} Hz"  # (rounded up: ">= 0.001944" refused it)
         )
     plant = scenario.plant()
     theta_ext, vs = _machine(scenario)

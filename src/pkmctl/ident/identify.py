@@ -803,10 +803,14 @@ def observe(
     need = 2 * (edge + 3) * h + usable
     if span < need * (1.0 - 1e-9):  # (rounding: an interval of 0.99999999999989 ms made
         # 6727 samples 6.726 s short of 6.726 s; excite's runs are timed for that: a code reader)
+        # (rounded the right ways, and in samples: 9168 samples, "9.167 s", were refused
+        # as needing ">= 9.167 s": a review)
+        need_n = math.ceil(need * (1.0 - 1e-9) / h) + 1
         raise IdentificationError(
-            f"{where}: {n} samples ({span:.4g} s), too short for cutoff = {cutoff:g} Hz: it "
-            f"needs >= {need:.4g} s (the filters' support, {(edge + 3) * h:.3g} s at each "
-            f"end, and {usable:.3g} s between); log a longer run or raise the cutoff"
+            f"{where}: {n} samples ({floor_g(span):g} s), too short for cutoff = {cutoff:g} "
+            f"Hz: it needs >= {ceil_g(need):g} s, {need_n} samples (the filters' support, "
+            f"{(edge + 3) * h:.3g} s at each end, and {usable:.3g} s between); log a longer "
+            "run or raise the cutoff"
         )
     # forces shifted by the lead must have been logged: the first (last) kept sample's
     # FIR reaches back (ahead) to t0 + (edge - half + 3) h, so a lead up to that costs
