@@ -374,6 +374,42 @@ def test_a_worker_that_cannot_import_a_plugin_says_so_and_lives(tmp_path, monkey
     assert "Traceback" not in err
 
 
+def _refusal_in_worker(name: str) -> str:
+    from pkmctl.campaign.execute import _imported
+    from pkmctl.parts import PartError, get_part
+
+    try:
+        _imported({"controller": get_part("controller", name)})
+    except PartError as exc:
+        return str(exc)
+    return "ran"
+
+
+def test_a_part_whose_module_failed_in_the_worker_is_refused_with_that_reason(
+    tmp_path, monkeypatch, capfd
+):
+    """A plugin that registered its part, then raised in the worker (a licence server
+    the workers cannot reach): its runs said the part "raises RuntimeError ... (in the
+    period starting at t = 0 s)", and each worker warned twice (a review)."""
+    from pkmctl.plugins import ENV
+    from pkmctl.sim.workers import spawn_pool
+
+    name = "half_" + tmp_path.name.replace("-", "_")
+    plugin = tmp_path / f"{name}.py"
+    plugin.write_text(_PLUGIN.replace("plugin-half-pd", "plugin-half-in-worker")
+                      + "import multiprocessing\nif multiprocessing.parent_process():\n"
+                      "    raise RuntimeError('no licence server')\n")  # fmt: skip
+    monkeypatch.setenv(ENV, json.dumps([str(plugin)]))
+    with spawn_pool(1, (name,)) as pool:
+        said = pool.submit(_refusal_in_worker, "plugin-half-in-worker").result(timeout=300)
+    assert said.startswith(
+        f"controller 'plugin-half-in-worker': this worker could not import its module {name}: "
+        f"--plugin {plugin}: RuntimeError: no licence server ("
+    ), said
+    warned = [ln for ln in capfd.readouterr().err.splitlines() if ln.startswith("warning:")]
+    assert len(warned) == 1, warned
+
+
 def test_a_plugin_in_a_folder_whose_name_holds_a_path_separator_reaches_the_workers(
     tmp_path, monkeypatch
 ):

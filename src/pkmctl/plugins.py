@@ -27,7 +27,8 @@ __all__ = ["ENV", "PluginError", "load_from_env", "load_plugins"]
 ENV = "PKMCTL_PLUGINS"
 
 
-def _listed() -> list[str]:
+def listed() -> list[str]:
+    """The plugins ``PKMCTL_PLUGINS`` lists."""
     value = os.environ.get(ENV, "")
     if value.startswith("["):
         try:
@@ -156,11 +157,11 @@ def load_plugins(specs: list[str]) -> list[str]:
     """Import each plugin (a ``.py`` file or a module name) and add it to ``PKMCTL_PLUGINS``
     for the worker processes started later; returns the recorded names."""
     done = [_import(s) for s in specs]
-    os.environ[ENV] = json.dumps(list(dict.fromkeys(_listed() + done)))
+    os.environ[ENV] = json.dumps(list(dict.fromkeys(listed() + done)))
     return done
 
 
 def load_from_env() -> None:
     """Import the plugins ``PKMCTL_PLUGINS`` lists (in a worker process)."""
-    for spec in _listed():
+    for spec in listed():
         _import(spec)

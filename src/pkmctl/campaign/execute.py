@@ -180,6 +180,7 @@ def run_task(spec: CampaignSpec, task: Task, lanes: int | None = None) -> pa.Tab
         runs = [r for r in task.runs if r.controller == controller]
         try:
             parts = resolve_parts(prep.scenario, controller)
+            _imported(parts)
             n = lanes if lanes is not None else lane_count() if lanes_supported(parts) else 1
             chunks = in_batches(runs, n)
             widest = max(len(c) for c in chunks)
@@ -229,6 +230,24 @@ def run_task(spec: CampaignSpec, task: Task, lanes: int | None = None) -> pa.Tab
     order = {(r.controller, r.seed): i for i, r in enumerate(task.runs)}
     rows.sort(key=lambda row: order[(row["controller"], row["seed"])])
     return pa.Table.from_pylist(rows, schema=schema(spec))
+
+
+def _imported(parts) -> None:
+    """Refuse a user part whose module this worker could not import as it started: the
+    module ran part way (the part registered) and its runs failed with its import's error
+    as the part's, "in the period starting at t = 0 s" (a review)."""
+    from pkmctl.parts import PartError
+    from pkmctl.sim.workers import IMPORT_FAILED
+
+    for part in parts.values():
+        why = None if part.builtin else IMPORT_FAILED.get(part.module.split(".")[0])
+        if why is None:
+            why = None if part.builtin else IMPORT_FAILED.get(part.module)
+        if why is not None:
+            raise PartError(
+                f"{part.kind} {part.name!r}: this worker could not import its module "
+                f"{part.module}: {why}"
+            )
 
 
 #: The source hash of each user part this process ran (:func:`_ran_sources`), by part:

@@ -67,24 +67,36 @@ def spawn_pool(workers: int, modules: tuple[str, ...] = ()) -> ProcessPoolExecut
     )
 
 
+#: What this worker could not import as it started: module name (a plugin file's stem) →
+#: why. A part its half-run module registered is refused with that reason (its runs said
+#: the part "raises" the import's error "in the period starting at t = 0 s": a review).
+IMPORT_FAILED: dict[str, str] = {}
+
+
 def _start(parent: int, modules: tuple[str, ...] = ()) -> None:
     """A worker's start: it dies with ``parent``, and imports the user's plugins
     (``pkmctl --plugin``) and ``modules``, whose parts its runs may use. Ctrl-C here (a
     plugin's import can take seconds) ends it quietly: the pool would log the exception
     with a traceback ("Exception in initializer")."""
     import importlib
+    from pathlib import Path
 
+    failed = IMPORT_FAILED
     try:
         die_with_parent(parent)
         if os.environ.get("PKMCTL_PLUGINS"):
-            from pkmctl.plugins import PluginError, load_from_env
+            from pkmctl.plugins import PluginError, listed, load_plugins
 
-            try:
-                load_from_env()
-            except PluginError as exc:  # (it broke the pool: 16 tracebacks, then "a worker
-                # process died 4 times", the cause unsaid: a code reader)
-                sys.stderr.write(f"warning: a worker could not import a plugin: {exc}\n")
+            for spec in listed():
+                try:
+                    load_plugins([spec])
+                except PluginError as exc:  # (it broke the pool: 16 tracebacks, then "a
+                    # worker process died 4 times", the cause unsaid: a code reader)
+                    failed[Path(spec).stem if spec.endswith(".py") else spec] = str(exc)
+                    sys.stderr.write(f"warning: a worker could not import a plugin: {exc}\n")
         for name in modules:  # a module's name, or its file
+            if (Path(name).stem if name.endswith(".py") else name) in failed:
+                continue  # said once above (it was said twice: a review)
             try:
                 if name.endswith(".py"):
                     from pkmctl.plugins import load_plugins
@@ -94,6 +106,9 @@ def _start(parent: int, modules: tuple[str, ...] = ()) -> None:
                     importlib.import_module(name)
             except Exception as exc:  # noqa: BLE001 - its runs then say the part is missing
                 text = " ".join(str(exc).split())
+                failed[Path(name).stem if name.endswith(".py") else name] = (
+                    f"{type(exc).__name__}: {text}"
+                )
                 sys.stderr.write(f"warning: a worker could not import {name}: "
                                  f"{type(exc).__name__}: {text}\n")  # fmt: skip
     except (KeyboardInterrupt, SystemExit):
