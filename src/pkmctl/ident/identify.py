@@ -622,6 +622,12 @@ def _clipped(tau: np.ndarray) -> str:
     n = tau.shape[0]
     for i in range(tau.shape[1]):
         v = tau[:, i]
+        # the levels only where the extremes could be said (a sort of the column: 1.2 s
+        # for an hour's log at 1 kHz, where the check took 0.18 s; a review)
+        lo, hi = float(v.min()), float(v.max())
+        at_ends = np.count_nonzero(v == lo) + (np.count_nonzero(v == hi) if hi != lo else 0)
+        if at_ends / max(n, 1) <= CLIPPED_SHARE:
+            continue
         levels, counts = np.unique(v, return_counts=True)
         ends = []
         for inward in (slice(0, 1 + CLIP_NEIGHBOURS), slice(None, -2 - CLIP_NEIGHBOURS, -1)):
