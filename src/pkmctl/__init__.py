@@ -81,4 +81,4 @@ __all__ = [
     "simulate",
     "simulate_many",
 ]
-__version__ = "0.2.1"
+__version__ = "0.2.2"
