@@ -811,10 +811,12 @@ def observe(
         # 6727 samples 6.726 s short of 6.726 s; excite's runs are timed for that: a code reader)
         # (rounded the right ways, and in samples: 9168 samples, "9.167 s", were refused
         # as needing ">= 9.167 s": a review)
-        need_n = math.ceil(need * (1.0 - 1e-9) / h) + 1
+        # (no count where the need is infinite: a cutoff of 1e-308 Hz)
+        count = need * (1.0 - 1e-9) / h
+        need_n = f", {math.ceil(count) + 1} samples" if math.isfinite(count) else ""
         raise IdentificationError(
             f"{where}: {n} samples ({floor_g(span):g} s), too short for cutoff = {cutoff:g} "
-            f"Hz: it needs >= {ceil_g(need):g} s, {need_n} samples (the filters' support, "
+            f"Hz: it needs >= {ceil_g(need):g} s{need_n} (the filters' support, "
             f"{(edge + 3) * h:.3g} s at each end, and {usable:.3g} s between); log a longer "
             "run or raise the cutoff"
         )
