@@ -196,17 +196,24 @@ class Part:
     module: str = ""
 
     @contextlib.contextmanager
-    def _named(self):
-        """What a user's build (or size, initial state, work) raises comes as a
-        :class:`PartError` naming the part and the exception."""
+    def _named(self, what: str = "build"):
+        """What a user's ``what`` (build, or size, initial state, work; a hook) raises
+        comes as a :class:`PartError` naming the part and the exception."""
         try:
             yield
         except PartError:
             raise
         except Exception as exc:
             raise PartError(
-                f"{self.kind} {self.name!r}: build failed: {type(exc).__name__}: {exc}"
+                f"{self.kind} {self.name!r}: {what} failed: {type(exc).__name__}: {exc}"
             ) from exc
+
+    def hook(self, what: str, *args: Any) -> Any:
+        """The part's Python function ``what`` (``limits``, ``memory``, ``report``) called
+        with ``args``, what it raises named as :meth:`_named` says (a user's read
+        "ZeroDivisionError ... (an internal error)": a code reader)."""
+        with self._named(what):
+            return getattr(self, what)(*args)
 
     def bundle(self, ctx: PartContext) -> Any:
         """The parameter bundle ``build`` makes for ``ctx``, checked (a user's exception

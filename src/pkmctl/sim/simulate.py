@@ -151,7 +151,7 @@ def _memory_of(part: Part, scenario: Scenario) -> int:
     """A part's ``memory(scenario)``, checked: what it raises named as its part's, and a
     whole number >= 0 (a user's raised as "an internal error", and "lots" or NaN gave
     int()'s words: a code reader)."""
-    value = _part_call(part, "memory", part.memory, scenario)
+    value = part.hook("memory", scenario)
     if (
         isinstance(value, bool)
         or not isinstance(value, int | float | np.integer | np.floating)
@@ -162,21 +162,6 @@ def _memory_of(part: Part, scenario: Scenario) -> int:
             "of doubles per control period, >= 0"
         )
     return int(value)
-
-
-def _part_call(part: Part, what: str, fn: Callable, *args: Any) -> Any:
-    """``fn(*args)``, a user part's ``what``: what it raises comes as a PartError naming
-    the part, as its build's does (it read "ZeroDivisionError ... (an internal error)")."""
-    if part.builtin:
-        return fn(*args)
-    try:
-        return fn(*args)
-    except PartError:
-        raise
-    except Exception as exc:
-        raise PartError(
-            f"{part.kind} {part.name!r}: {what} failed: {type(exc).__name__}: {exc}"
-        ) from exc
 
 
 def _available_memory() -> int | None:
@@ -645,7 +630,7 @@ def _set_up(prep: Prepared, parts: dict[str, Part], seed: int | None, check_logs
     force_limit, speed_limit = math.inf, math.inf
     if parts["actuator"].limits is not None:
         act = parts["actuator"]
-        limits = _part_call(act, "limits", act.limits, bundles["actuator"][0])
+        limits = act.hook("limits", bundles["actuator"][0])
         try:
             force_limit, speed_limit = (float(v) for v in limits)
         except (TypeError, ValueError):
@@ -789,8 +774,7 @@ def _result(prep: Prepared, parts: dict[str, Part], run: _Run, out,
     info = {"kernel_seconds": out.kernel_seconds, "steps": m}
     for kind, part in parts.items():
         if part.report is not None:
-            said = _part_call(part, "report", part.report, bundles[kind][0],
-                              out.final_state[kind])  # fmt: skip
+            said = part.hook("report", bundles[kind][0], out.final_state[kind])
             if not isinstance(said, dict):  # ("'int' object is not iterable": a reader)
                 raise PartError(
                     f"{kind} {part.name!r}: report gave {said!r:.60}: must be a dict of "
