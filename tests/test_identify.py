@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 import tomllib
 
 import numpy as np
@@ -17,6 +15,7 @@ from pkmctl.ident.base import base_parameters, random_states
 from pkmctl.ident.excite import MAX_ANGLE, Z_RANGE, _machine, design_excitation
 from pkmctl.ident.identify import IdentificationError, Log, identify, predict, read_log
 from pkmctl.ident.synthetic import limb_accelerations, synthetic_log
+from tests.conftest import run_pkmctl
 
 FULL = os.environ.get("PKMCTL_FULL") == "1"
 
@@ -435,9 +434,7 @@ def test_excitation_refuses_an_initial_pose_outside_its_limits(proto):
 
 # ------------------------------------------------------------------ the commands
 def _run(*args, cwd):
-    return subprocess.run(
-        [sys.executable, "-m", "pkmctl", *args], capture_output=True, text=True, cwd=cwd
-    )
+    return run_pkmctl(*args, cwd=cwd)
 
 
 def _write_csv(path, log: Log):

@@ -6,8 +6,6 @@ from __future__ import annotations
 import math
 import os
 import re
-import subprocess
-import sys
 import threading
 
 import numpy as np
@@ -15,6 +13,7 @@ import pytest
 
 import pkmctl
 from pkmctl.ident.identify import IdentificationError, Log, identify
+from tests.conftest import run_pkmctl
 
 
 @pytest.fixture(scope="module")
@@ -67,9 +66,7 @@ def test_a_fifo_named_like_the_metadata_is_not_read(tmp_path):
 
 
 def _run(*args, cwd):
-    return subprocess.run(
-        [sys.executable, "-m", "pkmctl", *args], capture_output=True, text=True, cwd=cwd
-    )
+    return run_pkmctl(*args, cwd=cwd)
 
 
 def test_excite_prints_a_cutoff_identify_accepts_at_a_non_round_rate(tmp_path, proto):

@@ -19,6 +19,7 @@ from pkmctl._jit import JIT_OPTIONS, NO_REFCOUNT, cache_dir, cache_root, source_
 from pkmctl.model.dynamics import dynamics_kernel, make_work
 from pkmctl.parts import get_part
 from pkmctl.sim.loop import loop_for
+from tests.conftest import seeded_cache
 
 _OPTS = JIT_OPTIONS | {"cache": False}
 SRC = Path(pkmctl.__file__).resolve().parent
@@ -386,7 +387,7 @@ def test_a_users_part_is_never_run_stale_when_a_global_value_it_reads_changes(tm
     key covers those values, so a setting read from the environment (no file changed)
     compiles another loop, and the first value's loop is found again."""
     (tmp_path / "law.py").write_text(_SETTING_LAW)
-    env = {"PKMCTL_CACHE_DIR": str(tmp_path / "cache")}
+    env = {"PKMCTL_CACHE_DIR": str(seeded_cache(tmp_path / "cache"))}  # the loop compiles
     means = [float(_run(_RUN_SETTING, path=tmp_path, env=env | {"LAW_FEED_FORWARD": v}))
              for v in ("0", "500", "0")]  # fmt: skip
     assert means[0] == means[2]
@@ -522,7 +523,7 @@ def test_a_part_typed_at_a_prompt_runs(tmp_path):
         r = pkmctl.simulate("paper", "prompt-law", duration=0.002)
         print(repr(float(r.F[0, 0])), r.info["kernel_seconds"])
     """
-    env = {"PKMCTL_CACHE_DIR": str(tmp_path / "cache")}
+    env = {"PKMCTL_CACHE_DIR": str(seeded_cache(tmp_path / "cache"))}  # the loop compiles
     runs = [_run(code.replace("{ff}", ff), env=env).split() for ff in ("0.0", "170.0")]
     assert float(runs[1][0]) - float(runs[0][0]) == pytest.approx(170.0, rel=1e-12)
     # each run compiled its loop (seconds); kernel_seconds is the 40 periods' time alone
