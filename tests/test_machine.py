@@ -406,3 +406,18 @@ def test_the_reports_gravity_mismatch_counts_the_payload(robot):
     np.testing.assert_allclose(
         gravity_mismatch(loaded) - gravity_mismatch(paper), [5.0 * robot.g, 0.0, 0.0], atol=1e-9
     )
+
+
+def test_pkmctl_plants_is_the_package_of_other_engines_plants():
+    """``import pkmctl`` bound ``pkmctl.plants`` to pkmctl.sim.plants (imported under its
+    own name to register the built-in parts), so the documented
+    ``pkmctl.plants.mujoco_max_timestep`` was missing until ``import pkmctl.plants`` (a
+    tester). A fresh interpreter: nothing else has imported the package."""
+    import subprocess
+    import sys
+
+    code = "import pkmctl; print(pkmctl.plants.__name__, pkmctl.plants.mujoco_max_timestep())"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    name, step = out.stdout.split()
+    assert name == "pkmctl.plants" and float(step) == pytest.approx(2.5e-4)

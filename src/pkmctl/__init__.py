@@ -14,6 +14,7 @@ Parts of the loop (controllers, sensors, actuators, plants) are added with
 from pkmctl import (
     _start,  # noqa: F401  (first: a quiet Ctrl-C while importing)
     fuzzy,
+    plants,  # the plants of other engines (pkmctl.plants.mujoco imports MuJoCo)
 )
 from pkmctl.control import (
     AFSMC,
@@ -38,13 +39,14 @@ from pkmctl.parts import (
     register_plant,
     register_sensor,
 )
-from pkmctl.sim import (  # noqa: F401  (registers parts)
-    actuators,
-    lane_parts,  # their lane forms (pkmctl.sim.lanes)
-    metrics,
-    plants,
-    sensors,
-)
+
+# These register the built-in parts. Under their own names, sim's plants hid the package
+# pkmctl.plants, whose pkmctl.plants.mujoco_max_timestep was then missing (a tester).
+from pkmctl.sim import actuators as _actuators  # noqa: F401
+from pkmctl.sim import lane_parts as _lane_parts  # noqa: F401  (the lane forms)
+from pkmctl.sim import metrics
+from pkmctl.sim import plants as _sim_plants  # noqa: F401
+from pkmctl.sim import sensors as _sensors  # noqa: F401
 from pkmctl.sim.result import Result
 from pkmctl.sim.scenario import Scenario, ScenarioError
 from pkmctl.sim.simulate import simulate, simulate_many
@@ -73,6 +75,7 @@ __all__ = [
     "load_result",
     "make_controller",
     "metrics",
+    "plants",
     "register_actuator",
     "register_controller",
     "register_plant",
