@@ -446,6 +446,26 @@ def test_a_snapshot_restored_carries_on_bit_for_bit_and_reset_can_keep_theta(rob
     np.testing.assert_array_equal(c.state.raw, before)
     c.restore(dataclasses.replace(snap, steps=np.int64(40)))
     assert c.state.steps == 40
+    # the named fields are copies of raw's parts: an edited or NaN Theta^ (or s_prev,
+    # sdot) was dropped without a word, raw put back (a tester); now refused
+    for name, offset in (("s_prev", 0), ("sdot", 3), ("theta_hat", 7)):
+        for value in (np.nan, 2.5):
+            edited = getattr(snap, name).copy()
+            edited[1] = value
+            said = (rf"^snapshot.{name}\[1\] = {value!r} differs from snapshot.raw"
+                    rf"\[{offset + 1}\] = .*, which restore puts back: {name} is a copy of "
+                    r"raw; change raw$")  # fmt: skip
+            with pytest.raises(ValueError, match=said):
+                c.restore(dataclasses.replace(snap, **{name: edited}))
+    said = (r"^snapshot.theta_hat: expected an array of shape \(36,\) \(a copy of "
+            r"snapshot.raw\[7:43\]\), got shape \(3,\)$")  # fmt: skip
+    with pytest.raises(ValueError, match=said):
+        c.restore(dataclasses.replace(snap, theta_hat=snap.theta_hat[:3]))
+    pd = pkmctl.Controller.from_scenario("paper", "pd")
+    with pytest.raises(ValueError, match=r"^snapshot.theta_hat: a pd controller has none$"):
+        pd.restore(dataclasses.replace(pd.state, theta_hat=np.zeros(36)))
+    np.testing.assert_array_equal(c.state.raw, snap.raw)  # nothing refused was put back
+    pd.restore(pd.state)
 
 
 def test_prepare_compiles_before_the_first_step_and_touches_nothing():

@@ -246,7 +246,9 @@ class Controller:
     def restore(self, snapshot: ControllerState) -> None:
         """Put back a state taken from :attr:`state` (of this controller, or of one built
         the same way): the steps that follow are those that followed the snapshot, bit
-        for bit."""
+        for bit. ``raw`` is what is put back; ``s_prev``, ``sdot`` and ``theta_hat`` are
+        copies of its parts, and a snapshot whose copy differs from raw is refused (change
+        raw)."""
         raw = getattr(snapshot, "raw", None)
         if not isinstance(raw, np.ndarray) or raw.shape != self._state.shape:
             raise ValueError(
@@ -264,6 +266,33 @@ class Controller:
         steps = getattr(snapshot, "steps", None)
         if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 0:
             raise ValueError(f"snapshot.steps = {steps!r}: must be an integer >= 0")
+        # The named fields are copies of raw's parts: an edited Theta^ (or a NaN in it) was
+        # silently dropped (a tester). Restore puts back raw; a named field that differs
+        # from its part of raw is refused, not guessed between.
+        for name, part in self._named_parts().items():
+            value = getattr(snapshot, name, None)
+            if value is None and part is None:
+                continue
+            if part is None:
+                raise ValueError(f"snapshot.{name}: a {self.name} controller has none")
+            held = raw[part]
+            try:
+                value = np.asarray(value, dtype=float)
+                got = f"shape {value.shape}"
+            except (TypeError, ValueError):
+                value, got = None, type(getattr(snapshot, name)).__name__
+            if value is None or value.shape != held.shape:
+                raise ValueError(
+                    f"snapshot.{name}: expected an array of shape {held.shape} (a copy of "
+                    f"snapshot.raw[{part.start}:{part.stop}]), got {got}"
+                )
+            if not np.array_equal(value, held):  # (raw is finite: a NaN here differs)
+                i = int(np.flatnonzero(value != held)[0])
+                raise ValueError(
+                    f"snapshot.{name}[{i}] = {float(value[i])!r} differs from snapshot.raw"
+                    f"[{part.start + i}] = {float(held[i])!r}, which restore puts back: "
+                    f"{name} is a copy of raw; change raw"
+                )
         with self._lock:
             self._state[:] = raw
             self._steps = int(snapshot.steps)
@@ -282,18 +311,23 @@ class Controller:
                 self._fast = self._step.overloads[sig].entry_point
         return time.perf_counter() - t0
 
+    def _named_parts(self) -> dict[str, slice | None]:
+        """The parts of the state array that :attr:`state` names (None: not this
+        controller's)."""
+        n = self._state.shape[0]
+        sliding = n >= SLIDING_STATE and self.name in ("smc", "fsmc", "afsmc", "afsmc-ext")
+        return {
+            "s_prev": slice(0, 3) if sliding else None,
+            "sdot": slice(3, 6) if sliding else None,
+            "theta_hat": slice(SLIDING_STATE, n) if self._adaptive else None,
+        }
+
     @property
     def state(self) -> ControllerState:
         st = self._state
-        sliding = st.shape[0] >= SLIDING_STATE and self.name in ("smc", "fsmc", "afsmc",
-                                                                  "afsmc-ext")  # fmt: skip
-        return ControllerState(
-            s_prev=st[:3].copy() if sliding else None,
-            sdot=st[3:6].copy() if sliding else None,
-            theta_hat=st[SLIDING_STATE:].copy() if self._adaptive else None,
-            steps=self._steps,
-            raw=st.copy(),
-        )
+        named = {k: None if part is None else st[part].copy()
+                 for k, part in self._named_parts().items()}  # fmt: skip
+        return ControllerState(**named, steps=self._steps, raw=st.copy())
 
     def step(
         self, X: ArrayLike, Xdot: ArrayLike, X_d: ArrayLike, Xdot_d: ArrayLike, Xddot_d: ArrayLike
