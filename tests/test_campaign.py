@@ -546,7 +546,7 @@ def test_no_time_left_is_guessed_while_the_workers_compile(spec_file, tmp_path, 
     from pkmctl.campaign import execute, store
 
     spec = CampaignSpec.from_toml(spec_file)
-    combos = {(store.machine_key(spec.cells[i]), c) for i, c in store.cell_parts(spec)}
+    combos = {store.loop_key(p) for p in store.cell_parts(spec).values()}
     assert len(combos) == 2  # two controllers on one machine
     seen = []
     monkeypatch.setattr(execute, "uncompiled_combinations", lambda s: set(combos))
@@ -563,6 +563,28 @@ def test_no_time_left_is_guessed_while_the_workers_compile(spec_file, tmp_path, 
     compiling = [ln for ln in lines if ln.endswith("compiled")]
     assert compiling and compiling[0].endswith(", the time left once 1 loop compiled"), lines
     assert not any("about" in ln for ln in lines[: lines.index(compiling[-1])]), lines
+
+
+def test_cells_that_differ_in_a_value_alone_compile_one_loop(tmp_path, monkeypatch):
+    """Cells that differ in ``actuators.force_limit`` alone run one loop, but were counted
+    as two to compile, and the progress line said "the time left once 1 loop compiled"
+    until a task of the second cell ended: ten minutes of paper-claims (a tester)."""
+    from pkmctl.campaign import execute, store
+
+    spec = CampaignSpec.from_toml(
+        HEAD.replace("seeds = 1", "seeds = 2")
+        + '[factors."actuators.force_limit"]\nvalues = ["none", 2000.0]\n'
+    )
+    assert len({store.machine_key(cell) for cell in spec.cells}) == 2
+    with monkeypatch.context() as m:
+        m.setenv("PKMCTL_CACHE_DIR", str(tmp_path / "empty"))
+        todo = store.uncompiled_combinations(spec)
+    assert len(todo) == 1 and store.uncompiled_loops(spec) in (0, 1)
+    monkeypatch.setattr(execute, "uncompiled_combinations", lambda s: set(todo))
+    seen = []
+    run_campaign(spec, tmp_path / "c", workers=1,
+                 progress=lambda compiling, **kw: seen.append((kw["done"], compiling)))  # fmt: skip
+    assert seen == [(0, 1), (2, 0), (4, 0)], seen  # the first task ran the loop
 
 
 def test_a_folder_whose_spec_is_refused_now_says_so_and_where_its_records_are(tmp_path):

@@ -38,6 +38,7 @@ from pkmctl.campaign.store import (
     completed_tasks,
     factor_column,
     factor_value,
+    loop_key,
     machine_key,
     metric_columns,
     open_store,
@@ -833,6 +834,8 @@ def _run_locked(spec, out, runs_dir, client, scheduler, workers, progress, on_cl
     # the combinations whose loops the workers compile first: one is done when a task of
     # it has ended
     compiling = uncompiled_combinations(spec) if report.compiling else set()
+    loops = {(machine_key(spec.cells[i]), c): loop_key(p)
+             for (i, c), p in cell_parts(spec).items()} if compiling else {}  # fmt: skip
     report(done=before, failures=0, total=spec.n_runs, rate=0.0, compiling=len(compiling))
     if client is not None:
         stream = _dask_results(spec, todo, client, on_client)
@@ -847,7 +850,7 @@ def _run_locked(spec, out, runs_dir, client, scheduler, workers, progress, on_cl
             failures += sum(s != "ok" for s in table.column("status").to_pylist())
             elapsed = time.perf_counter() - t0
             for r in task.runs:
-                compiling.discard((machine_key(spec.cells[r.cell]), r.controller))
+                compiling.discard(loops.get((machine_key(spec.cells[r.cell]), r.controller)))
             report(done=before + now, failures=failures, total=spec.n_runs, rate=now / elapsed,
                    compiling=len(compiling))  # fmt: skip
             if stop_after is not None and n_tasks >= stop_after:

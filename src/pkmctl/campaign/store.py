@@ -183,6 +183,13 @@ def machine_key(cell: dict) -> str:
     return json.dumps(machine, sort_keys=True, default=str)
 
 
+def loop_key(parts: dict) -> tuple[tuple[str, str], ...]:
+    """What of a combination chooses its compiled loop: its parts, by role and name. The
+    values of a cell's ``plant.*``, ``sensor.*`` and ``actuators.*`` fields (a force
+    limit, a friction) are the loop's arguments, not part of it."""
+    return tuple((role, parts[role].name) for role in sorted(parts))
+
+
 #: (kept under their old names: pkmctl.sim.cost holds the model)
 ESTIMATE_PERIOD = cost.PERIOD
 ESTIMATE_RUN = cost.RUN
@@ -224,11 +231,14 @@ def uncompiled_loops(spec: CampaignSpec) -> int:
     return len(uncompiled_combinations(spec))
 
 
-def uncompiled_combinations(spec: CampaignSpec) -> set[tuple[str, str]]:
-    """The campaign's combinations of pkmctl's own parts, as (:func:`machine_key`,
-    controller), that have no loop that ran on this machine with these sources: the workers
-    compile those first, which :func:`estimate_seconds` leaves out (a tester's estimate
-    of 1.1 s took 250 s on an empty cache). The loops asked for are those its tasks run
+def uncompiled_combinations(spec: CampaignSpec) -> set[tuple[tuple[str, str], ...]]:
+    """The campaign's combinations of pkmctl's own parts, as their :func:`loop_key`, that
+    have no loop that ran on this machine with these sources: the workers compile those
+    first, which :func:`estimate_seconds` leaves out (a tester's estimate of 1.1 s took
+    250 s on an empty cache). Cells that differ only in a value (``actuators.force_limit``)
+    run one loop: counted once (they were counted apart, and the progress line waited
+    for a task of each, minutes after the loop had compiled: a tester). The loops asked
+    for are those its tasks run
     (:func:`~pkmctl.campaign.execute.run_task`): the lane loop for a batch of several
     seeds, the single loop for a run alone (a rest of half a batch or less; asking for
     the lane loop of a campaign of 3 seeds, which never builds it, said "plus
@@ -254,7 +264,7 @@ def uncompiled_combinations(spec: CampaignSpec) -> set[tuple[str, str]]:
         return all(lanes_compiled(p) if w > 1 else is_compiled(p) for w in need)
 
     return {
-        key
+        loop_key(p)
         for key, p in parts.items()
         if all(part.builtin for part in p.values()) and not compiled(p, needs.get(key, {1}))
     }
