@@ -1948,6 +1948,37 @@ def test_a_campaigns_log_gets_a_line_a_minute_as_well(tmp_path, monkeypatch):
     assert len(lines[0.0]) > len(lines[60.0]) >= 1, lines
 
 
+def test_a_campaigns_log_gets_a_line_a_minute_while_no_task_ends(tmp_path, monkeypatch):
+    """The lines came only as tasks ended: 2 workers compiling 9 loops left a log silent
+    for 11.5 min, where the docs promise a line at least every minute (a tester). Tasks
+    of 0.6 s, LOG_EVERY_S 0.2 s: lines between them, saying what is awaited."""
+    from pkmctl import cli
+    from pkmctl.campaign import execute
+
+    real = execute._task_result
+
+    def slow(spec, task):
+        time.sleep(0.6)
+        return real(spec, task)
+
+    monkeypatch.setattr(execute, "_task_result", slow)
+    monkeypatch.setattr(cli, "LOG_EVERY_S", 0.2)
+    spec_file = tmp_path / "spec.toml"
+    spec_file.write_text(HEAD + '[factors."payload.mass"]\nvalues = [0.0, 1.0]\n')
+    said = {}
+    for compiling in (set(), {"a loop"}):
+        monkeypatch.setattr(execute, "uncompiled_combinations", lambda s, c=compiling: set(c))
+        out = tmp_path / f"c{len(compiling)}"
+        res = runner.invoke(app, ["campaign", "run", str(spec_file), "--out", str(out),
+                                  "--workers", "1"])  # fmt: skip
+        assert res.exit_code == 0, res.output
+        said[len(compiling)] = [ln for ln in res.stderr.splitlines() if "since the start)" in ln]
+    idle = r"0/2 runs, 0 not ok, no task has ended since the last line \([\d.]+ s since the start\)"
+    assert said[0] and re.fullmatch(idle, said[0][0]), said
+    first = r"0/2 runs, 0 not ok, the workers compile 1 loop first \([\d.]+ s since the start\)"
+    assert said[1] and re.fullmatch(first, said[1][0]), said
+
+
 def test_a_full_disk_names_the_file_the_runs_kept_and_the_resume(tmp_path, monkeypatch):
     """ "error: No space left on device", and nothing more (a tester's 200 kB tmpfs): no
     file, no runs kept, no resume command."""

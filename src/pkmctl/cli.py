@@ -1146,7 +1146,10 @@ def campaign_run(
         disable=not err_console.is_terminal,
     ) as bar:
         task = bar.add_task("running", total=spec.n_runs, failures=0, rate=0.0, left="")
-        state = {"done": 0, "said": time.monotonic(), "compiled": False, "since": None}
+        state = {"done": 0, "said": time.monotonic(), "compiled": False, "since": None,
+                 "failures": 0, "compiling": 0, "started": None}  # fmt: skip
+        talk = threading.Lock()  # (the lines of the two threads below, one at a time)
+        quiet = threading.Event()  # set: the campaign has ended
 
         seen: list[tuple[float, int]] = []  # (time, runs done) of the last half minute
 
@@ -1185,12 +1188,34 @@ def campaign_run(
             # a minute (an 85 min campaign was silent 8.5 min); not before a run of this
             # session (a resume's start said "0.0 runs/s")
             due = done // step > state["done"] // step or now - state["said"] >= LOG_EVERY_S
-            if not err_console.is_terminal and rate > 0 and due:
-                _say(f"{done}/{total} runs, {failures} not ok, {rate:.1f} runs/s"
-                     + (f", {left}" if left else ""))  # fmt: skip
-                state["said"] = now
-            state["done"] = done
+            with talk:
+                if not err_console.is_terminal and rate > 0 and due:
+                    _say(f"{done}/{total} runs, {failures} not ok, {rate:.1f} runs/s"
+                         + (f", {left}" if left else ""))  # fmt: skip
+                    state["said"] = now
+                state.update(done=done, failures=failures, compiling=compiling)
             bar.update(task, completed=done, failures=failures, rate=rate, left=left)
+
+        def heartbeat() -> None:
+            # A log's line a minute while no task ends: lines came only as tasks ended, so
+            # 2 workers compiling 9 loops left a log silent for 11.5 min (a tester).
+            while not quiet.wait(max(0.05, min(5.0, LOG_EVERY_S))):
+                with talk:
+                    now = time.monotonic()
+                    if now - state["said"] < LOG_EVERY_S:
+                        continue
+                    c, since = state["compiling"], _seconds(now - state["started"])
+                    doing = (f"the workers compile {_n(c, 'loop')} first" if c
+                             else "no task has ended since the last line")  # fmt: skip
+                    _say(f"{state['done']}/{spec.n_runs} runs, {state['failures']} not ok, "
+                         f"{doing} ({since} since the start)")  # fmt: skip
+                    state["said"] = now
+
+        def started() -> None:
+            _say(header)
+            state["said"] = state["started"] = time.monotonic()
+            if not err_console.is_terminal:  # (a terminal has its bar's clock)
+                threading.Thread(target=heartbeat, name="pkmctl-log-lines", daemon=True).start()
 
         def on_client(client):
             from pkmctl.campaign.execute import dashboard_link
@@ -1208,7 +1233,13 @@ def campaign_run(
                 args += ["--workers", str(workers)]
             return shlex.join([*args, "--resume"])
 
+        def hush() -> None:
+            quiet.set()
+            with talk:  # (a line being said is said whole, before what follows)
+                pass
+
         def interrupted() -> str:
+            hush()
             bar.stop()
             if not (out / "campaign.json").exists():  # stopped before the folder was made
                 return "nothing written"
@@ -1229,19 +1260,22 @@ def campaign_run(
 
         try:
             with compiles.listen():
-                done = _interruptible(
-                    lambda: run_campaign(
-                        spec,
-                        out,
-                        workers=n_workers,
-                        scheduler=scheduler,
-                        resume=resume,
-                        progress=progress,
-                        on_client=on_client,
-                        on_start=lambda: _say(header),
-                    ),
-                    interrupted,
-                )
+                try:
+                    done = _interruptible(
+                        lambda: run_campaign(
+                            spec,
+                            out,
+                            workers=n_workers,
+                            scheduler=scheduler,
+                            resume=resume,
+                            progress=progress,
+                            on_client=on_client,
+                            on_start=started,
+                        ),
+                        interrupted,
+                    )
+                finally:  # (before what the campaign's end or error says)
+                    hush()
         except WorkStopped as exc:  # the runs done are kept
             bar.stop()
             if _debug(ctx):
