@@ -9,6 +9,7 @@ times open-loop stepping of it (:func:`steps_per_second`) and prints both.
 
 from __future__ import annotations
 
+import argparse
 from collections.abc import Callable
 
 import mujoco
@@ -211,4 +212,7 @@ def _main() -> None:
 
 
 if __name__ == "__main__":
+    argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    ).parse_args()  # --help says what it measures; no option
     _main()

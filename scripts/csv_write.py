@@ -6,6 +6,7 @@ run of the paper, alternating, medians of 3 rounds (docs/performance.md, fifteen
 session). Run: ``python scripts/csv_write.py``.
 """
 
+import argparse
 import os
 import tempfile
 import time
@@ -45,4 +46,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    ).parse_args()  # --help says what it measures; no option
     main()

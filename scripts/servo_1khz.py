@@ -9,6 +9,8 @@ of actuator 2 (N/s), and the RMSE after 1 s of z (mm), alpha and beta (deg).
 
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
 
 import pkmctl
@@ -45,4 +47,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    ).parse_args()  # --help says what it measures; no option
     main()

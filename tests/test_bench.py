@@ -138,3 +138,33 @@ def test_flop_counter_counts_what_it_should():
     # r0 /, l10 *, l20 *, d1 (*, -), r1 /, t21 (*, -), l21 *, d2 (*, *, -, -), r2 /,
     # z1 (*, -), z2 (*, *, -, -), x2 *, x1 (*, *, -), x0 (*, *, *, -, -)
     assert n == 1 + 1 + 1 + 2 + 1 + 2 + 1 + 4 + 1 + 2 + 4 + 1 + 3 + 5
+
+
+def test_every_script_and_benchmark_answers_help_without_running():
+    """Four documented scripts ran their whole measurement, minutes of it, when given
+    --help (a tester). Each of scripts/ and benchmarks/ run as a program answers --help
+    with its usage; one interpreter runs them all (its imports once), a minute at most."""
+    import os
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    files = sorted(str(f) for d in ("scripts", "benchmarks") for f in (root / d).glob("*.py")
+                   if "__main__" in f.read_text(encoding="utf-8"))  # fmt: skip
+    assert len(files) >= 15
+    code = (
+        "import contextlib, io, runpy, sys\n"
+        "for path in sys.argv[1:]:\n"
+        "    sys.argv, out = [path, '--help'], io.StringIO()\n"
+        "    with contextlib.redirect_stdout(out):\n"
+        "        try:\n"
+        "            runpy.run_path(path, run_name='__main__')\n"
+        "        except SystemExit as exc:\n"
+        "            assert exc.code in (0, None), (path, exc.code)\n"
+        "    assert out.getvalue().startswith('usage: '), (path, out.getvalue()[:300])\n"
+        "print('ok', len(sys.argv))\n"
+    )
+    env = dict(os.environ, PYTHONPATH=str(root))
+    res = subprocess.run([sys.executable, "-c", code, *files], capture_output=True, text=True,
+                         cwd=root, env=env, timeout=120)  # fmt: skip
+    assert res.returncode == 0 and res.stdout.startswith("ok"), res.stderr[-2000:]
