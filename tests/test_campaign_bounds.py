@@ -83,3 +83,12 @@ def test_equal_controllers_are_never_named_better(tmp_path):
     md = (tmp_path / "a" / "report" / "report.md").read_text()
     assert "smc lower in 0 % of pairs, equal in 100 %: the data cannot tell them apart." in md
     assert "smc is better" not in md and "smc better in" not in md
+
+
+def test_a_seed_above_2_63_minus_1_is_refused_before_anything_is_written(tmp_path):
+    """A run's seed is a C long: 2^63 was accepted, then `campaign run` failed with an
+    internal OverflowError and left its folder behind."""
+    top = HEAD.replace("seeds = 1", "seeds = [9223372036854775807]")
+    assert CampaignSpec.from_toml(top).seeds == (2**63 - 1,)
+    line = _refused(tmp_path, HEAD.replace("seeds = 1", "seeds = [9223372036854775808]"))
+    assert line == "error: seeds: 9223372036854775808 must be an integer in [0, 2^63 - 1]"
