@@ -3,6 +3,7 @@ the report's statistics at theirs (equal controllers, the summary's median)."""
 
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from pkmctl.campaign import CampaignSpec
@@ -92,3 +93,28 @@ def test_a_seed_above_2_63_minus_1_is_refused_before_anything_is_written(tmp_pat
     assert CampaignSpec.from_toml(top).seeds == (2**63 - 1,)
     line = _refused(tmp_path, HEAD.replace("seeds = 1", "seeds = [9223372036854775808]"))
     assert line == "error: seeds: 9223372036854775808 must be an integer in [0, 2^63 - 1]"
+
+
+@pytest.mark.parametrize(
+    ("factor", "expected"),
+    [
+        (  # log(0): was "error: math domain error", which names no field
+            '[factors."controller_model.theta_scale"]\ndistribution = "loguniform"\n'
+            "low = 0.0\nhigh = 1.0\nsamples = 3\n",
+            "error: factors.'controller_model.theta_scale': need 0 < low < high, got 0.0, 1.0",
+        ),
+        (  # std = 0 or low = high: three identical cells counted as independent pairs
+            '[factors."payload.mass"]\ndistribution = "normal"\nmean = 1.0\nstd = 0.0\n'
+            "samples = 3\n",
+            "error: factors.'payload.mass'.std = 0.0: must be > 0",
+        ),
+        (
+            '[factors."payload.mass"]\ndistribution = "uniform"\nlow = 2.0\nhigh = 2.0\n'
+            "samples = 3\n",
+            "error: factors.'payload.mass': low = 2.0 must be < high = 2.0",
+        ),
+    ],
+    ids=["loguniform-low-0", "normal-std-0", "uniform-low-eq-high"],
+)
+def test_a_distribution_at_its_bound_is_refused_in_one_line(tmp_path, factor, expected):
+    assert _refused(tmp_path, HEAD + factor, "show") == expected
