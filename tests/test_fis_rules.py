@@ -1,0 +1,70 @@
+"""The .fis reader on rules at their bounds (NOT of term 1, consequent 0, NumRules, NOT of
+a term that does not exist, a negated Sugeno consequent) and on its messages' details
+(the binary-file threshold, lines before the first section, long lists shortened)."""
+
+import numpy as np
+import pytest
+
+from pkmctl import fuzzy as fz
+from pkmctl.fuzzy import fis
+from pkmctl.fuzzy.system import FuzzySystem
+
+
+@pytest.fixture(scope="module")
+def flc_text():
+    return fis.to_fis_text(fz.FLC())
+
+
+def _with_rule(text: str, k: int, rule: str) -> tuple[str, int]:
+    """``text`` with its k-th rule line (0-based) replaced by ``rule``, and its line number."""
+    lines = text.splitlines()
+    i = lines.index("[Rules]") + 1 + k
+    lines[i] = rule
+    return "\n".join(lines) + "\n", i + 1
+
+
+def _without_rule(text: str, k: int) -> str:
+    lines = text.splitlines()
+    n = sum(1 for line in lines[lines.index("[Rules]") + 1 :] if line.strip())
+    del lines[lines.index("[Rules]") + 1 + k]
+    return "\n".join(lines).replace(f"NumRules={n}", f"NumRules={n - 1}") + "\n"
+
+
+def _inputs(n=500, seed=0):
+    rng = np.random.default_rng(seed)
+    return rng.uniform(-1.5, 1.5, n), rng.uniform(-15, 15, n)
+
+
+def test_not_of_term_1_reads_as_a_general_system(flc_text):
+    """MATLAB's '-1' (NOT of a variable's first term) in a min/min/max/centroid file: the
+    file is outside the fast subset and reads as a FuzzySystem; it was refused as 'term
+    index -2 is not an integer in [0, 6]' when the subset test let -1 through."""
+    text, _ = _with_rule(flc_text, 0, "-1 1, 7 (1) : 1")
+    system = fis.read_fis(text)
+    assert isinstance(system, FuzzySystem)
+    assert system.rules[0].antecedent == (-1, 1) and system.rules[0].consequent == (7,)
+    # a centroid by hand: the other 48 rules' levels (the fast engine's), the NOT rule's
+    # min(1 - NB(s), NB(sdot)) joined to output term 7 by max
+    rest = fis.read_fis(_without_rule(flc_text, 0))
+    nb_s, nb_sdot = system.inputs[0].terms[0], system.inputs[1].terms[0]
+    lo, hi = system.outputs[0].universe
+    u = np.linspace(lo, hi, 200001)
+    for x, y in [(0.3, -9.0), (-0.5, -8.0), (0.9, -9.5), (0.0, -3.0), (0.5, 5.0)]:
+        levels = list(rest.clip_levels(x, y))
+        levels[6] = max(levels[6], min(1.0 - nb_s(x), nb_sdot(y)))
+        terms = system.outputs[0].terms
+        agg = np.max([np.minimum(h, t(u)) for h, t in zip(levels, terms, strict=True)], axis=0)
+        ref = np.trapezoid(u * agg, u) / np.trapezoid(agg, u)
+        assert system(x, y) == pytest.approx(ref, abs=1e-6)
+
+
+def test_a_rule_with_consequent_0_reads_and_adds_nothing(flc_text):
+    """Consequent 0 (the rule says nothing of the output: legal in MATLAB) reads as a
+    FuzzySystem whose output is that of the file without the rule; it was refused as
+    'term index -1' when the subset test let 0 through."""
+    text, _ = _with_rule(flc_text, 0, "1 1, 0 (1) : 1")
+    system = fis.read_fis(text)
+    assert isinstance(system, FuzzySystem) and system.rules[0].consequent == (0,)
+    s, sdot = _inputs()
+    rest = fis.read_fis(_without_rule(flc_text, 0))
+    np.testing.assert_allclose(system(s, sdot), rest(s, sdot), rtol=0, atol=1e-12)
