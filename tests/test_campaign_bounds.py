@@ -118,3 +118,18 @@ def test_a_seed_above_2_63_minus_1_is_refused_before_anything_is_written(tmp_pat
 )
 def test_a_distribution_at_its_bound_is_refused_in_one_line(tmp_path, factor, expected):
     assert _refused(tmp_path, HEAD + factor, "show") == expected
+
+
+def test_rmse_after_1s_takes_runs_whose_last_sample_is_at_1_s(tmp_path):
+    """docs/campaigns.md: rmse_after_1s needs a control sample at t >= 1 s. On paper's
+    50 us period, 1.00005 s has its last sample at t = 1 s (accepted), 1.0 s at
+    0.99995 s (refused in one line)."""
+    text = 'scenario = "paper"\ncontrollers = ["smc"]\nseeds = 1\nmetrics = ["rmse_after_1s"]\n'
+    spec = CampaignSpec.from_toml(text + "duration = 1.00005\n")
+    assert spec.duration == 1.00005 and spec.metrics == ("rmse_after_1s",)
+    line = _refused(tmp_path, text + "duration = 1.0\n", "show")
+    assert line == (
+        "error: metrics = ['rmse_after_1s'] with duration = 1.0: rmse_after_1s needs runs "
+        "longer than 1 s (a control sample at t >= 1 s); keep rmse too (the whole run) or "
+        "make the runs longer"
+    )
