@@ -1,6 +1,8 @@
 """Campaign specs at their bounds (seeds, distributions, the rmse_after_1s duration) and
 the report's statistics at theirs (equal controllers, the summary's median)."""
 
+import csv
+import math
 from pathlib import Path
 
 import pytest
@@ -133,3 +135,20 @@ def test_rmse_after_1s_takes_runs_whose_last_sample_is_at_1_s(tmp_path):
         "longer than 1 s (a control sample at t >= 1 s); keep rmse too (the whole run) or "
         "make the runs longer"
     )
+
+
+def test_the_summary_median_is_the_median(tmp_path):
+    """pd's values over its 6 seeds are 0, 1, 4, 9, 16, 25: median 6.5, mean 9.1667;
+    cell_stats and summary.csv give each in its column."""
+    from pkmctl.campaign import stats
+
+    spec = _fake_campaign(tmp_path / "a", TWO, metric=lambda run, column: float(run.seed**2))
+    table = read_records(tmp_path / "a")
+    pd = [r for r in stats.cell_stats(spec, table, ["rmse_z_mm"]) if r["controller"] == "pd"]
+    assert [(r["median"], r["mean"]) for r in pd] == [(6.5, pytest.approx(55 / 6))]
+    res = runner.invoke(app, ["campaign", "report", str(tmp_path / "a")])
+    assert res.exit_code == 0, res.output
+    with open(tmp_path / "a" / "report" / "summary.csv", newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r["controller"] == "pd"]
+    row = next(r for r in rows if r["metric"] == "rmse_z_mm")
+    assert math.isclose(float(row["median"]), 6.5) and math.isclose(float(row["mean"]), 55 / 6)
