@@ -68,3 +68,16 @@ def test_a_rule_with_consequent_0_reads_and_adds_nothing(flc_text):
     s, sdot = _inputs()
     rest = fis.read_fis(_without_rule(flc_text, 0))
     np.testing.assert_allclose(system(s, sdot), rest(s, sdot), rtol=0, atol=1e-12)
+
+
+def _refusal(source) -> fis.FISError:
+    with pytest.raises(fis.FISError) as info:
+        fis.read_fis(source)
+    return info.value
+
+
+def test_numrules_below_the_rule_lines_is_refused(flc_text):
+    """NumRules=48 over 49 rule lines (one too few, as well as too many) names the line."""
+    err = _refusal(flc_text.replace("NumRules=49", "NumRules=48"))
+    assert str(err) == "<string>:7: NumRules=48 but [Rules] has 49 lines in: NumRules=48"
+    assert (err.lineno, err.line) == (7, "NumRules=48")
