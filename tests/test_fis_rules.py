@@ -81,3 +81,56 @@ def test_numrules_below_the_rule_lines_is_refused(flc_text):
     err = _refusal(flc_text.replace("NumRules=49", "NumRules=48"))
     assert str(err) == "<string>:7: NumRules=48 but [Rules] has 49 lines in: NumRules=48"
     assert (err.lineno, err.line) == (7, "NumRules=48")
+
+
+def test_not_of_a_term_that_does_not_exist_names_its_line_and_range(flc_text):
+    """'-8' where the variable has 7 terms: the rule's line, the range, the line echoed."""
+    text, lineno = _with_rule(flc_text, 0, "-8 1, 7 (1) : 1")
+    err = _refusal(text)
+    assert str(err) == (
+        f"<string>:{lineno}: term index -8 out of range for 's' (1..7) in: -8 1, 7 (1) : 1"
+    )
+    assert err.problems == [(lineno, "term index -8 out of range for 's' (1..7)", err.line)]
+
+
+SUGENO = """\
+[System]
+Name='sg'
+Type='sugeno'
+Version=2.0
+NumInputs=1
+NumOutputs=1
+NumRules=2
+AndMethod='prod'
+OrMethod='probor'
+ImpMethod='prod'
+AggMethod='sum'
+DefuzzMethod='wtaver'
+
+[Input1]
+Name='x'
+Range=[0 1]
+NumMFs=2
+MF1='lo':'trimf',[-1 0 1]
+MF2='hi':'trimf',[0 1 2]
+
+[Output1]
+Name='y'
+Range=[0 1]
+NumMFs=2
+MF1='a':'constant',[0]
+MF2='b':'linear',[1 0]
+
+[Rules]
+1, 1 (1) : 1
+2, 2 (1) : 1
+"""
+
+
+def test_a_negated_sugeno_consequent_names_its_line(tmp_path):
+    assert isinstance(fis.read_fis(SUGENO), FuzzySystem)
+    path = tmp_path / "sg.fis"
+    path.write_text(SUGENO.replace("2, 2 (1) : 1", "2, -2 (1) : 1"))
+    err = _refusal(path)
+    assert str(err) == (f"{path}:30: a Sugeno consequent cannot be negated (NOT) in: 2, -2 (1) : 1")
+    assert (err.lineno, err.line) == (30, "2, -2 (1) : 1")
