@@ -134,3 +134,35 @@ def test_a_negated_sugeno_consequent_names_its_line(tmp_path):
     err = _refusal(path)
     assert str(err) == (f"{path}:30: a Sugeno consequent cannot be negated (NOT) in: 2, -2 (1) : 1")
     assert (err.lineno, err.line) == (30, "2, -2 (1) : 1")
+
+
+def test_two_lines_before_the_first_section_are_counted(flc_text):
+    err = _refusal("junk one\njunk two\n" + flc_text)
+    assert err.problems == [(1, "2 lines of text before the first section", "junk one")]
+    err = _refusal("junk one\n" + flc_text)
+    assert err.problems == [(1, "text before the first section", "junk one")]
+
+
+def test_a_list_of_11_values_is_shortened_and_10_are_shown(flc_text):
+    """Messages show a list of up to 10 numbers whole; 11 as first 4, last 2 and count."""
+    nb = "MF1='NB':'zmf',[-1 -0.6666666666666666]"  # [Input1]'s (line 18)
+    err = _refusal(flc_text.replace(nb, "MF1='NB':'zmf',[0 1 2 3 4 5 6 7 8 9 10]", 1))
+    assert str(err) == (
+        "<string>:18: zmf takes 2 parameters, got 11: (0.0, 1.0, 2.0, 3.0, ..., 9.0, 10.0) "
+        "(11 values) in: MF1='NB':'zmf',[0 1 2 3 ... 9 10] (11 values)"
+    )
+    err = _refusal(flc_text.replace(nb, "MF1='NB':'zmf',[0 1 2 3 4 5 6 7 8 9]", 1))
+    assert str(err) == (
+        "<string>:18: zmf takes 2 parameters, got 10: (0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, "
+        "7.0, 8.0, 9.0) in: MF1='NB':'zmf',[0 1 2 3 4 5 6 7 8 9]"
+    )
+
+
+def test_a_file_of_2_percent_control_bytes_is_a_binary_file(tmp_path, flc_text):
+    """No NUL, but 2 % of the first 4096 bytes are control characters (over the 1 %
+    allowed): one line saying it is binary, not the many lines of a text misread."""
+    body = flc_text.encode()
+    path = tmp_path / "ctl.fis"
+    path.write_bytes(b"\x01" * (len(body[:4096]) // 50 + 1) + body)
+    err = _refusal(path)
+    assert str(err) == f"{path}: binary file, not a .fis text file"
