@@ -3,7 +3,6 @@ the report's statistics at theirs (equal controllers, the summary's median)."""
 
 import csv
 import math
-from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
@@ -11,56 +10,9 @@ from typer.testing import CliRunner
 from pkmctl.campaign import CampaignSpec
 from pkmctl.campaign.store import read_records
 from pkmctl.cli import app
+from tests.test_campaign import HEAD, _fake_campaign, _refused
 
 runner = CliRunner()
-
-HEAD = 'scenario = "paper"\ncontrollers = ["smc"]\nseeds = 1\nduration = 0.05\n'
-
-
-def _refused(tmp_path, text: str, command: str = "run") -> str:
-    """The one line `campaign run` (or `show`) refuses ``text`` with (exit 2, no folder)."""
-    spec = tmp_path / "bad.toml"
-    spec.write_text(text)
-    out = tmp_path / "o"
-    args = ["--out", str(out)] if command == "run" else []
-    res = runner.invoke(app, ["campaign", command, str(spec), *args])
-    assert res.exit_code == 2, res.output
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), lines
-    assert not out.exists()
-    return lines[0]
-
-
-def _fake_campaign(out: Path, text: str, metric) -> CampaignSpec:
-    """A campaign folder of ``text`` whose runs all ended ok with ``metric(run, column)``,
-    made up, not run (as tests/test_campaign.py's helper of that name)."""
-    import pyarrow as pa
-
-    from pkmctl.campaign.store import (
-        factor_column,
-        factor_value,
-        metric_columns,
-        open_store,
-        schema,
-        write_task,
-    )
-
-    spec = CampaignSpec.from_toml(text)
-    runs = open_store(out, spec, resume=False)
-    for t in spec.tasks():
-        rows = []
-        for r in t.runs:
-            row = {"spec_hash": spec.digest, "cell": r.cell, "controller": r.controller,
-                   "seed": r.seed, "task": t.index}  # fmt: skip
-            row.update({factor_column(p): factor_value(spec, p, spec.cells[r.cell][p])
-                        for p in spec.factors})  # fmt: skip
-            row.update(status="ok", diverged_at=None, message="")
-            row.update({m: metric(r, m) for m in metric_columns(spec.metrics)})
-            row.update(wall_s=0.0, kernel_s=0.0, worker="test:0")
-            rows.append(row)
-        write_task(runs, t.index, pa.Table.from_pylist(rows, schema=schema(spec)))
-    return spec
-
 
 TWO = HEAD.replace('["smc"]', '["smc", "pd"]').replace("seeds = 1", "seeds = 6")
 
