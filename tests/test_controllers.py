@@ -447,22 +447,43 @@ def test_a_snapshot_restored_carries_on_bit_for_bit_and_reset_can_keep_theta(rob
     c.restore(dataclasses.replace(snap, steps=np.int64(40)))
     assert c.state.steps == 40
     # the named fields are copies of raw's parts: an edited or NaN Theta^ (or s_prev,
-    # sdot) was dropped without a word, raw put back (a tester); now refused
+    # sdot) was dropped without a word, raw put back (a tester). Whichever of a field and
+    # raw was edited is put back (an edited raw was refused for a while: a reviewer)
     for name, offset in (("s_prev", 0), ("sdot", 3), ("theta_hat", 7)):
-        for value in (np.nan, 2.5):
-            edited = getattr(snap, name).copy()
-            edited[1] = value
-            said = (rf"^snapshot.{name}\[1\] = {value!r} differs from snapshot.raw"
-                    rf"\[{offset + 1}\] = .*, which restore puts back: {name} is a copy of "
-                    r"raw; change raw$")  # fmt: skip
-            with pytest.raises(ValueError, match=said):
-                c.restore(dataclasses.replace(snap, **{name: edited}))
-    said = (r"^snapshot.theta_hat: expected an array of shape \(36,\) \(a copy of "
+        edited = getattr(snap, name).copy()
+        edited[1] = 2.5
+        c.restore(dataclasses.replace(snap, **{name: edited}))
+        assert c.state.raw[offset + 1] == 2.5
+        np.testing.assert_array_equal(np.delete(c.state.raw, offset + 1),
+                                      np.delete(snap.raw, offset + 1))  # fmt: skip
+        raw = snap.raw.copy()
+        raw[offset + 1] = -2.5
+        c.restore(dataclasses.replace(snap, raw=raw))  # raw edited, the field as taken
+        assert c.state.raw[offset + 1] == -2.5
+        edited[1] = np.nan
+        said = rf"^snapshot.{name}\[1\] = nan: a afsmc controller's state must be finite$"
+        with pytest.raises(ValueError, match=said):
+            c.restore(dataclasses.replace(snap, **{name: edited}))
+        edited[1] = 2.5
+        said = (rf"^snapshot.{name}\[1\] = 2.5 and snapshot.raw\[{offset + 1}\] = -2.5 "
+                rf"differ: {name} is a copy of that part of raw, and both were changed; make "
+                rf"them equal, or set {name} = None to put back raw's$")  # fmt: skip
+        with pytest.raises(ValueError, match=said):
+            c.restore(dataclasses.replace(snap, raw=raw, **{name: edited}))
+    snap.raw[10] = 4.5  # in place
+    c.restore(snap)
+    assert c.state.raw[10] == 4.5
+    snap.raw[10] = c.state.theta_hat[3] = 0.0  # (the state's copy: the controller's own stays)
+    assert c.state.raw[10] == 4.5
+    bare = pkmctl.control.base.ControllerState(None, None, None, 3, snap.raw.copy())
+    c.restore(bare)  # named fields None: raw's
+    np.testing.assert_array_equal(c.state.raw, snap.raw)
+    said = (r"^snapshot.theta_hat: expected None or an array of shape \(36,\) \(a copy of "
             r"snapshot.raw\[7:43\]\), got shape \(3,\)$")  # fmt: skip
     with pytest.raises(ValueError, match=said):
         c.restore(dataclasses.replace(snap, theta_hat=snap.theta_hat[:3]))
     pd = pkmctl.Controller.from_scenario("paper", "pd")
-    with pytest.raises(ValueError, match=r"^snapshot.theta_hat: a pd controller has none$"):
+    with pytest.raises(ValueError, match=r"^snapshot.theta_hat: a pd controller has none"):
         pd.restore(dataclasses.replace(pd.state, theta_hat=np.zeros(36)))
     np.testing.assert_array_equal(c.state.raw, snap.raw)  # nothing refused was put back
     pd.restore(pd.state)

@@ -26,7 +26,7 @@ import math
 import numbers
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar
 
 import numba
@@ -75,6 +75,8 @@ class ControllerState:
     theta_hat: np.ndarray | None
     steps: int
     raw: np.ndarray
+    #: raw as taken (a copy): which of raw and a named field was edited, for restore
+    taken: np.ndarray | None = field(default=None, repr=False, compare=False)
 
 
 def _entry(p, state, work, y, ref, X, Xdot, X_d, Xdot_d, Xddot_d, F, saved):
@@ -246,56 +248,78 @@ class Controller:
     def restore(self, snapshot: ControllerState) -> None:
         """Put back a state taken from :attr:`state` (of this controller, or of one built
         the same way): the steps that follow are those that followed the snapshot, bit
-        for bit. ``raw`` is what is put back; ``s_prev``, ``sdot`` and ``theta_hat`` are
-        copies of its parts, and a snapshot whose copy differs from raw is refused (change
-        raw)."""
+        for bit. ``s_prev``, ``sdot`` and ``theta_hat`` are copies of parts of ``raw``:
+        whichever of a field and its part of raw was changed is put back (None: raw's);
+        both changed apart is refused."""
         raw = getattr(snapshot, "raw", None)
         if not isinstance(raw, np.ndarray) or raw.shape != self._state.shape:
             raise ValueError(
                 f"snapshot: expected a {self.name} controller's state (raw of shape "
                 f"{self._state.shape}), got {type(snapshot).__name__}"
             )
+        state, named = self._edited(snapshot, raw)
         # (a NaN state was put back, and every later step blamed "these finite inputs";
         # steps = -5 printed "-5 steps taken": a code reader)
-        if not np.isfinite(raw).all():
-            bad = int(np.flatnonzero(~np.isfinite(raw))[0])
+        if not np.isfinite(state).all():
+            bad = int(np.flatnonzero(~np.isfinite(state))[0])
+            where = f"raw[{bad}]"
+            for name, part in named.items():
+                if part.start <= bad < part.stop:
+                    where = f"{name}[{bad - part.start}]"
             raise ValueError(
-                f"snapshot.raw[{bad}] = {float(raw[bad])!r}: a {self.name} controller's state must "
-                f"be finite"
+                f"snapshot.{where} = {float(state[bad])!r}: a {self.name} controller's state "
+                f"must be finite"
             )
         steps = getattr(snapshot, "steps", None)
         if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 0:
             raise ValueError(f"snapshot.steps = {steps!r}: must be an integer >= 0")
-        # The named fields are copies of raw's parts: an edited Theta^ (or a NaN in it) was
-        # silently dropped (a tester). Restore puts back raw; a named field that differs
-        # from its part of raw is refused, not guessed between.
+        with self._lock:
+            self._state[:] = state
+            self._steps = int(snapshot.steps)
+
+    def _edited(self, snapshot: ControllerState, raw: np.ndarray) -> tuple[np.ndarray, dict]:
+        """The state a snapshot stands for, and the named fields it took from them. The
+        named fields are copies of raw's parts: restore put back raw alone, so an edited
+        Theta^ (or a NaN in it) was dropped without a word (a tester). Whichever of a
+        field and its part of raw was edited since :attr:`state` took them is used (the
+        copy taken says which); a field left as None is raw's; both edited apart is
+        refused, not guessed between."""
+        state, used = raw.copy(), {}
+        taken = getattr(snapshot, "taken", None)
+        if not isinstance(taken, np.ndarray) or taken.shape != raw.shape:
+            taken = None
         for name, part in self._named_parts().items():
             value = getattr(snapshot, name, None)
-            if value is None and part is None:
+            if value is None:
                 continue
             if part is None:
-                raise ValueError(f"snapshot.{name}: a {self.name} controller has none")
-            held = raw[part]
+                raise ValueError(f"snapshot.{name}: a {self.name} controller has none (None)")
             try:
                 value = np.asarray(value, dtype=float)
                 got = f"shape {value.shape}"
             except (TypeError, ValueError):
                 value, got = None, type(getattr(snapshot, name)).__name__
-            if value is None or value.shape != held.shape:
+            if value is None or value.shape != raw[part].shape:
                 raise ValueError(
-                    f"snapshot.{name}: expected an array of shape {held.shape} (a copy of "
-                    f"snapshot.raw[{part.start}:{part.stop}]), got {got}"
+                    f"snapshot.{name}: expected None or an array of shape {raw[part].shape} "
+                    f"(a copy of snapshot.raw[{part.start}:{part.stop}]), got {got}"
                 )
-            if not np.array_equal(value, held):  # (raw is finite: a NaN here differs)
-                i = int(np.flatnonzero(value != held)[0])
-                raise ValueError(
-                    f"snapshot.{name}[{i}] = {float(value[i])!r} differs from snapshot.raw"
-                    f"[{part.start + i}] = {float(held[i])!r}, which restore puts back: "
-                    f"{name} is a copy of raw; change raw"
-                )
-        with self._lock:
-            self._state[:] = raw
-            self._steps = int(snapshot.steps)
+            if np.array_equal(value, raw[part], equal_nan=True) or (
+                taken is not None and np.array_equal(value, taken[part], equal_nan=True)
+            ):
+                continue  # as raw holds it, or as taken while raw was edited: raw's
+            if taken is not None and np.array_equal(raw[part], taken[part], equal_nan=True):
+                state[part], used[name] = value, part  # the field was edited: its values
+                continue
+            i = int(np.flatnonzero(value != raw[part])[0])
+            why = "both were changed" if taken is not None else "which was changed is unknown"
+            raise ValueError(
+                f"snapshot.{name}[{i}] = {float(value[i])!r} and snapshot.raw"
+                f"[{part.start + i}] = {float(raw[part][i])!r} differ: {name} is a copy of "
+                f"that part of raw, and {why}; make them equal, or set {name} = None to "
+                f"put back raw's"
+            )
+        return state, used
 
     def prepare(self) -> float:
         """Compile the step (or load it from the disk cache) now, not at the first call
@@ -327,7 +351,7 @@ class Controller:
         st = self._state
         named = {k: None if part is None else st[part].copy()
                  for k, part in self._named_parts().items()}  # fmt: skip
-        return ControllerState(**named, steps=self._steps, raw=st.copy())
+        return ControllerState(**named, steps=self._steps, raw=st.copy(), taken=st.copy())
 
     def step(
         self, X: ArrayLike, Xdot: ArrayLike, X_d: ArrayLike, Xdot_d: ArrayLike, Xddot_d: ArrayLike
