@@ -1973,8 +1973,12 @@ def test_a_campaigns_log_gets_a_line_a_minute_while_no_task_ends(tmp_path, monke
                                   "--workers", "1"])  # fmt: skip
         assert res.exit_code == 0, res.output
         said[len(compiling)] = [ln for ln in res.stderr.splitlines() if "since the start)" in ln]
-    idle = r"0/2 runs, 0 not ok, no task has ended since the last line \([\d.]+ s since the start\)"
+    idle = r"0/2 runs, 0 not ok, no task has ended yet \([\d.]+ s since the start\)"
     assert said[0] and re.fullmatch(idle, said[0][0]), said
+    # between the tasks: when the last one ended (it said "no task has ended since the
+    # last line" of a task that had: a reviewer)
+    later = r"1/2 runs, 0 not ok, the last task ended [\d.]+ s ago \([\d.]+ s since the start\)"
+    assert any(re.fullmatch(later, line) for line in said[0]), said
     first = r"0/2 runs, 0 not ok, the workers compile 1 loop first \([\d.]+ s since the start\)"
     assert said[1] and re.fullmatch(first, said[1][0]), said
 

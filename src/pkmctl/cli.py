@@ -1147,7 +1147,7 @@ def campaign_run(
     ) as bar:
         task = bar.add_task("running", total=spec.n_runs, failures=0, rate=0.0, left="")
         state = {"done": 0, "said": time.monotonic(), "compiled": False, "since": None,
-                 "failures": 0, "compiling": 0, "started": None}  # fmt: skip
+                 "failures": 0, "compiling": 0, "started": None, "ended": None}  # fmt: skip
         talk = threading.Lock()  # (the lines of the two threads below, one at a time)
         quiet = threading.Event()  # set: the campaign has ended
 
@@ -1193,6 +1193,8 @@ def campaign_run(
                     _say(f"{done}/{total} runs, {failures} not ok, {rate:.1f} runs/s"
                          + (f", {left}" if left else ""))  # fmt: skip
                     state["said"] = now
+                if done > state["done"]:
+                    state["ended"] = now  # (a task ended: the heartbeat's "last task")
                 state.update(done=done, failures=failures, compiling=compiling)
             bar.update(task, completed=done, failures=failures, rate=rate, left=left)
 
@@ -1202,11 +1204,15 @@ def campaign_run(
             while not quiet.wait(max(0.05, min(5.0, LOG_EVERY_S))):
                 with talk:
                     now = time.monotonic()
-                    if now - state["said"] < LOG_EVERY_S:
-                        continue
+                    if quiet.is_set() or now - state["said"] < LOG_EVERY_S:
+                        continue  # (ended while this waited for the lock: said nothing)
                     c, since = state["compiling"], _seconds(now - state["started"])
-                    doing = (f"the workers compile {_n(c, 'loop')} first" if c
-                             else "no task has ended since the last line")  # fmt: skip
+                    ended = state["ended"]
+                    doing = (
+                        f"the workers compile {_n(c, 'loop')} first" if c
+                        else "no task has ended yet" if ended is None
+                        else f"the last task ended {_seconds(now - ended)} ago"
+                    )  # fmt: skip
                     _say(f"{state['done']}/{spec.n_runs} runs, {state['failures']} not ok, "
                          f"{doing} ({since} since the start)")  # fmt: skip
                     state["said"] = now
