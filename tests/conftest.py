@@ -1,7 +1,9 @@
 import atexit
+import contextlib
 import json
 import os
 import select
+import signal
 import subprocess
 import sys
 import tempfile
@@ -50,6 +52,7 @@ for line in sys.stdin:
     if pid == 0:  # the command, in a process of its own that has imported pkmctl
         code = 1
         try:
+            os.setpgid(0, 0)  # (its group: a command that times out is killed whole)
             os.chdir(case["cwd"])
             for fd, name, flags in ((0, os.devnull, os.O_RDONLY),
                                     (1, case["stdout"], os.O_WRONLY | os.O_CREAT),
@@ -74,6 +77,7 @@ for line in sys.stdin:
                 except Exception:
                     pass
             os._exit(code)
+    print(pid, flush=True)
     _, status = os.waitpid(pid, 0)
     print(os.waitstatus_to_exitcode(status), flush=True)
 """
@@ -102,8 +106,11 @@ def run_pkmctl(*args: str, cwd: Path, timeout: float = 600) -> subprocess.Comple
         case = {"args": list(args), "cwd": str(cwd), "stdout": str(out), "stderr": str(err)}
         server.stdin.write(json.dumps(case) + "\n")
         server.stdin.flush()
+        pid = int(server.stdout.readline())
         ready, _, _ = select.select([server.stdout], [], [], timeout)
-        if not ready:
+        if not ready:  # the command and what it started, then the server (a reviewer)
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(pid, signal.SIGKILL)
             server.kill()
             raise subprocess.TimeoutExpired(["pkmctl", *args], timeout)
         code = int(server.stdout.readline())
