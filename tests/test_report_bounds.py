@@ -1,0 +1,97 @@
+"""Bounds of what the reports print and write: the paper's Table 4 numbers, each cell's
+digits, the edge of "RMSE after the first second", the label of a controller that is no
+part, the files reproduce checks before its runs, and the campaign report's numbers."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+import pkmctl
+from pkmctl.report.tables import (
+    PAPER_TABLE4,
+    _fmt,
+    controller_label,
+    rmse_after,
+    table4_markdown,
+)
+from pkmctl.sim.metrics import RMSE_KEYS, chattering_index, last_time, peak_forces
+
+#: Table 4 of the paper, as printed there (z mm, alpha and beta deg, q1..q4 m).
+PAPER = {
+    "smc": (0.545968, 0.918397, 6.12032, 0.0120748, 0.0266254, 0.00977163, 0.0173405),
+    "fsmc": (0.218587, 0.825874, 4.73001, 0.00969521, 0.0193492, 0.00668029, 0.0140356),
+    "afsmc": (0.377072, 0.184167, 2.66612, 0.00153664, 0.0094806, 0.00061928, 0.0075560),
+}
+
+
+@pytest.fixture(scope="module")
+def smc() -> pkmctl.Result:
+    return pkmctl.simulate("paper", "smc", duration=0.02)
+
+
+def _cell(x: float, digits: int) -> str:
+    """``x`` to ``digits`` significant digits, trailing zeros kept, no lone "."."""
+    text = f"{x:#.{digits}g}"
+    return text[:-1] if text.endswith(".") else text
+
+
+def _rows(md: str, label: str, source: str | None = None) -> list[list[str]]:
+    rows = []
+    for line in md.splitlines():
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        if cells[0] == label and (source is None or cells[1] == source):
+            rows.append(cells)
+    return rows
+
+
+def test_the_papers_table4_is_every_number_of_the_paper():
+    """Only two of the 21 numbers were checked: any other, mistyped, went into every
+    report's "paper" row and every "ours / paper" ratio unseen."""
+    assert {c: tuple(row[k] for k in RMSE_KEYS) for c, row in PAPER_TABLE4.items()} == PAPER
+
+
+def test_the_ratio_row_has_two_significant_digits(smc):
+    ours = smc.rmse()
+    [row] = _rows(table4_markdown({"smc": smc}), "SMC", "ours / paper")
+    assert row[2:] == [_cell(ours[k] / PAPER_TABLE4["smc"][k], 2) for k in RMSE_KEYS]
+
+
+def test_the_force_row_has_four_digits_of_peaks_and_three_of_chattering(smc):
+    md = table4_markdown({"smc": smc})
+    force_row = _rows(md.split("peak |τ_i|")[1], "SMC")  # the last table's
+    assert len(force_row) == 1
+    peaks = [_cell(float(v), 4) for v in peak_forces(smc)]
+    chat = [_cell(float(v), 3) for v in chattering_index(smc)]
+    assert force_row[0][1:] == peaks + chat
+
+
+@pytest.mark.parametrize(
+    ("x", "spec", "text"),
+    [
+        (0.7, ".4g", "0.7000"),  # trailing zeros kept
+        (5222.0, ".4g", "5222"),  # not "5222."
+        (0.0012345, ".2g", "0.0012"),
+        (16757.01, ".3g", "1.68e+04"),
+        (None, ".4g", "—"),
+        (math.nan, ".4g", "—"),
+        (math.inf, ".2g", "—"),
+    ],
+)
+def test_a_cell_is_its_significant_digits(x, spec, text):
+    assert _fmt(x, spec) == text
+
+
+def test_rmse_after_a_time_the_run_reaches_at_its_last_period(smc):
+    """A run that ends exactly at ``t_from`` has an RMSE from there (its last sample);
+    one that ends before it has none."""
+    end = last_time(smc)
+    after = rmse_after(smc, end)
+    assert after is not None and set(after) == set(RMSE_KEYS)
+    assert rmse_after(smc, end + 1e-9) is None
+
+
+def test_a_controller_that_is_no_part_is_labelled_by_its_own_name():
+    assert controller_label("my-Law") == "my-Law"
+    assert controller_label("afsmc") == "AFSMC"
