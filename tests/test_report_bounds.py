@@ -5,10 +5,12 @@ part, the files reproduce checks before its runs, and the campaign report's numb
 from __future__ import annotations
 
 import math
+from pathlib import PurePosixPath
 
 import pytest
 
 import pkmctl
+from pkmctl.errors import OutputError
 from pkmctl.report.tables import (
     PAPER_TABLE4,
     _fmt,
@@ -95,3 +97,32 @@ def test_rmse_after_a_time_the_run_reaches_at_its_last_period(smc):
 def test_a_controller_that_is_no_part_is_labelled_by_its_own_name():
     assert controller_label("my-Law") == "my-Law"
     assert controller_label("afsmc") == "AFSMC"
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "table4.csv",
+        "table4.md",
+        "report.md",
+        "timeseries/afsmc.parquet",
+        "timeseries/ctc.json",
+        "figures/fig10.png",
+        "figures/fig26.png",
+        "figures/machine_end.png",
+    ],
+)
+def test_reproduce_refuses_a_folder_where_it_writes_a_file_before_any_run(tmp_path, name):
+    """Each file ``reproduce`` writes is checked before the five runs: a folder in its
+    place was refused only at the end, all the work lost."""
+    from pkmctl.experiment import reproduce
+
+    (tmp_path / name).mkdir(parents=True)
+    with pytest.raises(OutputError) as err:
+        reproduce(pkmctl.Scenario.builtin("paper", 0.01), tmp_path)
+    assert str(err.value) == (
+        f"output folder: {str(tmp_path / name)!r} is a folder, where pkmctl puts a file of "
+        "that name: move it away or choose another output folder"
+    )
+    left = {p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")}
+    assert left == {name, *(p.as_posix() for p in PurePosixPath(name).parents)} - {"."}
