@@ -126,3 +126,66 @@ def test_reproduce_refuses_a_folder_where_it_writes_a_file_before_any_run(tmp_pa
     )
     left = {p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")}
     assert left == {name, *(p.as_posix() for p in PurePosixPath(name).parents)} - {"."}
+
+
+# ---------------------------------------------------------------- the campaign report
+@pytest.mark.parametrize(
+    ("ratio", "lo", "hi", "text"),
+    [
+        (0.93, 0.92, 0.94, "0.930× [0.920, 0.940]"),  # within (0.9, 1.1): three decimals
+        (1.09, 1.08, 1.095, "1.090× [1.080, 1.095]"),
+        (0.9, 0.85, 0.95, "0.9× [0.85, 0.95]"),  # the bounds themselves: 2 digits
+        (0.95, math.nan, math.nan, "0.950×"),  # no interval (one pair)
+        # an interval below 1 in the fifth digit: as many decimals as show it
+        (0.99995, 0.9999, 0.99996, "0.99995× [0.99990, 0.99996]"),
+    ],
+)
+def test_a_campaign_ratio_is_printed_in_the_digits_its_range_gets(ratio, lo, hi, text):
+    from pkmctl.report.campaign import _ratio
+
+    assert _ratio({"ratio": ratio, "ratio_lo": lo, "ratio_hi": hi}) == text
+
+
+def test_a_factor_level_keeps_every_digit_that_tells_it_apart():
+    """%g's six digits made 1.000001 read "1", the same as a level of 1."""
+    from pkmctl.report.campaign import _level
+
+    assert [_level(x) for x in (1.000001, 0.001, 1e-7, 2.0, 10)] == [
+        "1.000001",
+        "0.001",
+        "1e-07",
+        "2",
+        "10",
+    ]
+
+
+def test_a_csv_number_that_is_not_finite_is_an_empty_field():
+    """A reader types the column as numbers only when no field is text ("nan")."""
+    from pkmctl.report.campaign import _full
+
+    assert [_full(x) for x in (math.nan, math.inf, -math.inf, None, 0.1, 3)] == [
+        "",
+        "",
+        "",
+        "",
+        "0.1",
+        "3",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("failed", "diverged", "text"),
+    [
+        (3, 1, "3 pd runs did not end ok (1 diverged, 2 failed with an error)"),
+        (2, 2, "2 pd runs diverged"),
+        (1, 0, "1 pd run failed with an error"),
+        (0, 0, "every pd run ended ok"),
+    ],
+)
+def test_runs_not_ok_are_counted_by_how_they_ended(failed, diverged, text):
+    from pkmctl.report.campaign import _not_ok
+
+    assert (
+        _not_ok({"baseline_failed": failed, "baseline_diverged": diverged}, "baseline", "pd")
+        == text
+    )
