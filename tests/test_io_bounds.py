@@ -99,3 +99,92 @@ def test_a_stem_with_a_backslash_is_refused(run, tmp_path, stem):
         save_result(run, tmp_path, stem)
     assert str(err.value) == f"stem = {stem!r}: must be a file name, without a folder"
     assert not any(tmp_path.iterdir())
+
+
+# ---------------------------------------------------------------- plugin files read in
+@pytest.fixture
+def plugin_env(monkeypatch):
+    """PKMCTL_PLUGINS and sys.path as they were after the test; its modules forgotten."""
+    import sys
+
+    from pkmctl.plugins import ENV
+
+    monkeypatch.setenv(ENV, "")
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    before = set(sys.modules)
+    yield ENV
+    for name in set(sys.modules) - before:
+        if name.startswith("plug_") or name.startswith("helper_"):
+            del sys.modules[name]
+
+
+def _unique(tmp_path) -> str:
+    return tmp_path.name.replace("-", "_").lower()
+
+
+def test_a_plugin_file_not_named_as_a_module_is_refused(tmp_path, plugin_env):
+    import sys
+
+    from pkmctl.plugins import PluginError, load_plugins
+
+    path = tmp_path / "my-law.py"
+    path.write_text("VALUE = 1\n")
+    with pytest.raises(PluginError) as err:
+        load_plugins([str(path)])
+    assert str(err.value) == f"--plugin {path}: 'my-law' is not a Python module name"
+    assert "my-law" not in sys.modules
+
+
+def test_a_plugin_imports_a_module_beside_it(tmp_path, plugin_env):
+    from pkmctl.plugins import load_plugins
+
+    u = _unique(tmp_path)
+    (tmp_path / f"helper_{u}.py").write_text("VALUE = 7\n")
+    path = tmp_path / f"plug_{u}.py"
+    path.write_text(f"from helper_{u} import VALUE\nassert VALUE == 7\n")
+    assert load_plugins([str(path)]) == [str(path.resolve())]
+
+
+def test_a_plugin_that_failed_can_be_loaded_once_fixed(tmp_path, plugin_env):
+    """A failed import left its half module in sys.modules: the fixed file was then
+    taken for the file "imported already", the fixed one never run."""
+    import sys
+
+    from pkmctl.plugins import PluginError, load_plugins
+
+    path = tmp_path / f"plug_{_unique(tmp_path)}.py"
+    path.write_text("raise RuntimeError('boom')\n")
+    with pytest.raises(PluginError, match="RuntimeError: boom"):
+        load_plugins([str(path)])
+    path.write_text("VALUE = 1\n")
+    assert load_plugins([str(path)]) == [str(path.resolve())]
+    assert sys.modules[path.stem].VALUE == 1  # the fixed file ran, not the half module kept
+
+
+def test_the_environment_lists_every_plugin_loaded_once(tmp_path, plugin_env):
+    """Workers import what PKMCTL_PLUGINS lists: a second --plugin must not drop the first."""
+    import os
+
+    from pkmctl.plugins import listed, load_plugins
+
+    u = _unique(tmp_path)
+    a, b = tmp_path / f"plug_{u}_a.py", tmp_path / f"plug_{u}_b.py"
+    for p in (a, b):
+        p.write_text("VALUE = 1\n")
+    load_plugins([str(a)])
+    load_plugins([str(b), str(a)])
+    assert json.loads(os.environ[plugin_env]) == [str(a.resolve()), str(b.resolve())]
+    assert listed() == [str(a.resolve()), str(b.resolve())]
+
+
+@pytest.mark.parametrize(
+    ("value", "names"),
+    [('["a", "", "b"]', ["a", "b"]), ("a" + ":" * 2 + "b:", ["a", "b"]), ("", [])],
+)
+def test_the_environments_empty_names_are_no_plugins(monkeypatch, value, names):
+    import os
+
+    from pkmctl.plugins import ENV, listed
+
+    monkeypatch.setenv(ENV, value.replace(":", os.pathsep))
+    assert listed() == names
