@@ -189,3 +189,11 @@ def test_runs_not_ok_are_counted_by_how_they_ended(failed, diverged, text):
         _not_ok({"baseline_failed": failed, "baseline_diverged": diverged}, "baseline", "pd")
         == text
     )
+
+
+def test_a_campaign_figure_is_logarithmic_from_means_20_times_apart():
+    from pkmctl.report.campaign import _log_y
+
+    low = {"mean": 1.0, "lo": 0.5}
+    assert _log_y([low, {"mean": 20.0, "lo": 19.0}])
+    assert not _log_y([low, {"mean": 19.99, "lo": 19.0}])
