@@ -188,3 +188,64 @@ def test_the_environments_empty_names_are_no_plugins(monkeypatch, value, names):
 
     monkeypatch.setenv(ENV, value.replace(":", os.pathsep))
     assert listed() == names
+
+
+# ---------------------------------------------------------------- atomic writes
+def test_an_output_file_name_of_the_longest_length_is_allowed_and_written(tmp_path):
+    """The longest name is the file system's less the temporary name's extra bytes: that
+    name is checked, and written; one byte more is refused in one line, before any work."""
+    from pkmctl.errors import OutputError
+    from pkmctl.io.atomic import TEMP_EXTRA, _name_max, atomic_write, check_output_file
+
+    longest = _name_max(tmp_path) - TEMP_EXTRA
+    path = tmp_path / ("x" * longest)
+    assert check_output_file(path) == path
+    with atomic_write(path) as fh:
+        fh.write("ok")
+    assert path.read_text() == "ok"
+    with pytest.raises(OutputError) as err:
+        check_output_file(tmp_path / ("y" * (longest + 1)))
+    assert str(err.value).endswith(
+        f"...: the name is too long (at most {longest} bytes: the file is written under a "
+        f"temporary name {TEMP_EXTRA} bytes longer first)"
+    )
+
+
+@pytest.mark.parametrize("mode", ["a", "r+", "x", "w+"])
+def test_atomic_write_refuses_a_mode_that_is_not_a_new_file(tmp_path, mode):
+    """ "a" appended to the empty temporary file, then replaced the file: its text lost."""
+    from pkmctl.io.atomic import atomic_write
+
+    (tmp_path / "f").write_text("kept")
+    with pytest.raises(ValueError) as err, atomic_write(tmp_path / "f", mode):
+        pass
+    assert str(err.value) == f"mode = {mode!r}: must be 'w' or 'wb'"
+    assert [p.name for p in tmp_path.iterdir()] == ["f"] and (tmp_path / "f").read_text() == "kept"
+
+
+@pytest.mark.parametrize("blank", ["", "   ", "\t"])
+def test_a_blank_output_folder_is_an_empty_path(blank):
+    from pkmctl.errors import OutputError
+    from pkmctl.io.atomic import check_output_folder
+
+    with pytest.raises(OutputError) as err:
+        check_output_folder(blank)
+    assert (
+        str(err.value) == f"output folder = {blank!r}: empty path (name a folder, e.g. pkmctl-out)"
+    )
+
+
+def test_an_output_file_that_cannot_be_written_is_refused(tmp_path, monkeypatch):
+    """(as root every file is writable: os.access is made to say no for this one)"""
+    import os
+
+    from pkmctl.errors import OutputError
+    from pkmctl.io.atomic import check_output_file
+
+    path = tmp_path / "out.json"
+    path.write_text("{}")
+    access = os.access
+    monkeypatch.setattr(os, "access", lambda p, m: False if p == path else access(p, m))
+    with pytest.raises(OutputError) as err:
+        check_output_file(path)
+    assert str(err.value) == f"output file {str(path)!r}: not writable"
