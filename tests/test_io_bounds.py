@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -249,3 +250,26 @@ def test_an_output_file_that_cannot_be_written_is_refused(tmp_path, monkeypatch)
     with pytest.raises(OutputError) as err:
         check_output_file(path)
     assert str(err.value) == f"output file {str(path)!r}: not writable"
+
+
+# ---------------------------------------------------------------- a scenario's .fis file
+@pytest.mark.parametrize("then", ["edited", "removed"])
+def test_a_result_reads_back_with_the_fis_text_its_run_used(tmp_path, monkeypatch, then):
+    """The JSON carries the .fis file's text: edited or removed since the run, the result
+    reads back with a copy of the text the run used (in the cache), not the file now."""
+    from pkmctl import fuzzy
+    from pkmctl.fuzzy import fis
+
+    path = tmp_path / "mine.fis"
+    text = fis.to_fis_text(fuzzy.FLC())
+    path.write_text(text, encoding="utf-8")
+    sc = pkmctl.Scenario.builtin("paper").replace(**{"fuzzy.fis": str(path)})
+    _, meta = save_result(pkmctl.simulate(sc, "pd", duration=0.01), tmp_path / "out")
+    if then == "edited":
+        path.write_text(text.replace("Name='", "Name='edited-", 1), encoding="utf-8")
+    else:
+        path.unlink()
+    monkeypatch.setenv("PKMCTL_CACHE_DIR", str(tmp_path / "cache"))  # (after the run)
+    used = Path(load_result(meta).scenario.fuzzy.fis)
+    assert used != path and used.parent == tmp_path / "cache" / "fis"
+    assert used.name.endswith("-mine.fis") and used.read_text(encoding="utf-8") == text
