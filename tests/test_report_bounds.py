@@ -138,6 +138,12 @@ def test_reproduce_refuses_a_folder_where_it_writes_a_file_before_any_run(tmp_pa
         (0.95, math.nan, math.nan, "0.950×"),  # no interval (one pair)
         # an interval below 1 in the fifth digit: as many decimals as show it
         (0.99995, 0.9999, 0.99996, "0.99995× [0.99990, 0.99996]"),
+        # outside (0.9, 1.1) too: an interval off 1 read "[1, 1.4]", as one holding 1 does
+        # (a mutation tester); two significant digits otherwise
+        (1.2, 1.0004, 1.4, "1.2× [1.0004, 1.4]"),
+        (1.15, 0.996, 1.3, "1.1× [1, 1.3]"),
+        (0.8, 0.6, 0.9996, "0.8× [0.6, 0.9996]"),
+        (1.4, 1.38, 1.42, "1.4× [1.4, 1.4]"),
     ],
 )
 def test_a_campaign_ratio_is_printed_in_the_digits_its_range_gets(ratio, lo, hi, text):

@@ -115,12 +115,15 @@ def _ratio(r: dict) -> str:
     if not math.isfinite(r["ratio_lo"]):
         return fmt.format(v) + "×"
     lo, hi = r["ratio_lo"], r["ratio_hi"]
-    if fmt == "{:.3f}" and (lo > 1 or hi < 1):  # an interval off 1 must not read [1.000, ...]
-        for d in range(3, 10):
-            fmt = f"{{:.{d}f}}"
-            if (float(fmt.format(lo)) > 1) if lo > 1 else (float(fmt.format(hi)) < 1):
-                break
-    return f"{fmt.format(v)}× [{fmt.format(lo)}, {fmt.format(hi)}]"
+    # An interval off 1 must not read [1.000, ...], nor [1, 1.4] (as one that holds 1 does,
+    # outside (0.9, 1.1) too: a mutation tester): as many digits as show it.
+    near = fmt == "{:.3f}"
+    for d in range(3 if near else 2, 11):
+        fmt = f"{{:.{d}f}}" if near else f"{{:.{d}g}}"
+        a, b = fmt.format(lo), fmt.format(hi)
+        if float(a) > 1 if lo > 1 else float(b) < 1 if hi < 1 else True:
+            break
+    return f"{fmt.format(v)}× [{a}, {b}]"
 
 
 _MARK = {"controller": "better", "baseline": "worse", "unclear": "cannot tell"}
