@@ -278,7 +278,7 @@ class Controller:
             self._steps = int(snapshot.steps)
 
     def _edited(self, snapshot: ControllerState, raw: np.ndarray) -> tuple[np.ndarray, dict]:
-        """The state a snapshot stands for, and the named fields it took from them. The
+        """The state a snapshot stands for, and which named fields it took (their parts). The
         named fields are copies of raw's parts: restore put back raw alone, so an edited
         Theta^ (or a NaN in it) was dropped without a word (a tester). Whichever of a
         field and its part of raw was edited since :attr:`state` took them is used (the
@@ -293,7 +293,9 @@ class Controller:
             if value is None:
                 continue
             if part is None:
-                raise ValueError(f"snapshot.{name}: a {self.name} controller has none (None)")
+                raise ValueError(
+                    f"snapshot.{name}: a {self.name} controller has none: leave it None"
+                )
             try:
                 value = np.asarray(value, dtype=float)
                 got = f"shape {value.shape}"
