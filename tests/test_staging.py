@@ -76,3 +76,72 @@ def test_a_tilde_is_the_home_folder(tmp_path, monkeypatch):
     monkeypatch.setenv("PKMCTL_CACHE_DIR", "~/cache")
     assert _jit._cache_root() == tmp_path / "home" / "cache"
     assert not (tmp_path / "~").exists()
+
+
+def test_a_ctrl_c_during_the_writability_probe_leaves_no_probe_folder(tmp_path, monkeypatch):
+    """check_output_folder makes a folder and removes it at once to see that it can; a
+    Ctrl-C between the two (a full run's interrupted reproduce, once) left an empty
+    ``.pkmctl-probe-*`` in the user's output folder. The Ctrl-C still comes, after."""
+    import tempfile
+
+    from pkmctl.io.atomic import check_output_folder
+
+    dest = tmp_path / "out"
+    dest.mkdir()
+    mkdtemp = tempfile.mkdtemp
+
+    def mkdtemp_then_ctrl_c(*args, **kwargs):
+        made = mkdtemp(*args, **kwargs)
+        os.kill(os.getpid(), signal.SIGINT)
+        return made
+
+    monkeypatch.setattr(tempfile, "mkdtemp", mkdtemp_then_ctrl_c)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            check_output_folder(dest)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["out"]
+
+
+def test_settle_waits_for_a_worker_threads_probe_and_lets_none_start(tmp_path, monkeypatch):
+    """The CLI's Ctrl-C exits at once (os._exit) while a worker thread may be between
+    making its probe folder and removing it: ``settle``, called before that exit, waits
+    for the probe to be gone and lets no new one be made."""
+    import tempfile
+    import threading
+
+    from pkmctl.io import atomic
+
+    mkdtemp = tempfile.mkdtemp
+    made, go_on = threading.Event(), threading.Event()
+
+    def slow_mkdtemp(*args, **kwargs):
+        folder = mkdtemp(*args, **kwargs)
+        made.set()
+        go_on.wait(10)
+        return folder
+
+    monkeypatch.setattr(tempfile, "mkdtemp", slow_mkdtemp)
+    worker = threading.Thread(target=atomic.check_output_folder, args=(tmp_path,))
+    worker.start()
+    assert made.wait(10)
+    assert [p.name for p in tmp_path.iterdir()][0].endswith(".tmp")  # the probe is there
+    settled = threading.Thread(target=atomic.settle)
+    settled.start()
+    settled.join(0.3)
+    assert settled.is_alive()  # waiting for the probe
+    go_on.set()
+    settled.join(10)
+    worker.join(10)
+    try:
+        assert not settled.is_alive() and list(tmp_path.iterdir()) == []
+        late = threading.Thread(target=atomic.check_output_folder, args=(tmp_path,), daemon=True)
+        late.start()
+        late.join(0.3)
+        assert late.is_alive() and list(tmp_path.iterdir()) == []  # no probe after settle
+    finally:
+        atomic._PROBE_LOCK.release()
+    late.join(10)
+    assert not late.is_alive()

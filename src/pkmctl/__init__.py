@@ -84,4 +84,4 @@ __all__ = [
     "simulate",
     "simulate_many",
 ]
-__version__ = "0.2.3"
+__version__ = "0.2.4"

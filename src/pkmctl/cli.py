@@ -225,10 +225,13 @@ def _to_stdout(text: str, what: str) -> None:
 
 def _hard_exit(code: int) -> NoReturn:
     """Exit now, abandoning worker threads (a compiling thread cannot be stopped), once
-    no compiled code is being written to the cache (no half-written file left there)."""
+    no compiled code is being written to the cache (no half-written file left there) and
+    no folder probed for writing is there (io/atomic.py)."""
     from pkmctl import _jit
+    from pkmctl.io import atomic
 
     _jit.settle()
+    atomic.settle()
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()

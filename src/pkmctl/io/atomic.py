@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import re
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
@@ -267,7 +268,7 @@ def check_output_folder(
     if not os.access(probe, os.W_OK | os.X_OK):
         raise OutputError(f"{what} {shown}: {str(probe)!r} is not writable{_read_only(probe)}")
     try:  # and try it: access() says yes to root, also where nothing can be made (/proc)
-        os.rmdir(tempfile.mkdtemp(prefix=".pkmctl-probe-", dir=probe))
+        _probe(probe)
     except OSError as exc:
         why = exc.strerror or type(exc).__name__
         raise OutputError(  # (/proc says "No such file or directory": say what was tried)
@@ -275,6 +276,28 @@ def check_output_folder(
             f"{why})"
         ) from None
     return path
+
+
+#: Held while a probe folder exists (:func:`_probe`); :func:`settle` takes it for good.
+_PROBE_LOCK = threading.Lock()
+
+
+def _probe(folder: Path) -> None:
+    """Make a folder in ``folder`` and remove it (raises OSError if either fails).
+
+    A Ctrl-C between the two left an empty probe folder in the user's output folder (once
+    in a full run): in the main thread it is held until both are done; a worker thread's
+    probe is waited for by :func:`settle`, which the CLI calls before its hard exit. The
+    name is a staging folder's (:func:`_own_prefix`), so that a later run removes one a
+    killed process left (:func:`_sweep`)."""
+    with _sigint_deferred(), _PROBE_LOCK:
+        os.rmdir(tempfile.mkdtemp(prefix=f"{_own_prefix()}probe-", suffix=".tmp", dir=folder))
+
+
+def settle(timeout: float = 2.0) -> None:
+    """Wait (up to ``timeout`` s) until no probe folder of this process exists, and let
+    none be made after: for a process about to exit, abandoning its threads."""
+    _PROBE_LOCK.acquire(timeout=timeout)
 
 
 def _read_only(folder: Path) -> str:
@@ -527,7 +550,6 @@ def _sigint_deferred() -> Iterator[None]:
     """Hold a Ctrl-C (or a SIGTERM, a SIGHUP) that arrives inside the block until its end
     (main thread only), then give it to the handler that was there."""
     import signal
-    import threading
 
     if threading.current_thread() is not threading.main_thread():
         yield
