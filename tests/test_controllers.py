@@ -490,6 +490,33 @@ def test_a_snapshot_restored_carries_on_bit_for_bit_and_reset_can_keep_theta(rob
     pd.restore(pd.state)
 
 
+def test_snapshots_compare_by_their_numbers():
+    """``a == b`` on two snapshots raised NumPy's "truth value of an array is ambiguous"
+    (the dataclass compared the arrays as a tuple): equal steps and numbers are equal, a
+    NaN equals a NaN in the same place, what was taken is not compared; a snapshot is
+    not hashable (its arrays can change)."""
+    c = pkmctl.Controller.from_scenario("paper", "afsmc")
+    a, b = c.state, c.state
+    assert a == b and not (a != b) and a is not b
+    assert a != "a state" and (a == 3) is False
+    assert dataclasses.replace(a, steps=1) != a
+    for name in ("s_prev", "sdot", "theta_hat", "raw"):
+        edited = getattr(a, name).copy()
+        edited[2] += 1e-15
+        assert dataclasses.replace(a, **{name: edited}) != a, name
+        assert dataclasses.replace(a, **{name: None}) != a, name
+        edited[2] = np.nan
+        assert dataclasses.replace(a, **{name: edited}) == dataclasses.replace(
+            a, **{name: edited.copy()}
+        ), name
+    assert dataclasses.replace(a, taken=None) == a
+    assert dataclasses.replace(a, raw=a.raw[:-1]) != a  # another shape
+    pd = pkmctl.Controller.from_scenario("paper", "pd").state
+    assert pd == pkmctl.control.base.ControllerState(None, None, None, 0, pd.raw.copy())
+    with pytest.raises(TypeError, match="unhashable"):
+        hash(a)
+
+
 def test_prepare_compiles_before_the_first_step_and_touches_nothing():
     """The first step compiled (7.5 s on an empty cache for AFSMC, ~10 ms warm), unsaid,
     inside what would be a real-time loop (a tester)."""

@@ -60,7 +60,7 @@ __all__ = [
 ]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ControllerState:
     """A snapshot of a controller's state.
 
@@ -77,6 +77,26 @@ class ControllerState:
     raw: np.ndarray
     #: raw as taken (a copy): which of raw and a named field was edited, for restore
     taken: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    def __eq__(self, other: object) -> bool:
+        """The same steps and numbers; NaN equals NaN (a diverged state's snapshot equals
+        itself), and ``taken`` is not compared. (A dataclass's ``==`` compared the arrays
+        as tuples and raised NumPy's "truth value of an array is ambiguous".)"""
+        if not isinstance(other, ControllerState):
+            return NotImplemented
+        if self.steps != other.steps:
+            return False
+        for a, b in zip(self._numbers(), other._numbers(), strict=True):
+            if (a is None) != (b is None):
+                return False
+            if a is not None and not np.array_equal(a, b, equal_nan=True):
+                return False
+        return True
+
+    __hash__ = None  # type: ignore[assignment]  # (its arrays can change: no dict key)
+
+    def _numbers(self) -> tuple[np.ndarray | None, ...]:
+        return self.s_prev, self.sdot, self.theta_hat, self.raw
 
 
 def _entry(p, state, work, y, ref, X, Xdot, X_d, Xdot_d, Xddot_d, F, saved):
