@@ -116,6 +116,30 @@ def test_an_m_platform_at_the_mass_ratios_bounds_is_accepted():
     )
 
 
+def test_mass_ratio_none_turns_the_check_off():
+    """``identify(..., mass_ratio=None)``, documented as no mass-ratio check, raised
+    "cannot unpack non-iterable NoneType object" after the whole fit (a tester's
+    mutation round found it)."""
+    base = _base(["m_platform"])
+    ident._check_fit("log 'x.csv'", base, _fit([0.01], [0.001]), None, _prior(), 0.05, None)
+
+
+@pytest.mark.parametrize(
+    "bad", [(2.0, 1.0), (float("nan"), 3.0), (1.0, float("nan")), (-1.0, 2.0), 0.5, (1, 2, 3)]
+)
+def test_a_bad_mass_ratio_is_refused_before_any_work(bad):
+    """A pair out of order or with a NaN passed every mass, or failed after the fit with
+    a TypeError; it is refused first, in one line naming it."""
+    log = Log(np.zeros(3), np.zeros((3, 4)), np.zeros((3, 4)), "run.csv")
+    with pytest.raises(IdentificationError) as exc:
+        ident.identify(log, scenario=None, scenario_label="x", mass_ratio=bad)
+    assert str(exc.value) == (
+        f"mass_ratio = {bad!r}: must be None (no check) or (low, high) with 0 <= low <= "
+        "high, the identified m_platform's bounds as a multiple of the prior's (default "
+        "(0.1, 10))"
+    )
+
+
 def test_the_base_parameters_table_numbers_from_1_and_writes_no_unit_coefficient():
     names, exprs = ("m_platform", "Ixx_upper1"), ("m_platform", "Ixx_upper1 + Ixx_lower1")
     b = BaseParameters(np.array([0, 1]), np.eye(2, 48), names, exprs, ("kg", "kg m^2"), 0.0)

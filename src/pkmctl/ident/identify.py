@@ -1212,6 +1212,7 @@ def identify(
             f"max_residual = {max_residual!r}: must be in (0, 1], a fraction (the command's "
             "--max-residual is in %), or None for no gate"
         )
+    _check_mass_ratio_bounds(mass_ratio)
     _check_rate(log, cutoff, None)  # a bad log is refused before any work
     mech = scenario.plant()  # the geometry only: W does not depend on Theta
     vs = scenario.plant_spec.friction_velocity if friction_velocity is None else friction_velocity
@@ -1368,6 +1369,25 @@ def check_excitation(where: str, base: BaseParameters, A: np.ndarray) -> float:
     return cond
 
 
+def _check_mass_ratio_bounds(mass_ratio: object) -> None:
+    """``mass_ratio`` is None or (low, high) with 0 <= low <= high (high may be inf):
+    refused before the fit, not after it (a bad pair raised a TypeError, or passed
+    every mass)."""
+    ok = mass_ratio is None
+    if not ok:
+        try:
+            lo, hi = (float(v) for v in mass_ratio)  # type: ignore[attr-defined]
+            ok = 0.0 <= lo <= hi  # (NaN fails)
+        except (TypeError, ValueError):
+            pass
+    if not ok:
+        raise IdentificationError(
+            f"mass_ratio = {mass_ratio!r}: must be None (no check) or (low, high) with "
+            "0 <= low <= high, the identified m_platform's bounds as a multiple of the "
+            "prior's (default (0.1, 10))"
+        )
+
+
 def _check_fit(
     where: str,
     base: BaseParameters,
@@ -1407,8 +1427,10 @@ def _check_fit(
         ratio = wls.beta[k_m] / m0
 
     def check_mass_ratio() -> None:
+        if ratio is None:  # (mass_ratio None: the check is off; unpacked first, it raised)
+            return
         lo, hi = mass_ratio
-        if ratio is None or lo <= ratio <= hi:
+        if lo <= ratio <= hi:
             return
         why = (
             causes
