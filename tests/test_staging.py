@@ -145,3 +145,23 @@ def test_settle_waits_for_a_worker_threads_probe_and_lets_none_start(tmp_path, m
         atomic._PROBE_LOCK.release()
     late.join(10)
     assert not late.is_alive()
+
+
+def test_an_interrupted_runs_thread_cannot_stage_in_its_removed_folder(tmp_path):
+    """``reproduce`` stages its files inside the command's staging folder. A Ctrl-C
+    removes that folder (``discard``) and exits while the run's thread goes on: that
+    thread's own staging then found its folder gone and made its staging folder in the
+    user's output folder instead, where it stayed (a tester's random SIGHUP)."""
+    from pkmctl.errors import OutputError
+    from pkmctl.io.atomic import discard
+
+    dest = tmp_path / "out"
+    dest.mkdir()
+    (dest / "old.txt").write_text("old")
+    with pytest.raises(KeyboardInterrupt), staged_folder(dest) as stage:
+        discard(stage)  # the command's Ctrl-C, in the main thread
+        with pytest.raises(OutputError, match="its run was stopped"):  # the run's thread
+            with staged_folder(stage) as inner:
+                (inner / "table4.csv").write_text("new")
+        raise KeyboardInterrupt
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["old.txt", "out"]

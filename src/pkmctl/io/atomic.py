@@ -17,6 +17,7 @@ location (empty, a file, unwritable, a name too long) before any work starts.
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import tempfile
@@ -59,9 +60,18 @@ def make_folder(folder: Path) -> None:
     thread cannot be stopped), made it again after its removal, and left it behind in 4
     of 10 interrupted ``reproduce`` runs."""
     folder = Path(folder)
-    if _DISCARDED and any(p in _DISCARDED for p in (folder, *folder.parents)):
+    if _discarded(folder):
         raise FileNotFoundError(f"{folder}: its run was interrupted, its folder removed")
     folder.mkdir(parents=True, exist_ok=True)
+
+
+def _discarded(folder: Path) -> bool:
+    return bool(_DISCARDED) and any(p in _DISCARDED for p in (folder, *folder.parents))
+
+
+#: Held while a staging folder is made (:func:`staged_folder`) and while :func:`discard`
+#: marks one removed: a folder is made inside a staging folder before its removal, or not.
+_STAGING = threading.RLock()
 
 
 @contextmanager
@@ -357,8 +367,10 @@ def staged_folder(dest: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         # a Ctrl-C between making the folder and the cleanup's knowing of it left the
         # folder behind (one interrupted test in a full run): held until both are done
-        with _sigint_deferred():
+        with _sigint_deferred(), _STAGING:
             try:
+                if _discarded(dest):  # (inside: the run's thread goes on, see discard)
+                    raise FileNotFoundError(errno.ENOENT, "its run was stopped, its folder removed")
                 parent.mkdir(parents=True, exist_ok=True)
                 _sweep(parent)
                 stage = Path(tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=parent))
@@ -444,7 +456,8 @@ def discard(stage: Path) -> None:
     # a run's thread or process may still write into it (interrupted: it cannot be
     # stopped): a file made while rmtree walked left the folder behind, about 1 in 6
     # interrupted reproduce runs; so again until it stays gone for a moment
-    _DISCARDED.add(Path(stage))
+    with _STAGING:  # after this, no staging folder is made inside it (staged_folder)
+        _DISCARDED.add(Path(stage))
     for _ in range(_DISCARD_TRIES):
         shutil.rmtree(stage, ignore_errors=True)
         time.sleep(0.02)
