@@ -1,7 +1,8 @@
 """The ``pkmctl`` command's start-up: Ctrl-C while pkmctl's imports run (about a
 second) printed a Python traceback of 20-40 lines. For that command only (not for a
-library user's process), an interrupt then exits at once with status 130 and one line;
-the command's first step (its options parsed) puts Python's own handler back.
+library user's process), an interrupt then exits at once with status 130 and one line,
+as do SIGTERM (143) and SIGHUP (129), which killed it without a word; the command's
+first step (its options parsed) puts its own handlers in place (cli.py).
 
 The command's spawned workers (campaigns, ``reproduce``'s compile workers, a Dask
 cluster's) import this too, as they prepare. Ctrl-C reaches every process of the
@@ -20,8 +21,9 @@ import threading
 
 
 def _quiet_interrupt(signum, frame) -> None:  # (nothing to clean up before the command runs)
-    sys.stderr.write("interrupted while starting: nothing done\n")
-    os._exit(130)
+    word = {signal.SIGTERM: "terminated (SIGTERM)", signal.SIGHUP: "hung up (SIGHUP)"}
+    sys.stderr.write(f"{word.get(signum, 'interrupted')} while starting: nothing done\n")
+    os._exit(128 + signum)
 
 
 class WorkerInterrupted(SystemExit):
@@ -47,18 +49,16 @@ def _the_command() -> bool:
     return first == "-m" and any(a == "-m" and b == "pkmctl" for a, b in pairs)
 
 
-if (
-    _the_command()
-    and threading.current_thread() is threading.main_thread()
-    # an ignored Ctrl-C stays ignored: a script's background job (POSIX starts it so) died
-    # of a SIGINT that a plain Python process survives (a code reader)
-    and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN
-):
+if _the_command() and threading.current_thread() is threading.main_thread():
     # A spawned worker imports this as it prepares, with the parent's argv:
     # parent_process() is still None then, but the process has its worker's name (the
     # compile workers of `reproduce` each printed the command's line after the parent's).
     _me = multiprocessing.current_process()
-    if _me.name == "MainProcess" and not getattr(_me, "_inheriting", False):
-        signal.signal(signal.SIGINT, _quiet_interrupt)
-    else:
-        signal.signal(signal.SIGINT, _quiet_worker_interrupt)
+    _command = _me.name == "MainProcess" and not getattr(_me, "_inheriting", False)
+    # SIGTERM and SIGHUP as the command handles them later (cli.py), but said while it
+    # starts: they killed it without a word (a tester's random signals, 17 of 97)
+    for _sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP) if _command else (signal.SIGINT,):
+        # an ignored signal stays ignored: a script's background job (POSIX starts it so)
+        # died of a SIGINT that a plain Python process survives (a code reader); nohup
+        if signal.getsignal(_sig) is not signal.SIG_IGN:
+            signal.signal(_sig, _quiet_interrupt if _command else _quiet_worker_interrupt)
