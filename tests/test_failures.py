@@ -1127,3 +1127,72 @@ def test_a_full_disk_names_the_file_being_written(tmp_path, monkeypatch):
         fh.write("x")
     assert info.value.filename == str(target) and info.value.errno == errno.ENOSPC
     assert list(tmp_path.iterdir()) == []  # no temporary file left
+
+
+_INTERRUPTED_IMPORT = """
+import sys
+
+
+class Interrupted:  # as a Ctrl-C while a compiled module initialises: an ImportError
+    def find_spec(self, name, path=None, target=None):
+        if name == {name!r}:
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as exc:
+                raise ImportError("initialization failed") from exc
+
+
+sys.meta_path.insert(0, Interrupted())
+"""
+
+
+@pytest.mark.parametrize(
+    ("module", "command"),
+    [
+        ("pkmctl.ident.identify", ["excite", "--out", "x.toml"]),
+        ("pkmctl.plants.mujoco", ["mujoco-model", "--out", "x.toml"]),
+    ],
+    ids=["uncaught", "caught-as-ImportError"],
+)
+def test_an_interrupt_that_surfaces_as_an_import_error_is_an_interrupt(tmp_path, module, command):
+    """Ctrl-C while ``excite`` imported SciPy printed a 50-line traceback ending in
+    "ImportError: initialization failed", exit 1 (a tester's random signals): the
+    interrupt hit a compiled module's initialisation, which raised the ImportError it
+    caused. It is an interrupt: exit 130, one line saying what was kept."""
+    plugin = tmp_path / "interrupted.py"
+    plugin.write_text(_INTERRUPTED_IMPORT.format(name=module))
+    proc = subprocess.run(
+        [sys.executable, "-m", "pkmctl", "--plugin", str(plugin), *command],
+        cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(SRC)), capture_output=True,
+        text=True, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 130, proc.stderr
+    assert re.fullmatch(r"interrupted after \d+\.\d s: nothing written\n", proc.stderr), proc.stderr
+    assert not (tmp_path / "x.toml").exists()
+
+
+def test_handle_ends_an_error_an_interrupt_caused_as_the_interrupt():
+    """Errors go to one line (``_handle``), but one an interrupt caused, through any
+    chain, is raised as the interrupt; others are left alone."""
+    from types import SimpleNamespace
+
+    from pkmctl import cli
+
+    ctx = SimpleNamespace(obj={"debug": False})
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as first:
+            raise ImportError("initialization failed") from first
+    except ImportError as second:
+        try:
+            raise ValueError("a plugin's import failed") from second
+        except ValueError as exc:
+            caused = exc
+    with pytest.raises(KeyboardInterrupt):
+        cli._handle(ctx, caused)
+    assert cli._interrupted(caused) and not cli._interrupted(ValueError("x"))
+    loop = ValueError("a loop")
+    loop.__context__ = TypeError("b")
+    loop.__context__.__context__ = loop
+    assert not cli._interrupted(loop)

@@ -98,6 +98,10 @@ class _OneLineGroup(TyperGroup):
             sys.exit(exc.exit_code)
         except typer.Abort:  # Ctrl-C between a command's interruptible steps
             code = 130
+        except Exception as exc:
+            if not _interrupted(exc):
+                raise
+            code = 130
         if code == 130:  # (Typer >= 0.29 returns Exit(130) for a KeyboardInterrupt: silent)
             # os._exit, not sys.exit: an interpreter shutdown would wait for worker
             # processes still compiling (concurrent.futures joins them at exit)
@@ -197,8 +201,24 @@ def _describe(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc} (an internal error; pkmctl --debug shows the traceback)"
 
 
+def _interrupted(exc: BaseException | None) -> bool:
+    """Whether ``exc`` came of a Ctrl-C (or SIGTERM, SIGHUP): an interrupt while a compiled
+    module initialises surfaces as the ImportError it caused ("initialization failed", a
+    50-line traceback and exit 1 where a lazy import of SciPy was hit: a tester)."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def _handle(ctx: typer.Context, exc: BaseException, *, suffix: str = "") -> NoReturn:
-    """End the command with one line (or re-raise under --debug)."""
+    """End the command with one line (or re-raise under --debug); an error an interrupt
+    caused ends it as the interrupt."""
+    if _interrupted(exc):
+        raise KeyboardInterrupt from exc
     if _debug(ctx):
         raise exc
     if isinstance(exc, ModuleNotFoundError | MemoryError | OSError | ValueError | TypeError):
@@ -323,6 +343,10 @@ def _main(
         if signal.getsignal(signal.SIGHUP) is not signal.SIG_IGN:
             signal.signal(signal.SIGHUP, _terminated)
     ctx.obj = {"debug": debug}
+    # what an interrupt keeps until the command says otherwise (it said nothing: "after
+    # 0.7 s" alone, in every interrupted excite: a tester); a command that writes more
+    # than one thing sets its own as it goes
+    _KEPT["note"] = "nothing written"
     if plugin:
         from pkmctl.plugins import load_plugins
 
@@ -889,6 +913,7 @@ def bench(
                 json.dump(results, fh, indent=2)
         except Exception as exc:
             _handle(ctx, exc)
+        _KEPT["note"] = f"{json_out} is written"
         console.print(Text(f"wrote {json_out}"))
 
 
@@ -928,6 +953,8 @@ def mujoco_model(
     try:
         from pkmctl.plants.mujoco import build_mjcf, scenario_error, scenario_options
     except ImportError as exc:
+        if _interrupted(exc):
+            raise KeyboardInterrupt from exc
         _fail(str(exc))
     try:  # (a name over 255 bytes raises here: check_output_file says so below)
         folder = Path(out).is_dir() and out.strip()
@@ -962,6 +989,7 @@ def mujoco_model(
             fh.write(text)
     except OSError as exc:
         _fail(f"--out {out}: cannot write: {exc.strerror or exc}")
+    _KEPT["note"] = f"{out} is written"
     console.print(f"wrote {out}")
 
 
@@ -1305,6 +1333,7 @@ def campaign_run(
                 f"run, {n_workers} workers here): fewer --workers, or fewer periods a run "
                 f"(duration, timing.control_period); the tasks done are kept (--resume)",
             )  # fmt: skip
+    _KEPT["note"] = f"the runs are kept in {out}"
     rate = done.done_now / done.wall_s if done.wall_s > 0 else 0.0
     kept = f" ({done.done_before} done before)" if done.done_before else ""
     again = f", {done.rerun} of them again after an error" if done.rerun else ""
@@ -1437,6 +1466,7 @@ def campaign_report(
         _fail(f"{_describe(exc)}; nothing written (the report folder is as it was)")
     except Exception as exc:
         _campaign_handle(ctx, exc, "reading the records and writing the report: nothing written")
+    _KEPT["note"] = "the report was written already"
     console.print(Text(f"wrote {files[0]} and {len(files) - 1} figures"))
 
 

@@ -266,6 +266,7 @@ def excite(
             fh.write(sc.to_toml())
     except OSError as exc:
         _handle(ctx, exc, suffix=f"; {out} not written")
+    _KEPT["note"] = f"{out} is written"
     from pkmctl.ident.excite import assumed_limits
 
     if note := assumed_limits(base):
