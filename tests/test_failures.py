@@ -1196,3 +1196,49 @@ def test_handle_ends_an_error_an_interrupt_caused_as_the_interrupt():
     loop.__context__ = TypeError("b")
     loop.__context__.__context__ = loop
     assert not cli._interrupted(loop)
+
+
+def _dead(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return True
+    return state in ("Z", "X")  # (a zombie: a container's init may not reap it)
+
+
+def test_a_hard_exit_ends_workers_still_starting(tmp_path):
+    """A worker asks to die with its parent only once it has imported pkmctl (a second
+    or more); a SIGTERM to a campaign while its workers started left them running up to
+    1.7 s, holding the command's stderr open (a tester). The exit now sends them the
+    SIGTERM at once. Here a worker's import takes a minute."""
+    script = tmp_path / "starting.py"
+    script.write_text(textwrap.dedent('''
+        import time
+        if __name__ == "__mp_main__":  # the worker: its start-up is this file's import
+            time.sleep(60)
+        import multiprocessing
+        import pkmctl.cli
+        from pkmctl.sim.workers import spawn_pool
+        if __name__ == "__main__":
+            pool = spawn_pool(1)
+            pool.submit(abs, -1)
+            time.sleep(0.5)
+            print(*[c.pid for c in multiprocessing.active_children()], flush=True)
+            pkmctl.cli._hard_exit(143)
+    '''))  # fmt: skip
+    env = dict(os.environ, PYTHONPATH=str(SRC))
+    out, err = tmp_path / "out.txt", tmp_path / "err.txt"
+    with out.open("w") as o, err.open("w") as e:  # (files: a pipe would wait for the worker)
+        code = subprocess.run([sys.executable, str(script)], stdout=o, stderr=e, env=env,
+                              timeout=120).returncode  # fmt: skip
+    assert code == 143, (out.read_text(), err.read_text())
+    pids = [int(p) for p in out.read_text().split()]
+    assert len(pids) == 1, out.read_text()
+    deadline = time.monotonic() + 10
+    while not _dead(pids[0]) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    alive = not _dead(pids[0])
+    if alive:
+        os.kill(pids[0], signal.SIGKILL)
+    assert not alive, "the starting worker outlived its parent by 10 s"
+    assert "Traceback" not in err.read_text(), err.read_text()

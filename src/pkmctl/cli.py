@@ -245,13 +245,16 @@ def _to_stdout(text: str, what: str) -> None:
 
 def _hard_exit(code: int) -> NoReturn:
     """Exit now, abandoning worker threads (a compiling thread cannot be stopped), once
-    no compiled code is being written to the cache (no half-written file left there) and
-    no folder probed for writing is there (io/atomic.py)."""
+    no compiled code is being written to the cache (no half-written file left there), no
+    folder probed for writing is there (io/atomic.py) and no worker is being launched;
+    its workers are sent the SIGTERM they would get when it ends (sim/workers.py)."""
     from pkmctl import _jit
     from pkmctl.io import atomic
+    from pkmctl.sim import workers
 
     _jit.settle()
     atomic.settle()
+    workers.settle()
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()

@@ -7,9 +7,40 @@ when Ctrl-C ends the parent at once (``os._exit``, see ``pkmctl.cli``).
 
 from __future__ import annotations
 
+import contextlib
+import multiprocessing
+import multiprocessing.context
 import os
 import sys
+import threading
 from concurrent.futures import ProcessPoolExecutor
+
+#: Held while a worker is launched (its start-up data written to it): a process that
+#: ended at once (``os._exit``) in the middle left the worker a traceback on the
+#: command's stderr ("EOFError: Ran out of input", 2 of 18 SIGTERMs at that moment).
+_LAUNCHING = threading.Lock()
+
+
+class _Process(multiprocessing.context.SpawnProcess):
+    def start(self) -> None:
+        with _LAUNCHING:
+            super().start()
+
+
+class _SpawnContext(multiprocessing.context.SpawnContext):
+    Process = _Process
+
+
+def settle(timeout: float = 1.0) -> None:
+    """For a process about to end at once (``os._exit``): wait (at most ``timeout`` s)
+    until no worker is being launched, keep any other from launching, and send each
+    worker the SIGTERM it gets when this process ends (:func:`die_with_parent`) now: one
+    still importing has not asked for it yet, and held the command's stderr open up to
+    1.7 s after a SIGTERM to a campaign whose workers were starting (a tester)."""
+    _LAUNCHING.acquire(timeout=timeout)
+    for child in multiprocessing.active_children():
+        with contextlib.suppress(OSError, ValueError):
+            child.terminate()
 
 
 def die_with_parent(parent: int) -> None:
@@ -56,12 +87,10 @@ def _quiet_resource_tracker() -> None:
 def spawn_pool(workers: int, modules: tuple[str, ...] = ()) -> ProcessPoolExecutor:
     """A pool of ``workers`` fresh (``spawn``) processes that die with this one and
     import ``modules`` (by name) as they start, besides the plugins."""
-    import multiprocessing
-
     _quiet_resource_tracker()
     return ProcessPoolExecutor(
         workers,
-        mp_context=multiprocessing.get_context("spawn"),
+        mp_context=_SpawnContext(),
         initializer=_start,
         initargs=(os.getpid(), tuple(modules)),
     )
