@@ -367,13 +367,16 @@ def staged_folder(dest: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         # a Ctrl-C between making the folder and the cleanup's knowing of it left the
         # folder behind (one interrupted test in a full run): held until both are done
-        with _sigint_deferred(), _STAGING:
+        with _sigint_deferred():
             try:
-                if _discarded(dest):  # (inside: the run's thread goes on, see discard)
-                    raise FileNotFoundError(errno.ENOENT, "its run was stopped, its folder removed")
-                parent.mkdir(parents=True, exist_ok=True)
-                _sweep(parent)
-                stage = Path(tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=parent))
+                _sweep(parent)  # (not under the lock: it may remove a killed run's 286 MB)
+                with _STAGING:  # not inside a staging folder discard() removes: see there
+                    if _discarded(dest):  # (the run's thread goes on after a Ctrl-C)
+                        raise FileNotFoundError(
+                            errno.ENOENT, "its run was stopped, its folder removed"
+                        )
+                    parent.mkdir(parents=True, exist_ok=True)
+                    stage = Path(tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=parent))
                 os.chmod(stage, 0o777 & ~_umask())  # mkdtemp's 0700 would become dest's mode
             except OSError as exc:
                 from pkmctl.errors import OutputError
