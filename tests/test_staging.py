@@ -3,6 +3,8 @@ what the CLI's interrupt handler removes, and a Ctrl-C held during the renames."
 
 import os
 import signal
+import time
+from pathlib import Path
 
 import pytest
 
@@ -165,3 +167,34 @@ def test_an_interrupted_runs_thread_cannot_stage_in_its_removed_folder(tmp_path)
                 (inner / "table4.csv").write_text("new")
         raise KeyboardInterrupt
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["old.txt", "out"]
+
+
+def test_a_probe_folder_a_killed_process_left_is_swept_by_a_later_run(tmp_path, monkeypatch):
+    """The probe is named as a staging folder so that a later run removes one a killed
+    process left; named ".pkmctl-<pid>@<host>-probe-*.tmp", its host read as
+    "<host>-probe", never this one, and it stayed (a reviewer)."""
+    import subprocess
+    import tempfile
+
+    from pkmctl.io.atomic import check_output_folder
+
+    dest = tmp_path / "out"
+    dest.mkdir()
+    names, mkdtemp = [], tempfile.mkdtemp
+
+    def record(*args, **kwargs):
+        names.append(Path(mkdtemp(*args, **kwargs)))
+        return str(names[-1])
+
+    monkeypatch.setattr(tempfile, "mkdtemp", record)
+    check_output_folder(dest)
+    monkeypatch.undo()
+    (probe,) = names
+    dead = subprocess.Popen(["true"])
+    dead.wait()
+    left = dest / probe.name.replace(f"-{os.getpid()}@", f"-{dead.pid}@", 1)
+    left.mkdir()
+    os.utime(left, (time.time() - 3600,) * 2)  # an hour ago: its process is gone
+    with staged_folder(dest) as stage:
+        (stage / "a.txt").write_text("a")
+    assert sorted(p.name for p in dest.iterdir()) == ["a.txt"]

@@ -301,7 +301,9 @@ def _probe(folder: Path) -> None:
     name is a staging folder's (:func:`_own_prefix`), so that a later run removes one a
     killed process left (:func:`_sweep`)."""
     with _sigint_deferred(), _PROBE_LOCK:
-        os.rmdir(tempfile.mkdtemp(prefix=f"{_own_prefix()}probe-", suffix=".tmp", dir=folder))
+        # (no "-" after the host's name: _OWNED reads the host up to the last one, and
+        # "...@vm-probe-x.tmp" was host "vm-probe", never swept: a reviewer)
+        os.rmdir(tempfile.mkdtemp(prefix=_own_prefix(), suffix=".probe.tmp", dir=folder))
 
 
 def settle(timeout: float = 2.0) -> None:
