@@ -125,7 +125,18 @@ def test_mass_ratio_none_turns_the_check_off():
 
 
 @pytest.mark.parametrize(
-    "bad", [(2.0, 1.0), (float("nan"), 3.0), (1.0, float("nan")), (-1.0, 2.0), 0.5, (1, 2, 3)]
+    "bad",
+    [
+        (2.0, 1.0),
+        (float("nan"), 3.0),
+        (1.0, float("nan")),
+        (-1.0, 2.0),
+        0.5,
+        (1, 2, 3),
+        (0.1, "10"),
+        "19",
+        (False, True),
+    ],
 )
 def test_a_bad_mass_ratio_is_refused_before_any_work(bad):
     """A pair out of order or with a NaN passed every mass, or failed after the fit with

@@ -1373,11 +1373,15 @@ def _check_mass_ratio_bounds(mass_ratio: object) -> None:
     """``mass_ratio`` is None or (low, high) with 0 <= low <= high (high may be inf):
     refused before the fit, not after it (a bad pair raised a TypeError, or passed
     every mass)."""
+    import numbers
+
     ok = mass_ratio is None
     if not ok:
         try:
-            lo, hi = (float(v) for v in mass_ratio)  # type: ignore[attr-defined]
-            ok = 0.0 <= lo <= hi  # (NaN fails)
+            lo, hi = mass_ratio  # type: ignore[misc]
+            real = all(isinstance(v, numbers.Real) and not isinstance(v, bool) for v in (lo, hi))
+            ok = real and 0.0 <= lo <= hi  # (NaN fails; "10", which float() took, failed
+            # after the fit with NumPy's UFuncTypeError: a reviewer)
         except (TypeError, ValueError):
             pass
     if not ok:
