@@ -993,7 +993,9 @@ def test_a_spawned_worker_importing_pkmctl_as_it_prepares_keeps_pythons_ctrl_c(t
     assert res.stderr == "", res.stderr
 
 
-def _signal_reproduce(out: Path, sig: str, after: str, *, hangup, interrupt=signal.SIG_DFL):
+def _signal_reproduce(
+    out: Path, sig: str, after: str, *, hangup, interrupt=signal.SIG_DFL, term=signal.SIG_DFL
+):
     """A 0.5 s reproduce into ``out`` sent ``sig`` once it has said ``after``; started
     with SIGHUP set to ``hangup``: a test run under nohup passed SIG_IGN on, and the
     SIGHUP case skipped itself as "the run ended before the signal" (pkmctl rightly keeps
@@ -1003,7 +1005,8 @@ def _signal_reproduce(out: Path, sig: str, after: str, *, hangup, interrupt=sign
         [sys.executable, "-m", "pkmctl", "reproduce", "--duration", "0.5", "--out", str(out)],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         preexec_fn=lambda: (signal.signal(signal.SIGHUP, hangup),
-                            signal.signal(signal.SIGINT, interrupt)),
+                            signal.signal(signal.SIGINT, interrupt),
+                            signal.signal(signal.SIGTERM, term)),
     )  # fmt: skip
     lines: queue.Queue = queue.Queue()
     threading.Thread(target=_read_lines, args=(proc.stderr, lines), daemon=True).start()
@@ -1022,16 +1025,18 @@ def _signal_reproduce(out: Path, sig: str, after: str, *, hangup, interrupt=sign
     return proc, seen
 
 
-@pytest.mark.parametrize("sig", ["SIGHUP", "SIGINT"])
-def test_an_ignored_sighup_or_sigint_stays_ignored(old_results, sig):
+@pytest.mark.parametrize("sig", ["SIGHUP", "SIGINT", "SIGTERM"])
+def test_an_ignored_signal_stays_ignored(old_results, sig):
     """Under nohup (SIGHUP ignored) a hang-up does not stop the run: it ends and writes.
     So does a Ctrl-C that is ignored, as POSIX starts a script's background job: pkmctl
     put its own handler in and died of it, where a plain Python process lives on (a code
-    reader)."""
+    reader). And an ignored SIGTERM, which stayed ignored only while it started (a
+    reviewer)."""
     ignored = {sig: signal.SIG_IGN}
     proc, seen = _signal_reproduce(old_results, sig, "simulating ",
                                    hangup=ignored.get("SIGHUP", signal.SIG_DFL),
-                                   interrupt=ignored.get("SIGINT", signal.SIG_DFL))  # fmt: skip
+                                   interrupt=ignored.get("SIGINT", signal.SIG_DFL),
+                                   term=ignored.get("SIGTERM", signal.SIG_DFL))  # fmt: skip
     assert proc.returncode == 0, "".join(seen)
     assert (old_results / "report.md").read_text() != "old report, seed 0\n"
     assert not leftovers(old_results.parent)

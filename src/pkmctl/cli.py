@@ -340,11 +340,12 @@ def _main(
             signal.signal(signal.SIGINT, signal.default_int_handler)  # off (_start.py)
         # SIGTERM (kill, a job scheduler) as Ctrl-C: the same clean-up, where it left the
         # staging folder with all written so far and the figure processes behind
-        signal.signal(signal.SIGTERM, _terminated)
-        # SIGHUP (the terminal closed, ssh dropped) too, unless ignored (nohup): it left a
-        # half-written staging folder of 34 MB in OUT (a tester)
-        if signal.getsignal(signal.SIGHUP) is not signal.SIG_IGN:
-            signal.signal(signal.SIGHUP, _terminated)
+        # SIGHUP (the terminal closed, ssh dropped) too: it left a half-written staging
+        # folder of 34 MB in OUT (a tester). Each unless ignored (nohup; an ignored
+        # SIGTERM was ignored only while the command started: a reviewer)
+        for sig in (signal.SIGTERM, signal.SIGHUP):
+            if signal.getsignal(sig) is not signal.SIG_IGN:
+                signal.signal(sig, _terminated)
     ctx.obj = {"debug": debug}
     # what an interrupt keeps until the command says otherwise (it said nothing: "after
     # 0.7 s" alone, in every interrupted excite: a tester); a command that writes more
