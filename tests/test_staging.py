@@ -198,3 +198,27 @@ def test_a_probe_folder_a_killed_process_left_is_swept_by_a_later_run(tmp_path, 
     with staged_folder(dest) as stage:
         (stage / "a.txt").write_text("a")
     assert sorted(p.name for p in dest.iterdir()) == ["a.txt"]
+
+
+def test_a_stopped_campaign_folder_is_not_made_after_the_command_said_so(tmp_path):
+    """An interrupted ``campaign run`` said "nothing written" and exited; its thread,
+    which cannot be stopped, went on and made the campaign folder before the process
+    ended (a tester's SIGTERM while the model kernels compiled). Once the command has
+    stopped the folder, the store is not made; one made before is whole."""
+    from pkmctl.campaign.spec import CampaignSpec
+    from pkmctl.campaign.store import open_store
+
+    (tmp_path / "spec.toml").write_text(
+        'name = "stopped"\nscenario = "paper"\ncontrollers = ["pd"]\nseeds = 2\n'
+        'duration = 0.01\nmetrics = ["rmse"]\n'
+    )
+    spec = CampaignSpec.from_toml(tmp_path / "spec.toml")
+    made = tmp_path / "made"
+    open_store(made, spec, resume=False)
+    atomic.stop(made)  # after the store: it stays whole
+    assert (made / "campaign.json").is_file() and (made / "runs").is_dir()
+    out = tmp_path / "out"
+    atomic.stop(out)  # the command's Ctrl-C, in the main thread
+    with pytest.raises(FileNotFoundError, match="its run was stopped"):
+        open_store(out, spec, resume=False)  # the run's thread, going on
+    assert not out.exists()

@@ -1280,8 +1280,11 @@ def campaign_run(
                 pass
 
         def interrupted() -> str:
+            from pkmctl.io.atomic import stop
+
             hush()
             bar.stop()
+            stop(out)  # the campaign folder is made whole before this, or not at all
             if not (out / "campaign.json").exists():  # stopped before the folder was made
                 return "nothing written"
             if state["done"] >= spec.n_runs:  # (it said "--resume completes it"; a tester)

@@ -43,7 +43,7 @@ from pkmctl.campaign.spec import (
     CampaignSpec,
     SpecError,
 )
-from pkmctl.io.atomic import atomic_write
+from pkmctl.io.atomic import atomic_write, unless_stopped
 from pkmctl.parts import part_digest
 from pkmctl.sim import cost
 from pkmctl.sim.metrics import RMSE_KEYS
@@ -458,6 +458,11 @@ def open_store(out: Path, spec: CampaignSpec, *, resume: bool,
     if not given). Returns the folder of the task files."""
     parts = user_parts(spec) if parts is None else parts
     check_store(out, spec, resume=resume, parts=parts)
+    with unless_stopped(out):  # (the command's Ctrl-C said "nothing written": see there)
+        return _open_store(out, spec, parts)
+
+
+def _open_store(out: Path, spec: CampaignSpec, parts: dict[str, dict]) -> Path:
     manifest = out / "campaign.json"
     if not manifest.exists():
         fis = None

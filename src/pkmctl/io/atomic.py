@@ -74,6 +74,25 @@ def _discarded(folder: Path) -> bool:
 _STAGING = threading.RLock()
 
 
+def stop(folder: Path) -> None:
+    """Let no run make or start ``folder`` after this (:func:`unless_stopped`): for a
+    command that is interrupted and says what it kept, while the run's thread, which
+    cannot be stopped, goes on until the process ends."""
+    with _STAGING:
+        _DISCARDED.add(Path(folder))
+
+
+@contextmanager
+def unless_stopped(folder: Path) -> Iterator[None]:
+    """Make ``folder``'s first files inside the block, which runs whole before a
+    :func:`stop` of it or not at all (FileNotFoundError): an interrupted ``campaign run``
+    said "nothing written", and its thread then made the campaign folder (a tester)."""
+    with _STAGING:
+        if _discarded(Path(folder)):
+            raise FileNotFoundError(errno.ENOENT, "its run was stopped", str(folder))
+        yield
+
+
 @contextmanager
 def atomic_write(path: str | os.PathLike[str], mode: str = "w") -> Iterator[IO]:
     """Open a temporary file beside ``path`` (mode ``"w"`` or ``"wb"``); rename it onto
