@@ -50,7 +50,8 @@ def file_mode() -> int:
     return 0o666 & ~_umask()
 
 
-#: Staging folders removed by :func:`discard`: nothing may make them again.
+#: Folders stopped (:func:`stop`; staging folders :func:`discard` removed): nothing may
+#: make them again.
 _DISCARDED: set[Path] = set()
 
 
@@ -69,15 +70,16 @@ def _discarded(folder: Path) -> bool:
     return bool(_DISCARDED) and any(p in _DISCARDED for p in (folder, *folder.parents))
 
 
-#: Held while a staging folder is made (:func:`staged_folder`) and while :func:`discard`
-#: marks one removed: a folder is made inside a staging folder before its removal, or not.
+#: Held by :func:`stop` and :func:`unless_stopped`: what the block makes is made whole
+#: before the folder's stop, or not at all.
 _STAGING = threading.RLock()
 
 
 def stop(folder: Path) -> None:
-    """Let no run make or start ``folder`` after this (:func:`unless_stopped`): for a
-    command that is interrupted and says what it kept, while the run's thread, which
-    cannot be stopped, goes on until the process ends."""
+    """Let no run make or start ``folder`` after this (:func:`unless_stopped`), as
+    :func:`discard` does a staging folder: for a command that is interrupted and says
+    what it kept, while the run's thread, which cannot be stopped, goes on until the
+    process ends."""
     with _STAGING:
         _DISCARDED.add(Path(folder))
 
@@ -391,11 +393,9 @@ def staged_folder(dest: str | os.PathLike[str]) -> Iterator[Path]:
         with _sigint_deferred():
             try:
                 _sweep(parent)  # (not under the lock: it may remove a killed run's 286 MB)
-                with _STAGING:  # not inside a staging folder discard() removes: see there
-                    if _discarded(dest):  # (the run's thread goes on after a Ctrl-C)
-                        raise FileNotFoundError(
-                            errno.ENOENT, "its run was stopped, its folder removed"
-                        )
+                # not inside a staging folder discard() removed (the run's thread goes on
+                # after a Ctrl-C): made before the removal, or not at all
+                with unless_stopped(dest):
                     parent.mkdir(parents=True, exist_ok=True)
                     stage = Path(tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=parent))
                 os.chmod(stage, 0o777 & ~_umask())  # mkdtemp's 0700 would become dest's mode
@@ -480,8 +480,7 @@ def discard(stage: Path) -> None:
     # a run's thread or process may still write into it (interrupted: it cannot be
     # stopped): a file made while rmtree walked left the folder behind, about 1 in 6
     # interrupted reproduce runs; so again until it stays gone for a moment
-    with _STAGING:  # after this, no staging folder is made inside it (staged_folder)
-        _DISCARDED.add(Path(stage))
+    stop(stage)  # after this, no staging folder is made inside it (staged_folder)
     for _ in range(_DISCARD_TRIES):
         shutil.rmtree(stage, ignore_errors=True)
         time.sleep(0.02)
