@@ -1178,6 +1178,55 @@ def test_an_interrupt_that_surfaces_as_an_import_error_is_an_interrupt(tmp_path,
     assert not (tmp_path / "x.toml").exists()
 
 
+_SIGNAL_IN_THE_STEP = """
+import os
+import signal
+import time
+
+import pkmctl.ident.excite as excite
+
+time.sleep(1.5)  # a slow import before the command's step
+
+
+def design_excitation(*args, **kwargs):  # the step (in its worker thread): a Ctrl-C
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(5.0)
+
+
+excite.design_excitation = design_excitation
+"""
+
+
+def test_an_interrupts_time_counts_from_the_commands_start(tmp_path):
+    """The "interrupted after X s" line counted from the step it stopped: ``excite`` stopped 2.15 s
+    in said "after 0.0 s" (a tester). It counts from the command's start: here a plugin
+    takes 1.5 s to import before the step, and the step is stopped as it begins."""
+    plugin = tmp_path / "slow.py"
+    plugin.write_text(_SIGNAL_IN_THE_STEP)
+    proc = subprocess.run(
+        [sys.executable, "-m", "pkmctl", "--plugin", str(plugin), "excite", "--out", "x.toml"],
+        cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(SRC)), capture_output=True,
+        text=True, timeout=120, preexec_fn=_ctrl_c_as_a_terminals,
+    )  # fmt: skip
+    assert proc.returncode == 130, proc.stderr
+    said = re.fullmatch(r"interrupted after (\d+\.\d) s: nothing written\n", proc.stderr)
+    assert said, proc.stderr
+    assert 1.5 <= float(said[1]) < 5.0, proc.stderr
+
+
+def test_process_age_is_the_time_since_the_process_started():
+    """The clock of "after X s": /proc's start time of this process, against a child's."""
+    from pkmctl.cli import _process_age
+
+    code = "import time; time.sleep(0.8); from pkmctl.cli import _process_age as a; print(a())"
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=dict(os.environ, PYTHONPATH=str(SRC)),
+        capture_output=True, text=True, timeout=120, check=True,
+    ).stdout  # fmt: skip
+    assert 0.8 <= float(out) < 60.0
+    assert _process_age() > 0.0
+
+
 def test_handle_ends_an_error_an_interrupt_caused_as_the_interrupt():
     """Errors go to one line (``_handle``), but one an interrupt caused, through any
     chain, is raised as the interrupt; others are left alone."""
