@@ -2,6 +2,7 @@
 that hits in a new process, and compiled code that never goes stale."""
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -189,6 +190,37 @@ def test_compilations_are_announced_with_their_time():
         with pytest.raises(TypingError):
             broken(1.5)
     assert [e for e, _, _ in heard] == ["start", "failed"]
+
+
+def test_pkmctls_compilations_are_logged_for_a_library_user(caplog):
+    """A library user's first call compiled for minutes without a word (the CLI says it
+    on its own lines): every compilation of pkmctl's is logged at INFO (logger "pkmctl"),
+    the user's own Numba functions are not, and a failed one says so."""
+    import logging
+
+    def twice(x):
+        return 2.0 * x
+
+    def broken(x):
+        return undefined_name * x  # noqa: F821
+
+    def mine(x):
+        return 3.0 * x
+
+    twice.__module__ = broken.__module__ = "pkmctl.fuzzy.made_up"  # as pkmctl's kernels
+    with caplog.at_level(logging.INFO, logger="pkmctl"):
+        assert njit(cache=False)(twice)(1.5) == 3.0
+        with pytest.raises(TypingError):
+            njit(cache=False)(broken)(1.5)
+        assert njit(cache=False)(mine)(1.5) == 4.5  # the user's own (this test module's)
+    said = [(r.name, r.levelno, r.getMessage()) for r in caplog.records]
+    assert [name for name, _, _ in said] == ["pkmctl"] * 4
+    assert all(level == logging.INFO for _, level, _ in said)
+    text = [message for _, _, message in said]
+    assert text[0].startswith("compiling the fuzzy kernels (once per machine")
+    assert re.fullmatch(r"compiled the fuzzy kernels in \d+\.\d s", text[1])
+    assert text[2].startswith("compiling the fuzzy kernels")
+    assert re.fullmatch(r"compiling the fuzzy kernels failed after \d+\.\d s", text[3])
 
 
 def test_a_cache_that_cannot_be_written_is_said_once_and_not_called_cached(tmp_path, monkeypatch):

@@ -36,7 +36,10 @@ which load from it.
 
 Compilation is announced: inside :func:`announce`, a callback hears when a compilation
 starts and ends (the CLI shows "compiling the control loop (once per machine; minutes on
-a first run)…" with the elapsed time, on a terminal and as plain lines in a log).
+a first run)…" with the elapsed time, on a terminal and as plain lines in a log). For a
+library user, whose first call compiled for minutes without a word, every compilation of
+pkmctl's is also logged (the logger ``pkmctl``, level INFO: shown once the user asks
+for it, e.g. ``logging.basicConfig(level=logging.INFO)``; silent otherwise).
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import hashlib
+import logging
 import os
 import sys
 import tempfile
@@ -383,9 +387,15 @@ _GROUP_NAMES = {"fuzzy": "the fuzzy kernels", "ident": "the identification kerne
 class _Announcer(numba.core.event.Listener):
     """Hears Numba's compile events; reports the outermost compilation of each thread."""
 
-    def __init__(self, callback: Callable[[str, str, float], None]) -> None:
+    def __init__(self, callback: Callable[[str, str, float], None], *, own: bool = False) -> None:
         self._callback = callback
+        self._own = own  # only compilations whose outermost function is pkmctl's
         self._local = threading.local()
+
+    @staticmethod
+    def _ours(event) -> bool:
+        func = getattr(event.data.get("dispatcher"), "py_func", None)
+        return (getattr(func, "__module__", None) or "").split(".")[0] == "pkmctl"
 
     def _what(self, event) -> str:
         disp = event.data.get("dispatcher")
@@ -400,11 +410,18 @@ class _Announcer(numba.core.event.Listener):
         self._local.depth = depth + 1
         if depth == 0:
             self._local.t0 = time.perf_counter()
-            self._callback("start", self._what(event), 0.0)
+            self._local.heard = not self._own or self._ours(event)
+            if self._local.heard:
+                self._callback("start", self._what(event), 0.0)
 
     def on_end(self, event) -> None:
-        self._local.depth -= 1
-        if self._local.depth == 0:
+        # (getattr: a compilation that began before this listener was in place ends
+        # without a start; it must not fail in a listener that is always installed)
+        depth = getattr(self._local, "depth", 0)
+        if depth == 0:
+            return
+        self._local.depth = depth - 1
+        if depth == 1 and self._local.heard:
             # (Numba's own ``is_failed`` is inverted in 0.58-0.61: read the details)
             failed = getattr(event, "_exc_details", None) is not None
             dt = time.perf_counter() - self._local.t0
@@ -422,3 +439,19 @@ def announce(callback: Callable[[str, str, float], None]) -> Iterator[None]:
     """
     with numba.core.event.install_listener("numba:compile", _Announcer(callback)):
         yield
+
+
+_LOG = logging.getLogger("pkmctl")
+
+
+def _log_compile(event: str, what: str, seconds: float) -> None:
+    if event == "start":
+        _LOG.info("compiling %s (once per machine and pkmctl version; can take minutes)", what)
+    elif event == "end":
+        _LOG.info("compiled %s in %.1f s", what, seconds)
+    else:
+        _LOG.info("compiling %s failed after %.1f s", what, seconds)
+
+
+# every compilation of pkmctl's, in every thread, logged (not a user's own Numba code)
+numba.core.event.register("numba:compile", _Announcer(_log_compile, own=True))
