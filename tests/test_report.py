@@ -630,3 +630,56 @@ def test_a_panel_a_thinned_log_has_no_rows_for_says_so() -> None:
         first = next(i for i in range(len(fig.axes)) if i not in empty)
         legend = [t.get_text() for t in fig.axes[first].get_legend().get_texts()]
         assert legend == (["SMC", "desired"] if number == 24 else ["SMC"]), number
+
+
+def test_draw_figure_is_the_figure_reproduce_writes(results, figure_dir):
+    """Library users had figures 10-26 only as ``reproduce``'s files: ``draw_figure``
+    returns each as a matplotlib Figure, drawn as the file is (the same PNG, byte for
+    byte, one figure of each kind), by number or by name."""
+    from pkmctl.report import draw_figure, figure_names
+
+    outdir, _ = figure_dir
+    for number in (10, 17, 20, 23):  # tracking, error, box, force
+        buf = io.BytesIO()
+        draw_figure(number, results).savefig(buf, format="png", dpi=60)
+        assert buf.getvalue() == (outdir / f"fig{number}.png").read_bytes(), number
+    names = figure_names()
+    assert sorted(names.values()) == list(range(10, 27))
+    for name in ("z", "alpha error", "beta box", "tau4", "q3"):
+        assert draw_figure(name, results)._suptitle.get_text().startswith(f"Fig. {names[name]} ")
+    assert draw_figure("  Alpha   ERROR ", results)._suptitle.get_text().startswith("Fig. 18 ")
+
+
+def test_result_plot_shows_the_runs_own_series():
+    """``Result.plot`` draws one run: its z and the desired z, in mm, over its own time
+    (a short run: nothing thinned), and its forces against the desired ones."""
+    run = pkmctl.simulate("paper", controller="fsmc", duration=0.05)
+    top = run.plot("z").axes[0]
+    lines = {line.get_label(): line for line in top.get_lines()}
+    np.testing.assert_array_equal(lines["FSMC"].get_xdata(), run.t)
+    np.testing.assert_allclose(lines["FSMC"].get_ydata(), 1e3 * run.X[:, 0], rtol=1e-15)
+    np.testing.assert_allclose(lines["desired"].get_ydata(), 1e3 * run.X_desired[:, 0], rtol=1e-15)
+    force = {line.get_label(): line for line in run.plot(24).axes[0].get_lines()}
+    window = run.t <= 0.05
+    np.testing.assert_array_equal(force["FSMC"].get_ydata(), run.tau[window, 1])
+
+
+@pytest.mark.parametrize(
+    ("figure", "runs", "error", "says"),
+    [
+        ("zz", None, ValueError, "figure = 'zz': a number from 10 to 26 or one of z, alpha"),
+        (9, None, ValueError, "figure = 9: a number from 10 to 26"),
+        (27, None, ValueError, "figure = 27: a number from 10 to 26"),
+        (True, None, ValueError, "figure = True: a number from 10 to 26"),
+        (10.0, None, ValueError, "figure = 10.0: a number from 10 to 26"),
+        ("z", [], TypeError, "results = list: a Result, or a mapping"),
+        ("z", {}, ValueError, "results: no known controller"),
+        ("z", {"smc": "a run"}, TypeError, "results = dict: a Result, or a mapping"),
+    ],
+)
+def test_draw_figure_refuses_in_one_line(results, figure, runs, error, says):
+    from pkmctl.report import draw_figure
+
+    with pytest.raises(error) as info:
+        draw_figure(figure, results if runs is None else runs)
+    assert str(info.value).startswith(says) and "\n" not in str(info.value)

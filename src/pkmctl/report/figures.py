@@ -46,7 +46,16 @@ if TYPE_CHECKING:
 
     from pkmctl.sim.result import Result
 
-__all__ = ["FIGURES", "FigureJob", "FigureSpec", "figure_workers", "make_figures", "start_figures"]
+__all__ = [
+    "FIGURES",
+    "FigureJob",
+    "FigureSpec",
+    "draw_figure",
+    "figure_names",
+    "figure_workers",
+    "make_figures",
+    "start_figures",
+]
 
 _MAX_POINTS = 5000  # per plotted line
 _T_TRANSIENT = 0.2  # s: the part of the run that gets its own point budget
@@ -584,14 +593,73 @@ def _check(results: Mapping[str, Result], dpi: float) -> list[tuple[str, Result]
     return pairs
 
 
-def _draw_one(spec: FigureSpec, pairs: list[tuple[str, Result]], outdir: Path, dpi: float) -> Path:
+def _render(spec: FigureSpec, pairs: list[tuple[str, Result]]) -> Figure:
     fig = Figure(figsize=_FIGSIZE.get(spec.kind, (8.0, 6.0)))
     FigureCanvasAgg(fig)
     _DRAW[spec.kind](fig, spec, pairs)
     fig.suptitle(spec.title)
+    return fig
+
+
+def _draw_one(spec: FigureSpec, pairs: list[tuple[str, Result]], outdir: Path, dpi: float) -> Path:
+    fig = _render(spec, pairs)
     path = outdir / spec.filename
     _save_atomic(fig, path, dpi)  # a Figure without pyplot is freed with its last reference
     return path
+
+
+_SUFFIX = {"tracking": "", "force": "", "error": " error", "box": " box"}
+
+
+def figure_names() -> dict[str, int]:
+    """The names :func:`draw_figure` takes, with their figure's number: "z", "alpha",
+    "beta", "q1"-"q4" (tracking, 10-16), "z error"... (17-19), "z box"... (20-22),
+    "tau1"-"tau4" (actuator forces, 23-26)."""
+    return {spec.quantity + _SUFFIX[spec.kind]: spec.number for spec in FIGURES}
+
+
+def draw_figure(figure: int | str, results: Mapping[str, Result] | Result) -> Figure:
+    """One of figures 10-26 (DESIGN.md §4) drawn as ``pkmctl reproduce`` draws its file,
+    returned as a matplotlib Figure: no pyplot, so no global state (a Jupyter cell shows
+    it as its value; ``fig.savefig("z.png")`` writes it). Library users had the figures
+    only as ``reproduce``'s files.
+
+    Parameters
+    ----------
+    figure : int or str
+        The figure's number (10-26) or its name (:func:`figure_names`: "z", "alpha error",
+        "beta box", "tau1", ...).
+    results : Result, or a mapping of str to Result
+        One run, or several keyed by controller name to compare them (the paper's
+        controllers in their order and colours, then the others as given; the desired
+        curve comes from the first).
+
+    Raises
+    ------
+    ValueError
+        For an unknown ``figure``, no results or a run of fewer than 2 samples.
+    """
+    from pkmctl.sim.result import Result
+
+    names = figure_names()
+    if isinstance(figure, str):
+        number = names.get(" ".join(figure.lower().split()))
+    else:  # (not True, not 10.0)
+        number = figure if isinstance(figure, int) and not isinstance(figure, bool) else None
+    spec = next((s for s in FIGURES if s.number == number), None)
+    if spec is None:
+        raise ValueError(
+            f"figure = {figure!r}: a number from {FIGURES[0].number} to {FIGURES[-1].number} "
+            f"or one of {', '.join(names)}"
+        )
+    if isinstance(results, Result):
+        results = {results.controller: results}
+    if not isinstance(results, Mapping) or not all(isinstance(r, Result) for r in results.values()):
+        raise TypeError(
+            f"results = {type(results).__name__}: a Result, or a mapping of controller "
+            "names to Results"
+        )
+    return _render(spec, _check(results, 1.0))
 
 
 # The runs a forked drawing process reads: set before the processes are forked, so that

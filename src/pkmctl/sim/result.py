@@ -12,6 +12,7 @@ from pkmctl.sim.scenario import Scenario
 
 if TYPE_CHECKING:
     import pyarrow as pa
+    from matplotlib.figure import Figure
 
 __all__ = ["Result"]
 
@@ -98,6 +99,16 @@ class Result:
         from pkmctl.sim.metrics import rmse
 
         return rmse(self)
+
+    def plot(self, figure: int | str = "z") -> Figure:
+        """One of the paper's figures 10-26 for this run, as ``pkmctl reproduce`` draws
+        it, as a matplotlib Figure (no pyplot; a Jupyter cell shows it, ``.savefig(path)``
+        writes it): ``figure`` is its number or its name, "z", "alpha", "beta",
+        "q1"-"q4" (tracking), "z error", "z box", ..., "tau1"-"tau4" (forces). Several
+        runs in one figure: :func:`pkmctl.report.draw_figure`."""
+        from pkmctl.report.figures import draw_figure
+
+        return draw_figure(figure, self)
 
     def __repr__(self) -> str:
         every = f", every={self.every}" if self.every > 1 else ""
