@@ -222,38 +222,3 @@ def test_a_stopped_campaign_folder_is_not_made_after_the_command_said_so(tmp_pat
     with pytest.raises(FileNotFoundError, match="its run was stopped"):
         open_store(out, spec, resume=False)  # the run's thread, going on
     assert not out.exists()
-
-
-def test_make_folder_checks_and_makes_in_one_step_against_a_stop(tmp_path, monkeypatch):
-    """A run's thread makes its folders (``make_folder``) while an interrupted command
-    stops them (``discard``): a stop between the check and the mkdir let the folder be
-    made inside a removed one. The stop now waits for a mkdir under way; after it, the
-    folder is refused and not made."""
-    import threading
-
-    stage = tmp_path / "stage"
-    stage.mkdir()
-    entered, release = threading.Event(), threading.Event()
-    real = Path.mkdir
-
-    def slow_mkdir(self, *args, **kwargs):  # the run's thread, between check and mkdir
-        entered.set()
-        release.wait(10.0)
-        return real(self, *args, **kwargs)
-
-    monkeypatch.setattr(Path, "mkdir", slow_mkdir)
-    maker = threading.Thread(target=atomic.make_folder, args=(stage / "made",))
-    maker.start()
-    assert entered.wait(10.0)
-    stopper = threading.Thread(target=atomic.stop, args=(stage,))
-    stopper.start()
-    stopper.join(0.3)
-    assert stopper.is_alive()  # the stop waits for the mkdir under way
-    release.set()
-    maker.join(10.0)
-    stopper.join(10.0)
-    assert not stopper.is_alive() and (stage / "made").is_dir()
-    monkeypatch.undo()
-    with pytest.raises(FileNotFoundError, match="its run was stopped"):
-        atomic.make_folder(stage / "late" / "deeper")  # after the stop: refused
-    assert not (stage / "late").exists()

@@ -59,11 +59,11 @@ def make_folder(folder: Path) -> None:
     """``folder.mkdir(parents=True, exist_ok=True)``, refused (FileNotFoundError) inside a
     staging folder :func:`discard` removed: an interrupted run's thread, still writing (a
     thread cannot be stopped), made it again after its removal, and left it behind in 4
-    of 10 interrupted ``reproduce`` runs. The check and the mkdir are one step for
-    :func:`discard` (under :func:`unless_stopped`'s lock)."""
+    of 10 interrupted ``reproduce`` runs."""
     folder = Path(folder)
-    with unless_stopped(folder):
-        folder.mkdir(parents=True, exist_ok=True)
+    if _discarded(folder):
+        raise FileNotFoundError(f"{folder}: its run was interrupted, its folder removed")
+    folder.mkdir(parents=True, exist_ok=True)
 
 
 def _discarded(folder: Path) -> bool:
