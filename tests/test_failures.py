@@ -1190,7 +1190,7 @@ time.sleep(1.5)  # a slow import before the command's step
 
 def design_excitation(*args, **kwargs):  # the step (in its worker thread): a Ctrl-C
     os.kill(os.getpid(), signal.SIGINT)
-    time.sleep(5.0)
+    time.sleep(60.0)
 
 
 excite.design_excitation = design_excitation
@@ -1198,33 +1198,24 @@ excite.design_excitation = design_excitation
 
 
 def test_an_interrupts_time_counts_from_the_commands_start(tmp_path):
-    """The "interrupted after X s" line counted from the step it stopped: ``excite`` stopped 2.15 s
-    in said "after 0.0 s" (a tester). It counts from the command's start: here a plugin
-    takes 1.5 s to import before the step, and the step is stopped as it begins."""
+    """The "interrupted after X s" line counted from the step it stopped: ``excite``
+    stopped 2.15 s in said "after 0.0 s" (a tester). It counts from pkmctl's start: here
+    a plugin takes 1.5 s to import before the step, and the step is stopped as it
+    begins. Not from the process's: the 2 s the shell slept before its exec are not
+    pkmctl's (a reviewer: a start read from /proc counted them)."""
     plugin = tmp_path / "slow.py"
     plugin.write_text(_SIGNAL_IN_THE_STEP)
+    command = f"sleep 2; exec {sys.executable} -m pkmctl --plugin {plugin} excite --out x.toml"
+    t0 = time.perf_counter()
     proc = subprocess.run(
-        [sys.executable, "-m", "pkmctl", "--plugin", str(plugin), "excite", "--out", "x.toml"],
-        cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(SRC)), capture_output=True,
-        text=True, timeout=120, preexec_fn=_ctrl_c_as_a_terminals,
+        ["bash", "-c", command], cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(SRC)),
+        capture_output=True, text=True, timeout=120, preexec_fn=_ctrl_c_as_a_terminals,
     )  # fmt: skip
+    wall = time.perf_counter() - t0
     assert proc.returncode == 130, proc.stderr
     said = re.fullmatch(r"interrupted after (\d+\.\d) s: nothing written\n", proc.stderr)
     assert said, proc.stderr
-    assert 1.5 <= float(said[1]) < 5.0, proc.stderr
-
-
-def test_process_age_is_the_time_since_the_process_started():
-    """The clock of "after X s": /proc's start time of this process, against a child's."""
-    from pkmctl.cli import _process_age
-
-    code = "import time; time.sleep(0.8); from pkmctl.cli import _process_age as a; print(a())"
-    out = subprocess.run(
-        [sys.executable, "-c", code], env=dict(os.environ, PYTHONPATH=str(SRC)),
-        capture_output=True, text=True, timeout=120, check=True,
-    ).stdout  # fmt: skip
-    assert 0.8 <= float(out) < 60.0
-    assert _process_age() > 0.0
+    assert 1.5 <= float(said[1]) <= wall - 2.0 + 0.05, (proc.stderr, wall)
 
 
 def test_handle_ends_an_error_an_interrupt_caused_as_the_interrupt():

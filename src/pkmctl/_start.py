@@ -18,6 +18,11 @@ import os
 import signal
 import sys
 import threading
+import time
+
+#: When pkmctl's first import began (``time.perf_counter()``): the start of a ``pkmctl``
+#: command, whose "interrupted after X s" counts from it (cli.py)
+T0 = time.perf_counter()
 
 
 def _quiet_interrupt(signum, frame) -> None:  # (nothing to clean up before the command runs)

@@ -67,21 +67,8 @@ _SCENARIO_NAMES = ", ".join(_SCENARIOS)
 # What an interrupt between a command's steps keeps (the command sets the note), and
 # the signal that stopped it: Ctrl-C, or SIGTERM (`kill`, a job scheduler), handled alike
 # but said and ended as itself (exit 128 + the signal: 130 or 143, as a shell reports it)
-# (t0: when the command began; main() sets it to the process's start)
-_KEPT: dict = {"t0": time.perf_counter(), "note": "", "signal": 2}
-
-
-def _process_age() -> float:
-    """Seconds since this process started (Linux: /proc, to 10 ms), or 0.0 where that
-    cannot be read: the "after X s" of an interrupt counts from the command's start."""
-    try:
-        with open("/proc/self/stat", "rb") as fh:  # (the name, field 2, may hold spaces)
-            started = int(fh.read().rsplit(b")", 1)[1].split()[19])  # field 22: starttime
-        with open("/proc/uptime", "rb") as fh:
-            up = float(fh.read().split()[0])
-        return max(0.0, up - started / os.sysconf("SC_CLK_TCK"))
-    except (OSError, ValueError, IndexError):
-        return 0.0
+# (t0: when the command began: main() sets it, in-process calls at their own start)
+_KEPT: dict = {"t0": time.perf_counter(), "note": "", "signal": 2, "in_main": False, "mains": 0}
 
 
 def _terminated(signum, frame) -> None:
@@ -364,7 +351,7 @@ def _main(
     # 0.7 s" alone, in every interrupted excite: a tester); a command that writes more
     # than one thing sets its own as it goes
     _KEPT["note"] = "nothing written"
-    if not _KEPT.get("process"):  # (in-process, as tests call it: from this call)
+    if not _KEPT["in_main"]:  # (called in-process, as tests do: from this call)
         _KEPT["t0"] = time.perf_counter()
     if plugin:
         from pkmctl.plugins import load_plugins
@@ -1540,9 +1527,13 @@ def main() -> None:
     functions."""
     import gc
 
-    # an interrupt's "after X s" from the command's start, its imports included (it
-    # counted from the step it stopped: "interrupted after 0.0 s" 2.15 s into excite)
-    _KEPT.update(t0=time.perf_counter() - _process_age(), process=True)
+    # an interrupt's "after X s" from the command's start, pkmctl's imports included
+    # (it counted from the step it stopped: "interrupted after 0.0 s" 2.15 s into
+    # excite); a later main() in the same process (tests) from its own start
+    from pkmctl._start import T0
+
+    _KEPT.update(t0=time.perf_counter() if _KEPT["mains"] else T0, in_main=True)
+    _KEPT["mains"] += 1
     _quiet_matplotlib_home()
     for stream in (sys.stdout, sys.stderr):  # paths, names, a spec's text in any
         try:  # encoding: what it cannot write is escaped (\xe9), not a traceback
@@ -1561,6 +1552,7 @@ def main() -> None:
         os.dup2(devnull, sys.stdout.fileno())
         sys.exit(1)
     finally:
+        _KEPT["in_main"] = False
         gc.freeze()
         # the command has ended and said so: a Ctrl-C now, in the interpreter's shutdown,
         # was exit 130 without a word, or a traceback of the atexit functions with exit 0
