@@ -192,11 +192,14 @@ def test_compilations_are_announced_with_their_time():
     assert [e for e, _, _ in heard] == ["start", "failed"]
 
 
-def test_pkmctls_compilations_are_logged_for_a_library_user(caplog):
+def test_pkmctls_compilations_are_logged_for_a_library_user(caplog, monkeypatch):
     """A library user's first call compiled for minutes without a word (the CLI says it
-    on its own lines): every compilation of pkmctl's is logged at INFO (logger "pkmctl"),
-    the user's own Numba functions are not, and a failed one says so."""
+    on its own lines): each compilation of a pkmctl function is logged at INFO (logger
+    "pkmctl") in the CLI's words, the user's own Numba functions are not, a failed one
+    says so, and where the cache cannot be written the log says "not cached"."""
     import logging
+
+    from pkmctl import _jit
 
     def twice(x):
         return 2.0 * x
@@ -207,20 +210,76 @@ def test_pkmctls_compilations_are_logged_for_a_library_user(caplog):
     def mine(x):
         return 3.0 * x
 
-    twice.__module__ = broken.__module__ = "pkmctl.fuzzy.made_up"  # as pkmctl's kernels
+    def thrice(x):
+        return 3.0 * x
+
+    twice.__module__ = broken.__module__ = thrice.__module__ = "pkmctl.fuzzy.made_up"
     with caplog.at_level(logging.INFO, logger="pkmctl"):
         assert njit(cache=False)(twice)(1.5) == 3.0
         with pytest.raises(TypingError):
             njit(cache=False)(broken)(1.5)
         assert njit(cache=False)(mine)(1.5) == 4.5  # the user's own (this test module's)
+        monkeypatch.setattr(_jit, "cache_writable", lambda: False)
+        assert njit(cache=False)(thrice)(1.5) == 4.5
     said = [(r.name, r.levelno, r.getMessage()) for r in caplog.records]
-    assert [name for name, _, _ in said] == ["pkmctl"] * 4
+    assert [name for name, _, _ in said] == ["pkmctl"] * 6
     assert all(level == logging.INFO for _, level, _ in said)
     text = [message for _, _, message in said]
-    assert text[0].startswith("compiling the fuzzy kernels (once per machine")
-    assert re.fullmatch(r"compiled the fuzzy kernels in \d+\.\d s", text[1])
+    assert text[0] == "compiling the fuzzy kernels (once per machine; minutes on a first run)"
+    assert re.fullmatch(
+        r"compiled the fuzzy kernels in \d+\.\d s \(saved in the cache for later runs\)", text[1]
+    )
     assert text[2].startswith("compiling the fuzzy kernels")
     assert re.fullmatch(r"compiling the fuzzy kernels failed after \d+\.\d s", text[3])
+    assert text[4] == "compiling the fuzzy kernels (not cached)"
+    assert re.fullmatch(r"compiled the fuzzy kernels in \d+\.\d s \(not cached\)", text[5])
+
+
+def test_the_announcer_hears_each_threads_outermost_compilation_once():
+    """Nested compilations (a kernel compiling the kernels it calls) are one, each
+    thread's its own; an end whose start came before the listener is ignored (the
+    logging listener is always installed: it must never fail a compilation)."""
+    import threading
+    from types import SimpleNamespace
+
+    from pkmctl._jit import _Announcer
+
+    def event(name: str, module: str):
+        func = SimpleNamespace(__name__=name, __module__=module)
+        return SimpleNamespace(data={"dispatcher": SimpleNamespace(py_func=func)})
+
+    heard = []
+    ours = _Announcer(lambda e, what, s: heard.append((threading.get_ident(), e, what)), own=True)
+    loop, inner = event("_run_loop", "pkmctl.sim.loop"), event("k", "pkmctl.model.dynamics")
+    ours.on_end(loop)  # began before the listener: nothing, and no error
+    assert heard == []
+
+    both = threading.Barrier(2)  # the two threads compile at once
+
+    def compile_nested() -> None:
+        ours.on_start(loop)
+        both.wait(10.0)
+        ours.on_start(inner)
+        ours.on_end(inner)
+        ours.on_end(loop)
+
+    threads = [threading.Thread(target=compile_nested) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for t in threads:
+        assert [(e, w) for i, e, w in heard if i == t.ident] == [
+            ("start", "the control loop"),
+            ("end", "the control loop"),
+        ]
+    heard.clear()
+    users = event("mine", "my_package")
+    ours.on_start(users)  # a user's function calling pkmctl's kernels: not heard
+    ours.on_start(inner)
+    ours.on_end(inner)
+    ours.on_end(users)
+    assert heard == []
 
 
 def test_a_cache_that_cannot_be_written_is_said_once_and_not_called_cached(tmp_path, monkeypatch):

@@ -37,8 +37,9 @@ which load from it.
 Compilation is announced: inside :func:`announce`, a callback hears when a compilation
 starts and ends (the CLI shows "compiling the control loop (once per machine; minutes on
 a first run)…" with the elapsed time, on a terminal and as plain lines in a log). For a
-library user, whose first call compiled for minutes without a word, every compilation of
-pkmctl's is also logged (the logger ``pkmctl``, level INFO: shown once the user asks
+library user, whose first call compiled for minutes without a word, each compilation of
+a pkmctl function (not of a user's own, even one that calls pkmctl's kernels) is also
+logged, in the CLI's words (the logger ``pkmctl``, level INFO: shown once the user asks
 for it, e.g. ``logging.basicConfig(level=logging.INFO)``; silent otherwise).
 """
 
@@ -68,6 +69,7 @@ __all__ = [
     "cache_dir",
     "cache_root",
     "cache_writable",
+    "compile_note",
     "kernel",
     "settle",
     "source_stamp",
@@ -393,15 +395,18 @@ class _Announcer(numba.core.event.Listener):
         self._local = threading.local()
 
     @staticmethod
-    def _ours(event) -> bool:
+    def _function(event) -> tuple[str, list[str]]:
+        """The compiled function's name and its module's dotted path."""
         func = getattr(event.data.get("dispatcher"), "py_func", None)
-        return (getattr(func, "__module__", None) or "").split(".")[0] == "pkmctl"
+        return getattr(func, "__name__", "kernels"), (getattr(func, "__module__", "") or "").split(
+            "."
+        )
+
+    def _ours(self, event) -> bool:
+        return self._function(event)[1][0] == "pkmctl"
 
     def _what(self, event) -> str:
-        disp = event.data.get("dispatcher")
-        func = getattr(disp, "py_func", None)
-        name = getattr(func, "__name__", "kernels")
-        package = (getattr(func, "__module__", None) or "").split(".")
+        name, package = self._function(event)
         group = package[1] if len(package) > 2 and package[0] == "pkmctl" else ""
         return _LOOP_NAMES.get(name) or _GROUP_NAMES.get(group, "the model kernels")
 
@@ -441,17 +446,30 @@ def announce(callback: Callable[[str, str, float], None]) -> Iterator[None]:
         yield
 
 
+def compile_note(event: str, kept: bool) -> str:
+    """What the CLI and the log say in brackets after "compiling X" (``event`` "start")
+    or "compiled X in S s" ("end"): where the code goes, by :func:`cache_writable`."""
+    if not kept:
+        return "not cached"
+    if event == "start":
+        return "once per machine; minutes on a first run"
+    return "saved in the cache for later runs"
+
+
 _LOG = logging.getLogger("pkmctl")
 
 
 def _log_compile(event: str, what: str, seconds: float) -> None:
-    if event == "start":
-        _LOG.info("compiling %s (once per machine and pkmctl version; can take minutes)", what)
-    elif event == "end":
-        _LOG.info("compiled %s in %.1f s", what, seconds)
-    else:
+    if event == "failed":
         _LOG.info("compiling %s failed after %.1f s", what, seconds)
+        return
+    note = compile_note(event, cache_writable())
+    if event == "start":
+        _LOG.info("compiling %s (%s)", what, note)
+    else:
+        _LOG.info("compiled %s in %.1f s (%s)", what, seconds, note)
 
 
-# every compilation of pkmctl's, in every thread, logged (not a user's own Numba code)
+# every compilation whose outermost function is pkmctl's, in every thread, logged (not a
+# user's own Numba function, even one that calls pkmctl's kernels)
 numba.core.event.register("numba:compile", _Announcer(_log_compile, own=True))

@@ -473,8 +473,7 @@ class _Compiles:
                         f"written: {held} compiles again (set PKMCTL_CACHE_DIR to a "
                         "writable folder)"
                     )
-                when = "once per machine; minutes on a first run" if kept else "not cached"
-                self._show(f"compiling {_more(what)} ({when})…")
+                self._show(f"compiling {_more(what)} ({_jit.compile_note('start', kept)})…")
             else:
                 self.done += 1
                 before = self.pending[1] if self.pending and self.pending[0] == what else 0.0
@@ -501,7 +500,9 @@ class _Compiles:
         if self.pending is not None:
             what, seconds = self.pending
             self.pending = None
-            where = "saved in the cache for later runs" if kept else "not cached"
+            from pkmctl import _jit
+
+            where = _jit.compile_note("end", kept)
             self._show(f"compiled {_more(what)} in {seconds:.1f} s ({where})")
             _COMPILED.add(what)
 
