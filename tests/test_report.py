@@ -633,35 +633,55 @@ def test_a_panel_a_thinned_log_has_no_rows_for_says_so() -> None:
 
 
 def test_draw_figure_is_the_figure_reproduce_writes(results, figure_dir):
-    """Library users had figures 10-26 only as ``reproduce``'s files: ``draw_figure``
-    returns each as a matplotlib Figure, drawn as the file is (the same PNG, byte for
-    byte, one figure of each kind), by number or by name."""
+    """Library users had figures 10-26 only as files: ``draw_figure`` returns each as a
+    matplotlib Figure whose plain ``savefig`` writes make_figures' PNG at the same dpi,
+    byte for byte (one figure of each kind), by number or by name."""
     from pkmctl.report import draw_figure, figure_names
 
-    outdir, _ = figure_dir
+    outdir, _ = figure_dir  # (made at dpi 60)
     for number in (10, 17, 20, 23):  # tracking, error, box, force
         buf = io.BytesIO()
-        draw_figure(number, results).savefig(buf, format="png", dpi=60)
+        draw_figure(results, number, dpi=60).savefig(buf, format="png")
         assert buf.getvalue() == (outdir / f"fig{number}.png").read_bytes(), number
     names = figure_names()
     assert sorted(names.values()) == list(range(10, 27))
     for name in ("z", "alpha error", "beta box", "tau4", "q3"):
-        assert draw_figure(name, results)._suptitle.get_text().startswith(f"Fig. {names[name]} ")
-    assert draw_figure("  Alpha   ERROR ", results)._suptitle.get_text().startswith("Fig. 18 ")
+        assert draw_figure(results, name)._suptitle.get_text().startswith(f"Fig. {names[name]} ")
+    assert draw_figure(results, "  Alpha   ERROR ")._suptitle.get_text().startswith("Fig. 18 ")
+    assert draw_figure(results, np.int64(12))._suptitle.get_text().startswith("Fig. 12 ")
+    assert draw_figure(results, 10).get_dpi() == 110  # reproduce's
 
 
 def test_result_plot_shows_the_runs_own_series():
     """``Result.plot`` draws one run: its z and the desired z, in mm, over its own time
-    (a short run: nothing thinned), and its forces against the desired ones."""
-    run = pkmctl.simulate("paper", controller="fsmc", duration=0.05)
+    (a short run: nothing thinned), and in the force figure's first panel its forces up
+    to 50 ms only."""
+    run = pkmctl.simulate("paper", controller="fsmc", duration=0.1)
     top = run.plot("z").axes[0]
     lines = {line.get_label(): line for line in top.get_lines()}
     np.testing.assert_array_equal(lines["FSMC"].get_xdata(), run.t)
     np.testing.assert_allclose(lines["FSMC"].get_ydata(), 1e3 * run.X[:, 0], rtol=1e-15)
     np.testing.assert_allclose(lines["desired"].get_ydata(), 1e3 * run.X_desired[:, 0], rtol=1e-15)
     force = {line.get_label(): line for line in run.plot(24).axes[0].get_lines()}
-    window = run.t <= 0.05
+    window = run.t <= 0.05 + 1e-12
+    assert 0 < window.sum() < run.t.size
+    np.testing.assert_array_equal(force["FSMC"].get_xdata(), run.t[window])
     np.testing.assert_array_equal(force["FSMC"].get_ydata(), run.tau[window, 1])
+
+
+def test_draw_figure_gives_each_controller_of_ones_own_a_colour(results):
+    """Every name outside the paper's five was drawn in the sixth colour: two controllers
+    of a user's were one colour. Each has its own, in lines and boxes; the paper's keep
+    theirs."""
+    from pkmctl.report import draw_figure
+
+    runs = {"mine": results["smc"], "yours": results["fsmc"], "afsmc": results["afsmc"]}
+    top = draw_figure(runs, "z").axes[0]
+    color = {line.get_label(): line.get_color() for line in top.get_lines()}
+    assert color["AFSMC"] == "C2"
+    assert len({color["mine"], color["yours"], color["AFSMC"]}) == 3
+    boxes = draw_figure(runs, "z box").axes[0].patches
+    assert len({tuple(b.get_facecolor()) for b in boxes}) == 3
 
 
 @pytest.mark.parametrize(
@@ -670,8 +690,9 @@ def test_result_plot_shows_the_runs_own_series():
         ("zz", None, ValueError, "figure = 'zz': a number from 10 to 26 or one of z, alpha"),
         (9, None, ValueError, "figure = 9: a number from 10 to 26"),
         (27, None, ValueError, "figure = 27: a number from 10 to 26"),
-        (True, None, ValueError, "figure = True: a number from 10 to 26"),
-        (10.0, None, ValueError, "figure = 10.0: a number from 10 to 26"),
+        (True, None, TypeError, "figure = True: a number from 10 to 26"),
+        (10.0, None, TypeError, "figure = 10.0: a number from 10 to 26"),
+        (None, None, TypeError, "figure = None: a number from 10 to 26"),
         ("z", [], TypeError, "results = list: a Result, or a mapping"),
         ("z", {}, ValueError, "results: no known controller"),
         ("z", {"smc": "a run"}, TypeError, "results = dict: a Result, or a mapping"),
@@ -681,5 +702,12 @@ def test_draw_figure_refuses_in_one_line(results, figure, runs, error, says):
     from pkmctl.report import draw_figure
 
     with pytest.raises(error) as info:
-        draw_figure(figure, results if runs is None else runs)
+        draw_figure(results if runs is None else runs, figure)
     assert str(info.value).startswith(says) and "\n" not in str(info.value)
+
+
+def test_draw_figure_refuses_a_bad_dpi(results):
+    from pkmctl.report import draw_figure
+
+    with pytest.raises(ValueError, match=r"^dpi = 0: must be > 0$"):
+        draw_figure(results, "z", dpi=0)

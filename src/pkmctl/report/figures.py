@@ -270,8 +270,9 @@ def _plot_lines(
     width = [float(np.mean(np.abs(np.diff(yw)))) if yw.size > 1 else 0.0 for _, _, yw in thinned]
     rank = np.argsort(np.argsort(-np.nan_to_num(np.array(width), nan=np.inf)))
     styles = _shared_styles([thinned[i] for i in np.argsort(rank)], log=log)
+    colors = controller_colors([name for name, _, _ in curves])
     for (name, tw, yw), z in zip(thinned, rank, strict=True):
-        ax.plot(tw, yw, color=_color(name), linewidth=1.0, label=controller_label(name),
+        ax.plot(tw, yw, color=colors[name], linewidth=1.0, label=controller_label(name),
                 zorder=2.0 + 0.01 * z, linestyle=styles[name])  # fmt: skip
     if desired is not None:
         tw, yw = _thin(*_window(*desired, lo, hi))
@@ -486,11 +487,12 @@ def _draw_box(fig: Figure, spec: FigureSpec, pairs: list[tuple[str, Result]]) ->
         (right, RMSE_AFTER_S, f"t ≥ {RMSE_AFTER_S:g} s"),
     ):
         stats, colors = [], []
+        each = controller_colors([name for name, _, _ in curves])
         for name, t, e in curves:
             _, ew = _window(t, e, lo)
             if ew.size:
                 stats.append(_box_stats(name, ew))
-                colors.append(_color(name))
+                colors.append(each[name])
         if stats:
             art = ax.bxp(
                 stats,
@@ -578,7 +580,7 @@ def _save_atomic(fig: Figure, path: Path, dpi: float) -> None:
         fig.savefig(fh, format="png", dpi=dpi)
 
 
-def _check(results: Mapping[str, Result], dpi: float) -> list[tuple[str, Result]]:
+def _check(results: Mapping[str, Result]) -> list[tuple[str, Result]]:
     pairs = ordered(results)
     if not pairs:
         raise ValueError(
@@ -588,13 +590,16 @@ def _check(results: Mapping[str, Result], dpi: float) -> list[tuple[str, Result]
     for name, r in pairs:
         if r.t.size < 2:
             raise ValueError(f"results[{name!r}]: needs at least 2 samples, has {r.t.size}")
-    if not (dpi > 0):
-        raise ValueError(f"dpi = {dpi}: must be > 0")
     return pairs
 
 
-def _render(spec: FigureSpec, pairs: list[tuple[str, Result]]) -> Figure:
-    fig = Figure(figsize=_FIGSIZE.get(spec.kind, (8.0, 6.0)))
+def _check_dpi(dpi: float) -> None:
+    if not (dpi > 0):
+        raise ValueError(f"dpi = {dpi}: must be > 0")
+
+
+def _render(spec: FigureSpec, pairs: list[tuple[str, Result]], dpi: float = 100.0) -> Figure:
+    fig = Figure(figsize=_FIGSIZE.get(spec.kind, (8.0, 6.0)), dpi=dpi)
     FigureCanvasAgg(fig)
     _DRAW[spec.kind](fig, spec, pairs)
     fig.suptitle(spec.title)
@@ -618,48 +623,60 @@ def figure_names() -> dict[str, int]:
     return {spec.quantity + _SUFFIX[spec.kind]: spec.number for spec in FIGURES}
 
 
-def draw_figure(figure: int | str, results: Mapping[str, Result] | Result) -> Figure:
-    """One of figures 10-26 (DESIGN.md §4) drawn as ``pkmctl reproduce`` draws its file,
-    returned as a matplotlib Figure: no pyplot, so no global state (a Jupyter cell shows
-    it as its value; ``fig.savefig("z.png")`` writes it). Library users had the figures
-    only as ``reproduce``'s files.
+def draw_figure(
+    results: Mapping[str, Result] | Result, figure: int | str, *, dpi: float = 110
+) -> Figure:
+    """One of figures 10-26 (DESIGN.md §4) drawn as :func:`make_figures` (``pkmctl
+    reproduce``) draws its file, as a matplotlib Figure: no pyplot, so no global state.
+    ``fig.savefig(path)`` writes the same PNG as ``make_figures(..., dpi=dpi)``.
 
     Parameters
     ----------
-    figure : int or str
-        The figure's number (10-26) or its name (:func:`figure_names`: "z", "alpha error",
-        "beta box", "tau1", ...).
     results : Result, or a mapping of str to Result
-        One run, or several keyed by controller name to compare them (the paper's
-        controllers in their order and colours, then the others as given; the desired
-        curve comes from the first).
+        One run, or several to compare, keyed by the name each is shown under (as in
+        :func:`make_figures`; the paper's controllers first, in their order and colours,
+        then the others as given, each its own colour; the desired curve is the first's).
+    figure : int or str
+        The figure's number (10-26) or its name (:func:`figure_names`: "z", "alpha
+        error", "beta box", "tau1", ...).
+    dpi : float, keyword-only
+        The figure's resolution (``reproduce``'s, 110, by default).
 
     Raises
     ------
     ValueError
-        For an unknown ``figure``, no results or a run of fewer than 2 samples.
+        An unknown figure number or name, no results, a run of fewer than 2 samples, or
+        ``dpi`` not > 0.
+    TypeError
+        ``figure`` neither a whole number nor a string; ``results`` neither a Result nor
+        a mapping of Results.
     """
+    from numbers import Integral
+
     from pkmctl.sim.result import Result
 
     names = figure_names()
+    allowed = f"a number from {FIGURES[0].number} to {FIGURES[-1].number} or one of " + ", ".join(
+        names
+    )
     if isinstance(figure, str):
         number = names.get(" ".join(figure.lower().split()))
-    else:  # (not True, not 10.0)
-        number = figure if isinstance(figure, int) and not isinstance(figure, bool) else None
+    elif isinstance(figure, Integral) and not isinstance(figure, bool):
+        number = int(figure)
+    else:
+        raise TypeError(f"figure = {figure!r}: {allowed}")
     spec = next((s for s in FIGURES if s.number == number), None)
     if spec is None:
-        raise ValueError(
-            f"figure = {figure!r}: a number from {FIGURES[0].number} to {FIGURES[-1].number} "
-            f"or one of {', '.join(names)}"
-        )
+        raise ValueError(f"figure = {figure!r}: {allowed}")
     if isinstance(results, Result):
         results = {results.controller: results}
     if not isinstance(results, Mapping) or not all(isinstance(r, Result) for r in results.values()):
         raise TypeError(
-            f"results = {type(results).__name__}: a Result, or a mapping of controller "
-            "names to Results"
+            f"results = {type(results).__name__}: a Result, or a mapping of names to Results"
         )
-    return _render(spec, _check(results, 1.0))
+    pairs = _check(results)
+    _check_dpi(dpi)
+    return _render(spec, pairs, dpi)
 
 
 # The runs a forked drawing process reads: set before the processes are forked, so that
@@ -768,7 +785,8 @@ def start_figures(
     from concurrent.futures import ProcessPoolExecutor
 
     global _FORKED_PAIRS
-    pairs = _check(results, dpi)
+    pairs = _check(results)
+    _check_dpi(dpi)
     outdir = Path(outdir)
     make_folder(outdir)  # (not inside a staging folder an interrupt removed)
     workers = figure_workers() if workers is None else int(workers)

@@ -100,15 +100,27 @@ class Result:
 
         return rmse(self)
 
-    def plot(self, figure: int | str = "z") -> Figure:
+    def plot(self, figure: int | str = "z", *, dpi: float = 110) -> Figure:
         """One of the paper's figures 10-26 for this run, as ``pkmctl reproduce`` draws
-        it, as a matplotlib Figure (no pyplot; a Jupyter cell shows it, ``.savefig(path)``
-        writes it): ``figure`` is its number or its name, "z", "alpha", "beta",
-        "q1"-"q4" (tracking), "z error", "z box", ..., "tau1"-"tau4" (forces). Several
-        runs in one figure: :func:`pkmctl.report.draw_figure`."""
+        it (:func:`pkmctl.report.draw_figure`, which also puts several runs in one).
+
+        Parameters
+        ----------
+        figure : int or str
+            The figure's number (10-26) or its name: "z", "alpha", "beta", "q1"-"q4"
+            (tracking), "z error", ... (errors), "z box", ... (box plots), "tau1"-"tau4"
+            (forces); :func:`pkmctl.report.figure_names` lists them.
+        dpi : float, keyword-only
+            The figure's resolution (``reproduce``'s, 110, by default).
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Not through pyplot (no global state): ``fig.savefig(path)`` writes it.
+        """
         from pkmctl.report.figures import draw_figure
 
-        return draw_figure(figure, self)
+        return draw_figure(self, figure, dpi=dpi)
 
     def __repr__(self) -> str:
         every = f", every={self.every}" if self.every > 1 else ""
