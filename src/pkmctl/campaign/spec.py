@@ -214,7 +214,7 @@ def _factor_values(path: str, body: Any, runs_per_cell: int = 1) -> tuple[list, 
             f"{where}: unknown key {sorted(body)[0]!r} (give values = [...], or a "
             f"distribution = {' | '.join(DISTRIBUTIONS)} with its parameters)"
         )
-    if kind not in DISTRIBUTIONS:
+    if not isinstance(kind, str) or kind not in DISTRIBUTIONS:  # (a list: unhashable)
         raise _fail(
             f"{where}.distribution = {kind!r}: must be one of {', '.join(DISTRIBUTIONS)} "
             f"(or give values = [...])"
@@ -242,6 +242,8 @@ def _factor_values(path: str, body: Any, runs_per_cell: int = 1) -> tuple[list, 
     if kind == "uniform":
         if not p[0] < p[1]:
             raise _fail(f"{where}: low = {p[0]} must be < high = {p[1]}")
+        if not math.isfinite(p[1] - p[0]):  # (NumPy's OverflowError: an internal error)
+            raise _fail(f"{where}: low = {p[0]}, high = {p[1]}: high - low must be finite")
         draws = rng.uniform(p[0], p[1], n)
     elif kind == "loguniform":
         if not 0 < p[0] < p[1]:
